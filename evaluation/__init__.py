@@ -1,0 +1,1 @@
+"""Evaluation: image metrics against ground truth, temporal consistency, downstream SfM, reports and plots."""

@@ -1,0 +1,16 @@
+"""`spotless`: train, relight, render and evaluate. Commands stay thin: they build a config and call one library
+function."""
+
+from __future__ import annotations
+
+import click
+
+
+@click.group(context_settings={"help_option_names": ["-h", "--help"]})
+@click.version_option(package_name="spotlessgs")
+def main() -> None:
+    """SpotlessGS: relightable Gaussian Splatting for images lit by an onboard spotlight."""
+
+
+if __name__ == "__main__":
+    main()
