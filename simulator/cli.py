@@ -3,13 +3,114 @@ library function."""
 
 from __future__ import annotations
 
+import json
+import logging
+from pathlib import Path
+
 import click
+
+
+def _shard(_ctx, _param, value: str) -> tuple[int, int]:
+    try:
+        index, count = (int(v) for v in value.split("/"))
+    except ValueError:
+        raise click.BadParameter(f"expected I/N (e.g. 0/4), got {value!r}") from None
+    if not (count >= 1 and 0 <= index < count):
+        raise click.BadParameter(f"need 0 <= I < N, got {value!r}")
+    return index, count
 
 
 @click.group(context_settings={"help_option_names": ["-h", "--help"]})
 @click.version_option(package_name="spotlessgs")
-def main() -> None:
+@click.option("-v", "--verbose", is_flag=True, help="Log debug messages.")
+def main(verbose: bool) -> None:
     """SpotlessGS simulator: 3D-FRONT-format rooms -> paired uneven / evenly lit datasets."""
+    logging.basicConfig(level=logging.DEBUG if verbose else logging.INFO, format="%(levelname)s %(name)s: %(message)s")
+
+
+@main.command()
+@click.option("--scene", "scene_path", required=True, type=click.Path(exists=True, dir_okay=False, path_type=Path),
+              help="3D-FRONT house JSON file.")
+@click.option("--out", "out_dir", required=True, type=click.Path(file_okay=False, path_type=Path),
+              help="Dataset folder to write (rerun the same command to resume).")
+@click.option("--future-dir", type=click.Path(exists=True, file_okay=False, path_type=Path), default=None,
+              help="3D-FUTURE model root (<dir>/<jid>/raw_model.obj). Default: <scene dir>/models.")
+@click.option("--texture-dir", type=click.Path(exists=True, file_okay=False, path_type=Path), default=None,
+              help="Architecture texture root (<dir>/<material jid>/texture.png). Default: <scene dir>/textures.")
+@click.option("--allow-missing", is_flag=True, help="Skip missing models/textures/refs (with a warning) instead of failing.")
+@click.option("--room", default=None, help="Room instanceid to render (default: the largest room).")
+@click.option("--frames", default=120, show_default=True, type=click.IntRange(2, 100_000), help="Poses on the loop.")
+@click.option("--width", default=320, show_default=True, type=click.IntRange(8, 8192))
+@click.option("--height", default=240, show_default=True, type=click.IntRange(8, 8192))
+@click.option("--fov", "h_fov_deg", default=75.0, show_default=True, type=click.FloatRange(10, 150),
+              help="Horizontal field of view (degrees).")
+@click.option("--samples", default=32, show_default=True, type=click.IntRange(1, 100_000),
+              help="Cycles samples per pixel (see the README's speed-against-error table).")
+@click.option("--no-denoise", is_flag=True, help="Disable OpenImageDenoise.")
+@click.option("--bounces", default=4, show_default=True, type=click.IntRange(0, 32),
+              help="Light bounces (0 = direct light only).")
+@click.option("--ambient", default=0.0, show_default=True, type=click.FloatRange(0), 
+              help="World light strength in the spotlight-only render.")
+@click.option("--seed", default=0, show_default=True, type=int)
+@click.option("--preset", default="uneven", show_default=True, type=click.Choice(["uneven", "saturated"]),
+              help="Spotlight strength: uneven, or saturated (clips highlights).")
+@click.option("--shard", default="0/1", show_default=True, callback=_shard,
+              help="Render only frames k with k %% N == I (N jobs can share a scene).")
+@click.option("--threads", default=2, show_default=True, type=click.IntRange(1, 1024), help="CPU render threads.")
+@click.option("--device", default="auto", show_default=True, type=click.Choice(["auto", "cpu", "gpu"]))
+@click.option("-q", "--quiet", is_flag=True, help="No progress bar.")
+def render(scene_path, out_dir, future_dir, texture_dir, allow_missing, room, frames, width, height, h_fov_deg, samples,
+           no_denoise, bounces, ambient, seed, preset, shard, threads, device, quiet):
+    """Render the spotlight-only and the evenly lit image of every pose of a room's camera loop."""
+    from simulator.front3d import LoadOptions
+    from simulator.render_pipeline import ExecutionOptions, RenderConfig, render_dataset
+
+    config = RenderConfig.from_preset(
+        preset, frames=frames, width=width, height=height, h_fov_deg=h_fov_deg, samples=samples,
+        denoise=not no_denoise, max_bounces=bounces, ambient=ambient, seed=seed, room=room,
+    )
+    summary = render_dataset(
+        scene_path, out_dir, config,
+        LoadOptions(future_dir=future_dir, texture_dir=texture_dir, allow_missing=allow_missing),
+        ExecutionOptions(shard=shard, threads=threads, device=device, progress=not quiet),
+    )
+    state = "complete" if summary["complete"] else "incomplete (other shards still to render)"
+    click.echo(f"{out_dir}: rendered {summary['rendered']}, skipped {summary['skipped']} finished frame(s); "
+               f"dataset {state}")
+
+
+@main.command()
+@click.option("--kind", required=True, help="Room kind (see --list).")
+@click.option("--out", "out_dir", required=True, type=click.Path(file_okay=False, path_type=Path),
+              help="Folder for house.json, models/ and textures/.")
+@click.option("--seed", default=0, show_default=True, type=int)
+def generate(kind, out_dir, seed):
+    """Generate a new room in the 3D-FRONT format (with 3D-FUTURE-style furniture models and textures)."""
+    from simulator.generator import ROOM_KINDS, generate_room
+
+    if kind not in ROOM_KINDS:
+        raise click.BadParameter(f"unknown kind {kind!r}; choose one of {', '.join(ROOM_KINDS)}", param_hint="--kind")
+    path = generate_room(kind, out_dir, seed)
+    click.echo(f"wrote {path}")
+
+
+@main.command()
+@click.option("--scene", "scene_path", required=True, type=click.Path(exists=True, dir_okay=False, path_type=Path))
+@click.option("--future-dir", type=click.Path(exists=True, file_okay=False, path_type=Path), default=None)
+@click.option("--texture-dir", type=click.Path(exists=True, file_okay=False, path_type=Path), default=None)
+@click.option("--allow-missing", is_flag=True)
+def inspect(scene_path, future_dir, texture_dir, allow_missing):
+    """Validate a 3D-FRONT house file and print its rooms, objects and lights as JSON."""
+    from simulator.front3d import LoadOptions, load_house
+
+    scene = load_house(scene_path, LoadOptions(future_dir, texture_dir, allow_missing))
+    rooms = [
+        {"instanceid": r.instance_id, "type": r.type, "floor_area_m2": round(r.floor_area(), 3),
+         "height_m": round(r.ceiling_z - r.floor_z, 3), "objects": len(r.object_names),
+         "lamps": sum(1 for o in scene.objects_in(r) if o.is_light)}
+        for r in scene.rooms
+    ]
+    click.echo(json.dumps({"scene_id": scene.scene_id, "objects": len(scene.objects), "rooms": rooms}, indent=2))
 
 
 if __name__ == "__main__":

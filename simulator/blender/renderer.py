@@ -1,0 +1,201 @@
+"""Cycles set-up and the paired render of one pose: spotlight-only (uneven) and lamps-on (ground truth)."""
+
+from __future__ import annotations
+
+import logging
+import tempfile
+from dataclasses import dataclass
+from pathlib import Path
+
+import bpy
+import numpy as np
+from mathutils import Matrix
+
+from simulator.blender.scene_builder import BuiltScene
+from spotlessgs.io.exr import read_exr
+
+log = logging.getLogger(__name__)
+
+#: Blender writes "infinite" depth for rays that hit nothing as a huge number; above this it becomes inf.
+BACKGROUND_DEPTH = 1e9
+
+
+@dataclass(frozen=True)
+class CyclesSettings:
+    """Renderer settings.
+
+    Attributes:
+        width, height: image size in pixels.
+        samples: Cycles samples per pixel.
+        denoise: run OpenImageDenoise on the result.
+        max_bounces: total light bounces (0 = direct light only, no bounce light).
+        threads: CPU threads (Cycles ``threads_mode='FIXED'``).
+        device: ``auto`` (GPU when Blender finds one), ``cpu`` or ``gpu``.
+        ambient: world (environment) strength of the spotlight-only render; 0 = darkness besides the spotlight.
+    """
+
+    width: int = 320
+    height: int = 240
+    samples: int = 32
+    denoise: bool = True
+    max_bounces: int = 4
+    threads: int = 2
+    device: str = "auto"
+    ambient: float = 0.0
+
+
+def _select_device(settings: CyclesSettings) -> str:
+    if settings.device == "cpu":
+        return "CPU"
+    prefs = bpy.context.preferences.addons["cycles"].preferences
+    for kind in ("OPTIX", "CUDA", "HIP", "METAL", "ONEAPI"):
+        try:
+            prefs.compute_device_type = kind
+            prefs.get_devices()
+        except (TypeError, ValueError):
+            continue
+        gpus = [d for d in prefs.devices if d.type == kind]
+        if gpus:
+            for d in prefs.devices:
+                d.use = d.type == kind
+            log.info("Cycles renders on %s (%s)", kind, ", ".join(d.name for d in gpus))
+            return "GPU"
+    if settings.device == "gpu":
+        raise RuntimeError("--device gpu was requested but Blender found no GPU")
+    prefs.compute_device_type = "NONE"
+    return "CPU"
+
+
+def configure(settings: CyclesSettings) -> str:
+    """Set up Cycles, colour management ('Standard': PNG = sRGB of the clipped linear render) and render passes.
+
+    Returns the device used (``CPU`` or ``GPU``).
+    """
+    scene = bpy.context.scene
+    scene.render.engine = "CYCLES"
+    device = _select_device(settings)
+    scene.cycles.device = device
+    scene.cycles.samples = int(settings.samples)
+    scene.cycles.use_adaptive_sampling = False
+    scene.cycles.use_denoising = bool(settings.denoise)
+    if settings.denoise:
+        scene.cycles.denoiser = "OPENIMAGEDENOISE"
+    scene.cycles.max_bounces = int(settings.max_bounces)
+    for attr in ("diffuse_bounces", "glossy_bounces", "transmission_bounces", "volume_bounces"):
+        setattr(scene.cycles, attr, min(int(settings.max_bounces), 4))
+    scene.cycles.transparent_max_bounces = 8
+    scene.cycles.caustics_reflective = False
+    scene.cycles.caustics_refractive = False
+    scene.render.resolution_x = int(settings.width)
+    scene.render.resolution_y = int(settings.height)
+    scene.render.resolution_percentage = 100
+    scene.render.threads_mode = "FIXED"
+    scene.render.threads = int(settings.threads)
+    scene.render.film_transparent = False
+    scene.render.dither_intensity = 0.0
+    scene.view_settings.view_transform = "Standard"
+    scene.view_settings.look = "None"
+    scene.view_settings.exposure = 0.0
+    scene.view_settings.gamma = 1.0
+    scene.display_settings.display_device = "sRGB"
+    if scene.world is None:
+        scene.world = bpy.data.worlds.new("world")
+    scene.world.use_nodes = True
+    layer = scene.view_layers[0]
+    layer.use_pass_z = True
+    layer.use_pass_normal = True
+    img = scene.render.image_settings
+    img.media_type = "MULTI_LAYER_IMAGE"
+    img.file_format = "OPEN_EXR_MULTILAYER"
+    img.color_depth = "32"
+    img.exr_codec = "ZIP"
+    return device
+
+
+def _world_strength(value: float) -> None:
+    bg = bpy.context.scene.world.node_tree.nodes.get("Background")
+    if bg is not None:
+        bg.inputs["Strength"].default_value = float(value)
+        bg.inputs["Color"].default_value = (1.0, 1.0, 1.0, 1.0)
+
+
+def _set_mode(built: BuiltScene, mode: str, settings: CyclesSettings) -> None:
+    spot = mode == "uneven"
+    built.spotlight.hide_render = not spot
+    for fixture in built.fixtures:
+        fixture.hide_render = spot
+    for socket, strength in built.emission_inputs:
+        socket.default_value = 0.0 if spot else strength
+    _world_strength(settings.ambient if spot else 0.0)
+
+
+@dataclass
+class RenderedPair:
+    """Both renders of one pose, linear float32.
+
+    Attributes:
+        uneven: (H, W, 3) spotlight-only render, linear RGB.
+        gt: (H, W, 3) lamps-on render, linear RGB.
+        depth: (H, W) planar depth along the optical axis (metres), inf where nothing was hit.
+        normal: (H, W, 3) world-space normals.
+    """
+
+    uneven: np.ndarray
+    gt: np.ndarray
+    depth: np.ndarray
+    normal: np.ndarray
+
+
+def _channels(chans: dict[str, np.ndarray], suffixes: tuple[str, ...], path: Path) -> np.ndarray:
+    out = []
+    for suffix in suffixes:
+        hits = [k for k in chans if k.endswith(suffix)]
+        if not hits:
+            raise RuntimeError(f"{path}: Blender EXR has no channel *{suffix} (channels: {sorted(chans)})")
+        out.append(chans[hits[0]])
+    return np.stack(out, axis=-1) if len(out) > 1 else out[0]
+
+
+def _render_exr(workdir: Path, name: str) -> dict[str, np.ndarray]:
+    bpy.ops.render.render(write_still=False)
+    path = workdir / f"{name}.exr"
+    bpy.data.images["Render Result"].save_render(str(path), scene=bpy.context.scene)
+    chans = read_exr(path)
+    path.unlink()
+    return chans
+
+
+def render_pair(built: BuiltScene, c2w_blender: np.ndarray, settings: CyclesSettings, seed: int) -> RenderedPair:
+    """Render one camera pose in both lighting modes.
+
+    Args:
+        built: the scene built by :func:`simulator.blender.scene_builder.build_scene`.
+        c2w_blender: (4, 4) camera-to-world, OpenGL/Blender camera convention.
+        settings: renderer settings (already applied by :func:`configure`).
+        seed: Cycles noise seed for this frame.
+    """
+    scene = bpy.context.scene
+    c2w = np.asarray(c2w_blender, dtype=np.float64)
+    built.camera.matrix_world = Matrix(c2w.tolist())
+    built.spotlight.matrix_world = Matrix((c2w @ built.spot_local).tolist())
+    scene.cycles.seed = int(seed) % (2**31 - 1)
+    with tempfile.TemporaryDirectory(prefix="spotless-render-") as tmp:
+        work = Path(tmp)
+        _set_mode(built, "uneven", settings)
+        spot = _render_exr(work, "uneven")
+        _set_mode(built, "gt", settings)
+        gt = _render_exr(work, "gt")
+    combined = (".Combined.R", ".Combined.G", ".Combined.B")
+    depth = _channels(spot, (".Depth.Z",), work).astype(np.float32)
+    depth = np.where(np.isfinite(depth) & (depth < BACKGROUND_DEPTH) & (depth > 0), depth, np.inf).astype(np.float32)
+    return RenderedPair(
+        uneven=_channels(spot, combined, work).astype(np.float32),
+        gt=_channels(gt, combined, work).astype(np.float32),
+        depth=depth,
+        normal=_channels(spot, (".Normal.X", ".Normal.Y", ".Normal.Z"), work).astype(np.float32),
+    )
+
+
+def blender_version() -> str:
+    """The running Blender's version string."""
+    return bpy.app.version_string
