@@ -112,12 +112,14 @@ def merge_point_clouds(
         raise ValueError("merge_point_clouds: no point clouds given")
     if not voxel_size > 0:
         raise ValueError(f"merge_point_clouds: voxel_size must be positive, got {voxel_size}")
-    has_normals = {c.normals is not None for c in clouds}
-    if len(has_normals) > 1:
+    with_normals = [c.normals is not None for c in clouds]
+    if any(with_normals) and not all(with_normals):
         raise ValueError("merge_point_clouds: some clouds have normals and others do not")
     xyz = np.concatenate([np.asarray(c.xyz, np.float64).reshape(-1, 3) for c in clouds])
     rgb = np.concatenate([np.asarray(c.rgb).reshape(-1, 3) for c in clouds]).astype(np.float64)
-    normals = np.concatenate([np.asarray(c.normals, np.float64).reshape(-1, 3) for c in clouds]) if True in has_normals else None
+    normals = None
+    if all(with_normals):
+        normals = np.concatenate([np.asarray(c.normals, np.float64).reshape(-1, 3) for c in clouds])
     if len(xyz) == 0:
         return Points(np.zeros((0, 3)), np.zeros((0, 3), np.uint8), None if normals is None else np.zeros((0, 3)))
     keys = np.floor(xyz / voxel_size).astype(np.int64)

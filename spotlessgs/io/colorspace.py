@@ -34,10 +34,12 @@ def srgb_to_linear(x: np.ndarray) -> np.ndarray:
 def linear_to_srgb(x: np.ndarray) -> np.ndarray:
     """Linear values -> sRGB-encoded values in [0, 1]; inputs are clipped to [0, 1] first. Keeps float dtypes.
 
-    Formula: ``12.92 x`` for ``x <= 0.0031308``, else ``1.055 x ** (1 / 2.4) - 0.055``.
+    Formula: ``12.92 x`` for ``x <= 0.0031308``, else ``1.055 x ** (1 / 2.4) - 0.055`` (evaluated as
+    ``1 + 1.055 (x ** (1 / 2.4) - 1)`` so that 1 maps to exactly 1).
     """
     x = np.clip(_as_float(x), 0.0, 1.0)
-    return np.where(x <= _ENCODE_THRESHOLD, x * _SLOPE, (1.0 + _A) * x ** (1.0 / _GAMMA) - _A).astype(x.dtype, copy=False)
+    curve = 1.0 + (1.0 + _A) * (x ** (1.0 / _GAMMA) - 1.0)
+    return np.where(x <= _ENCODE_THRESHOLD, x * _SLOPE, curve).astype(x.dtype, copy=False)
 
 
 def to_uint8(x: np.ndarray) -> np.ndarray:
