@@ -36,6 +36,7 @@ def backproject_depth(
     stride: int = 1,
     max_points: int | None = None,
     rng: np.random.Generator | None = None,
+    max_depth: float = np.inf,
 ) -> Points:
     """Lift the valid pixels of a planar depth map to world points.
 
@@ -49,6 +50,7 @@ def backproject_depth(
         max_points: after striding, keep at most this many valid points, chosen uniformly without replacement by
             ``rng`` (required then), in pixel order.
         rng: random generator for ``max_points``.
+        max_depth: depths above this are skipped too (e.g. Blender's 1e10 background if not converted to inf).
 
     Returns:
         :class:`Points` with P valid points.
@@ -70,7 +72,7 @@ def backproject_depth(
 
     rows, cols = np.mgrid[0:height:stride, 0:width:stride]
     d = depth[rows, cols].astype(np.float64)
-    valid = np.isfinite(d) & (d > 0)
+    valid = np.isfinite(d) & (d > 0) & (d <= max_depth)
     if normals is not None:
         n = np.asarray(normals, dtype=np.float64)[rows, cols]
         n_len = np.linalg.norm(n, axis=-1)

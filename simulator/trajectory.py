@@ -85,7 +85,10 @@ def largest_inscribed_rectangle(polygon, grid_steps: int = 64) -> tuple[float, f
     ys = np.unique(np.concatenate([coords[:, 1], np.linspace(y0, y1, grid_steps + 1)]))
     prepared = prep(polygon.buffer(1e-9 * max(x1 - x0, y1 - y0)))
     inside = np.array(
-        [[prepared.covers(box(xs[i], ys[j], xs[i + 1], ys[j + 1])) for j in range(len(ys) - 1)] for i in range(len(xs) - 1)]
+        [
+            [prepared.covers(box(xs[i], ys[j], xs[i + 1], ys[j + 1])) for j in range(len(ys) - 1)]
+            for i in range(len(xs) - 1)
+        ]
     )
     cell_h = np.diff(ys)
     cell_index = np.arange(len(cell_h))
@@ -110,7 +113,9 @@ def largest_inscribed_rectangle(polygon, grid_steps: int = 64) -> tuple[float, f
     return tuple(float(v) for v in best_rect)
 
 
-def trajectory_rectangle(floor_polygon: np.ndarray, margin: float, grid_steps: int = 64) -> tuple[float, float, float, float]:
+def trajectory_rectangle(
+    floor_polygon: np.ndarray, margin: float, grid_steps: int = 64
+) -> tuple[float, float, float, float]:
     """The path rectangle ``(x0, y0, x1, y1)`` for a floor polygon (K, 2) and a wall margin (see module docstring)."""
     from shapely.geometry import JOIN_STYLE
 

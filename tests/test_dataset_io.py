@@ -37,7 +37,7 @@ from spotlessgs.io.colmap_text import (
 )
 from spotlessgs.io.colorspace import linear_to_srgb, srgb_to_linear, to_uint8
 from spotlessgs.io.dataset import load_initial_points, read_colmap_dataset, read_dataset
-from spotlessgs.io.exr import FrameEXR, read_exr, read_frame_exr, write_exr, write_frame_exr
+from spotlessgs.io.exr import FrameEXR, blender_depth_to_planar, read_exr, read_frame_exr, write_exr, write_frame_exr
 from spotlessgs.io.images import read_image, write_png
 from spotlessgs.io.ply import read_point_cloud, write_point_cloud
 from spotlessgs.io.transforms import (
@@ -191,9 +191,8 @@ def _png16(path: Path, data: np.ndarray, filters: list[int]) -> None:
 
     colour_type = {1: 0, 2: 4, 3: 2, 4: 6}[c]
     ihdr = struct.pack(">IIBBBBB", w, h, 16, colour_type, 0, 0, 0)
-    path.write_bytes(
-        b"\x89PNG\r\n\x1a\n" + chunk(b"IHDR", ihdr) + chunk(b"IDAT", zlib.compress(b"".join(rows))) + chunk(b"IEND", b"")
-    )
+    body = chunk(b"IHDR", ihdr) + chunk(b"IDAT", zlib.compress(b"".join(rows))) + chunk(b"IEND", b"")
+    path.write_bytes(b"\x89PNG\r\n\x1a\n" + body)
 
 
 def test_png_round_trip_8bit(tmp_path):
@@ -255,7 +254,11 @@ def test_exr_round_trip_with_inf_nan_and_half(tmp_path):
     depth = rng.uniform(0.1, 10, (5, 6)).astype(np.float32)
     depth[0, 0] = np.inf
     depth[1, 2] = np.nan
-    chans = {"depth.Z": depth, "uneven.R": rng.normal(size=(5, 6)).astype(np.float32), "count": np.arange(30).reshape(5, 6)}
+    chans = {
+        "depth.Z": depth,
+        "uneven.R": rng.normal(size=(5, 6)).astype(np.float32),
+        "count": np.arange(30).reshape(5, 6),
+    }
     write_exr(tmp_path / "f.exr", chans)
     back = read_exr(tmp_path / "f.exr")
     assert set(back) == set(chans)
@@ -306,6 +309,12 @@ def test_frame_exr_round_trip_and_errors(tmp_path):
         read_frame_exr(tmp_path / "partial.exr")
     with pytest.raises(ValueError, match=r"FrameEXR: gt must have shape \(4, 5, 3\)"):
         FrameEXR(frame.uneven, frame.gt[:, :4], depth, normal)
+
+
+def test_blender_depth_background_becomes_inf():
+    depth = np.array([[3.0, 1e10], [2.5e9, 999.0]], np.float32)
+    np.testing.assert_array_equal(blender_depth_to_planar(depth), [[3.0, np.inf], [np.inf, 999.0]])
+    assert depth[0, 1] == 1e10  # input untouched
 
 
 def test_exr_errors(tmp_path):
@@ -671,7 +680,8 @@ def test_transforms_error_paths(tmp_path):
         (dict(camera_model="OPENCV_FISHEYE"), "camera_model 'OPENCV_FISHEYE' is not supported"),
         (dict(spotless=[1]), "spotless: must be an object"),
         (dict(spotless={"schema_version": 2}), r"spotless.schema_version: unsupported version 2"),
-        (dict(spotless={"schema_version": 1}), r"spotless: missing keys \['scene_id', 'split', 'color_space', 'light'\]"),
+        (dict(spotless={"schema_version": 1}),
+         r"spotless: missing keys \['scene_id', 'split', 'color_space', 'light'\]"),
     ]
     for overrides, match in cases:
         path = _plain(tmp_path, **overrides)
@@ -679,7 +689,8 @@ def test_transforms_error_paths(tmp_path):
             read_transforms(path)
     frames = json.loads(_plain(tmp_path).read_text())["frames"]
     frames[2]["fl_x"] = 60.0
-    with pytest.raises(DatasetError, match=r"frames\[2\] has different intrinsics from frames\[0\] \{'fl_x': \(50.0, 60.0\)\}"):
+    match = r"frames\[2\] has different intrinsics from frames\[0\] \{'fl_x': \(50.0, 60.0\)\}"
+    with pytest.raises(DatasetError, match=match):
         read_transforms(_plain(tmp_path, frames=frames))
     (tmp_path / "bad.json").write_text("{not json")
     with pytest.raises(DatasetError, match="bad.json: not valid JSON"):
@@ -730,12 +741,13 @@ def test_write_transforms_error_paths(tmp_path):
         write_transforms(tmp_path / "t.json", intr, [FrameRecord("a.png", np.full((4, 4), np.nan))], meta)
     with pytest.raises(DatasetError, match=r"frames\[0\].gt_file_path: must be a relative POSIX path"):
         write_transforms(tmp_path / "t.json", intr, [FrameRecord("a.png", np.eye(4), "/x/gt.png")], meta)
+    one = [FrameRecord("a.png", np.eye(4))]
     with pytest.raises(DatasetError, match="color_space must be 'srgb'"):
-        write_transforms(tmp_path / "t.json", intr, [FrameRecord("a.png", np.eye(4))], DatasetMeta("s", color_space="raw"))
+        write_transforms(tmp_path / "t.json", intr, one, DatasetMeta("s", color_space="raw"))
     with pytest.raises(DatasetError, match="not JSON-serialisable"):
-        write_transforms(tmp_path / "t.json", intr, [FrameRecord("a.png", np.eye(4))], DatasetMeta("s", renderer={"x": {1, 2}}))
+        write_transforms(tmp_path / "t.json", intr, one, DatasetMeta("s", renderer={"x": {1, 2}}))
     with pytest.raises(DatasetError, match="not JSON-serialisable"):
-        write_transforms(tmp_path / "t.json", intr, [FrameRecord("a.png", np.eye(4))], DatasetMeta("s", renderer={"x": math.inf}))
+        write_transforms(tmp_path / "t.json", intr, one, DatasetMeta("s", renderer={"x": math.inf}))
     assert not (tmp_path / "t.json").exists()
 
 
@@ -771,7 +783,8 @@ def test_read_dataset_dispatch_and_colmap_folder(tmp_path):
     second = ColmapCamera(2, "PINHOLE", 320, 240, (200.0, 200.0, 160.0, 120.0))
     images = dict(model.images)
     images[2] = dataclasses.replace(images[2], camera_id=2)
-    write_colmap_text(tmp_path / "two" / "sparse", dataclasses.replace(model, cameras={**model.cameras, 2: second}, images=images))
+    two_camera_model = dataclasses.replace(model, cameras={**model.cameras, 2: second}, images=images)
+    write_colmap_text(tmp_path / "two" / "sparse", two_camera_model)
     with pytest.raises(DatasetError, match="images use 2 different cameras; only one camera is supported"):
         read_dataset(tmp_path / "two")
 
@@ -808,6 +821,9 @@ def test_backprojection_of_analytic_plane_lands_on_plane_and_reprojects():
     np.testing.assert_array_equal(pts.rgb, rgb[valid])
     strided = backproject_depth(depth, rgb, None, intr, c2w, stride=4)
     assert len(strided.xyz) == 12 * 15 - 2 and strided.normals is None  # (0,0) and (0,4) are invalid
+    far = depth.copy()
+    far[5, 7] = 1e10  # Blender's background value
+    assert len(backproject_depth(far, rgb, None, intr, c2w, max_depth=100.0).xyz) == 48 * 60 - 6
     sub = backproject_depth(depth, rgb, None, intr, c2w, max_points=100, rng=np.random.default_rng(1))
     assert len(sub.xyz) == 100
     np.testing.assert_allclose(sub.xyz @ normal, offset, atol=1e-9)

@@ -128,8 +128,10 @@ def test_rejection_keeps_clear_of_obstacles_walls_floor_and_ceiling():
 
 def test_impossible_pose_raises_clear_error():
     blocker = [(np.array([-1.0, -1.0, 0.0]), np.array([10.0, 10.0, 3.0]))]
-    with pytest.raises(ValueError, match=r"frame 0: no admissible camera pose .* after 5 tries .*inside obstacle box 0"):
-        sample_trajectory(SQUARE, 0.0, 3.0, blocker, TrajectoryConfig(n_frames=3, max_tries=5), np.random.default_rng(0))
+    cfg = TrajectoryConfig(n_frames=3, max_tries=5)
+    match = r"frame 0: no admissible camera pose .* after 5 tries .*inside obstacle box 0"
+    with pytest.raises(ValueError, match=match):
+        sample_trajectory(SQUARE, 0.0, 3.0, blocker, cfg, np.random.default_rng(0))
 
 
 def test_deterministic_given_seed():
@@ -147,7 +149,7 @@ def test_deterministic_given_seed():
 def test_l_shaped_room_uses_largest_rectangle_inside():
     # Eroded by 0.5 the L is [0.5, 5.5]x[0.5, 2.5] (area 10) joined to [0.5, 2.5]x[0.5, 4.5] (area 8).
     assert trajectory_rectangle(L_ROOM, 0.5) == pytest.approx((0.5, 0.5, 5.5, 2.5))
-    tall_l = L_ROOM[:, ::-1] * [1.0, 1.0]  # mirror x <-> y: the long arm becomes vertical
+    tall_l = L_ROOM[:, ::-1]  # mirror x <-> y: the long arm becomes vertical
     assert trajectory_rectangle(tall_l, 0.5) == pytest.approx((0.5, 0.5, 2.5, 5.5))
     poses = nominal_trajectory(L_ROOM, 0.0, TrajectoryConfig(n_frames=60, margin=0.5))
     eroded = Polygon(L_ROOM).buffer(-0.5 + 1e-9, join_style=2)

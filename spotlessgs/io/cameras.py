@@ -50,7 +50,9 @@ class Intrinsics:
         if self.fx <= 0 or self.fy <= 0:
             raise ValueError(f"Intrinsics: focal lengths must be positive, got fx={self.fx!r}, fy={self.fy!r}")
         if int(self.width) != self.width or int(self.height) != self.height or self.width <= 0 or self.height <= 0:
-            raise ValueError(f"Intrinsics: width and height must be positive integers, got {self.width!r}x{self.height!r}")
+            raise ValueError(
+                f"Intrinsics: width and height must be positive integers, got {self.width!r}x{self.height!r}"
+            )
         object.__setattr__(self, "width", int(self.width))
         object.__setattr__(self, "height", int(self.height))
         for name in ("fx", "fy", "cx", "cy"):
@@ -60,7 +62,9 @@ class Intrinsics:
     def from_fov(cls, h_fov_deg: float, width: int, height: int) -> "Intrinsics":
         """Square pixels, principal point at the image centre, horizontal field of view ``h_fov_deg`` (0, 180)."""
         if not 0.0 < h_fov_deg < 180.0:
-            raise ValueError(f"Intrinsics.from_fov: horizontal field of view must be in (0, 180) degrees, got {h_fov_deg!r}")
+            raise ValueError(
+                f"Intrinsics.from_fov: horizontal field of view must be in (0, 180) degrees, got {h_fov_deg!r}"
+            )
         f = 0.5 * width / math.tan(math.radians(h_fov_deg) / 2.0)
         return cls(fx=f, fy=f, cx=width / 2.0, cy=height / 2.0, width=width, height=height)
 
@@ -177,7 +181,7 @@ def matrix_to_quaternion_wxyz(rot: np.ndarray) -> np.ndarray:
 
 
 def quaternion_wxyz_to_matrix(quat: np.ndarray) -> np.ndarray:
-    """Quaternions (..., 4) ordered (w, x, y, z) (normalised here; must be non-zero) -> rotation matrices (..., 3, 3)."""
+    """Quaternions (..., 4) ordered (w, x, y, z) (normalised here, must be non-zero) -> rotations (..., 3, 3)."""
     quat = np.asarray(quat, dtype=np.float64)
     if quat.shape[-1:] != (4,):
         raise ValueError(f"quaternion_wxyz_to_matrix: expected (..., 4), got shape {quat.shape}")

@@ -66,7 +66,7 @@ class ColmapCamera:
     params: tuple[float, ...]
 
     def to_intrinsics(self) -> Intrinsics:
-        """The pinhole :class:`Intrinsics`; only for SIMPLE_PINHOLE, PINHOLE and distortion models with zero distortion."""
+        """The pinhole :class:`Intrinsics` (SIMPLE_PINHOLE, PINHOLE, or a distortion model whose distortion is 0)."""
         p = self.params
         if self.model == "SIMPLE_PINHOLE":
             return Intrinsics(p[0], p[0], p[1], p[2], self.width, self.height)

@@ -34,6 +34,15 @@ UNEVEN_CHANNELS = ("uneven.R", "uneven.G", "uneven.B")
 GT_CHANNELS = ("gt.R", "gt.G", "gt.B")
 DEPTH_CHANNEL = "depth.Z"
 NORMAL_CHANNELS = ("normal.X", "normal.Y", "normal.Z")
+# Blender's Cycles depth pass stores 1e10 where a ray hit nothing (measured with bpy 5.0.1); the dataset stores inf.
+BLENDER_BACKGROUND_DEPTH = 1.0e10
+
+
+def blender_depth_to_planar(depth: np.ndarray, background_threshold: float = 1.0e9) -> np.ndarray:
+    """Blender's depth pass (H, W) -> the dataset's depth: float32, values >= ``background_threshold`` become inf."""
+    depth = np.array(depth, dtype=np.float32, copy=True)
+    depth[depth >= background_threshold] = np.inf
+    return depth
 
 
 def write_exr(
@@ -46,7 +55,7 @@ def write_exr(
 
     Args:
         path: output ``.exr`` file (parent folders are created).
-        channels: channel name -> (H, W) array (cast to float32; inf and NaN are stored as they are). All the same shape.
+        channels: channel name -> (H, W) array, all the same shape (cast to float32; inf and NaN are kept).
         compression: one of ``none``, ``zip`` (lossless, default), ``zips``, ``piz``, ``rle`` (all lossless).
         half: store 16-bit half floats instead of 32-bit floats (lossy: about 3 significant digits).
     """

@@ -97,7 +97,8 @@ class LightTruth:
 
     def __post_init__(self) -> None:
         where = "LightTruth"
-        object.__setattr__(self, "position_in_camera", _vec(self.position_in_camera, (3,), f"{where}.position_in_camera"))
+        position = _vec(self.position_in_camera, (3,), f"{where}.position_in_camera")
+        object.__setattr__(self, "position_in_camera", position)
         rot = _vec(self.rotation_in_camera, (3, 3), f"{where}.rotation_in_camera")
         if np.abs(rot.T @ rot - np.eye(3)).max() > _LIGHT_ROTATION_TOL or np.linalg.det(rot) <= 0:
             raise DatasetError(f"{where}.rotation_in_camera: not a rotation matrix: {rot.tolist()}")
@@ -463,7 +464,8 @@ def _parse_split(block: dict[str, Any], n: int, where: str) -> Split:
     if overlap:
         raise DatasetError(f"{where}.split: frames {overlap[:5]} are in both train and test")
     if len(lists["train"]) + len(lists["test"]) != n:
-        raise DatasetError(f"{where}.split: train and test cover {len(lists['train']) + len(lists['test'])} of {n} frames")
+        covered = len(lists["train"]) + len(lists["test"])
+        raise DatasetError(f"{where}.split: train and test cover {covered} of {n} frames")
     if data["rule"] == split_rule_name(test_every):
         expected_train, expected_test = split_indices(n, test_every)
         if lists["test"] != expected_test:
@@ -546,7 +548,9 @@ def read_transforms(path: str | os.PathLike, check_files: bool = False) -> Datas
             raise DatasetError(f"{where}: must be an object")
         version = block.get("schema_version")
         if version != SCHEMA_VERSION:
-            raise DatasetError(f"{where}.schema_version: unsupported version {version!r} (this reader knows {SCHEMA_VERSION})")
+            raise DatasetError(
+                f"{where}.schema_version: unsupported version {version!r} (this reader knows {SCHEMA_VERSION})"
+            )
         missing = [k for k in ("scene_id", "split", "color_space", "light") if k not in block]
         if missing:
             raise DatasetError(f"{where}: missing keys {missing}")
