@@ -549,7 +549,7 @@ def _write_dataset(root: Path, n: int = 23, meta: DatasetMeta | None = None, mak
         for i in range(n)
     ]
     if meta is None:
-        meta = DatasetMeta(scene_id="house-1", room="LivingRoom-42", seed=7, preset="tiny", light=_light(),
+        meta = DatasetMeta(scene_id="house-1", room="LivingRoom-42", seed=np.int64(7), preset="tiny", light=_light(),
                            renderer={"engine": "CYCLES", "samples": 16}, provenance={"command": "spotless-sim render"})
     if make_files:
         img = np.zeros((48, 64, 3), np.uint8)

@@ -294,7 +294,7 @@ def write_transforms(
             "schema_version": SCHEMA_VERSION,
             "scene_id": meta.scene_id,
             "room": meta.room,
-            "seed": meta.seed,
+            "seed": None if meta.seed is None else int(meta.seed),
             "preset": meta.preset,
             "split": split.to_json(),
             "color_space": meta.color_space,
