@@ -1,0 +1,86 @@
+"""One entry point for the trainer: read any supported dataset folder into a :class:`DatasetDescription`.
+
+Supported layouts:
+
+* our dataset folder or any nerfstudio folder: ``transforms.json`` (see :mod:`spotlessgs.io.transforms`);
+* a plain COLMAP folder: ``images/`` + ``sparse/0/`` (or ``sparse/``) with a text or binary model. Images are
+  ordered by name, the split is every 11th frame, there is no ground truth and no light truth.
+"""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+import numpy as np
+
+from spotlessgs.io.cameras import opencv_to_opengl_c2w
+from spotlessgs.io.colmap_text import read_colmap_model
+from spotlessgs.io.ply import PointCloud, read_point_cloud
+from spotlessgs.io.transforms import DatasetDescription, DatasetError, Split, read_transforms
+
+
+def _find_sparse_dir(folder: Path) -> Path:
+    for candidate in (folder / "sparse" / "0", folder / "sparse"):
+        if (candidate / "cameras.bin").is_file() or (candidate / "cameras.txt").is_file():
+            return candidate
+    raise FileNotFoundError(f"{folder}: no COLMAP model in sparse/0 or sparse (cameras.bin or cameras.txt)")
+
+
+def read_colmap_dataset(folder: str | os.PathLike, check_files: bool = False) -> DatasetDescription:
+    """Read a COLMAP folder (``images/`` + ``sparse/0``) with a single pinhole (or zero-distortion) camera."""
+    folder = Path(folder)
+    sparse = _find_sparse_dir(folder)
+    model = read_colmap_model(sparse)
+    if not model.images:
+        raise DatasetError(f"{sparse}: COLMAP model has no registered images")
+    images = sorted(model.images.values(), key=lambda im: im.name)
+    intrinsics = {cid: model.cameras[cid].to_intrinsics() for cid in {im.camera_id for im in images}}
+    if len(set(intrinsics.values())) > 1:
+        raise DatasetError(f"{sparse}: images use {len(intrinsics)} different cameras; only one camera is supported")
+    c2w_opencv = np.stack([im.c2w_opencv() for im in images])
+    image_paths = tuple(folder / "images" / im.name for im in images)
+    if check_files:
+        for im, p in zip(images, image_paths):
+            if not p.is_file():
+                raise FileNotFoundError(f"{sparse}: image {im.image_id} file {p} does not exist")
+    n = len(images)
+    return DatasetDescription(
+        root=folder,
+        source=sparse,
+        intrinsics=next(iter(intrinsics.values())),
+        c2w_opengl=opencv_to_opengl_c2w(c2w_opencv),
+        c2w_opencv=c2w_opencv,
+        file_paths=tuple(f"images/{im.name}" for im in images),
+        image_paths=image_paths,
+        gt_paths=(None,) * n,
+        exr_paths=(None,) * n,
+        split=Split.every_nth(n),
+        light=None,
+        ply_path=None,
+        meta={"source_format": "colmap", "sparse_dir": str(sparse)},
+    )
+
+
+def read_dataset(folder: str | os.PathLike, check_files: bool = False) -> DatasetDescription:
+    """Read ``transforms.json`` when the folder has one, else a COLMAP model under ``sparse/``."""
+    folder = Path(folder)
+    if folder.is_file():
+        return read_transforms(folder, check_files=check_files)
+    if (folder / "transforms.json").is_file():
+        return read_transforms(folder / "transforms.json", check_files=check_files)
+    if (folder / "sparse").is_dir():
+        return read_colmap_dataset(folder, check_files=check_files)
+    raise FileNotFoundError(f"{folder}: neither transforms.json nor a COLMAP sparse/ folder")
+
+
+def load_initial_points(dataset: DatasetDescription) -> PointCloud | None:
+    """The initial point cloud: the PLY named by the dataset, else the COLMAP model's 3D points, else None."""
+    if dataset.ply_path is not None:
+        return read_point_cloud(dataset.ply_path)
+    sparse = dataset.meta.get("sparse_dir")
+    if sparse is not None:
+        points = read_colmap_model(sparse).points
+        if len(points.ids):
+            return PointCloud(points.xyz.astype(np.float32), points.rgb, None)
+    return None
