@@ -32,7 +32,7 @@ class SpotlightConfig:
 
     cone_angle_deg: float = 65.0
     blend: float = 0.35
-    power_w: float = 60.0
+    power_w: float = 300.0
     color: tuple[float, float, float] = (1.0, 1.0, 1.0)
     radius_m: float = 0.02
     position_in_camera: tuple[float, float, float] = (0.06, -0.04, 0.0)
@@ -51,7 +51,7 @@ class SpotlightConfig:
 #: Named spotlight presets: ``uneven`` (hot spot, dark corners, few clipped pixels) and ``saturated`` (clips).
 SPOTLIGHT_PRESETS: dict[str, SpotlightConfig] = {
     "uneven": SpotlightConfig(),
-    "saturated": SpotlightConfig(power_w=240.0),
+    "saturated": SpotlightConfig(power_w=700.0),
 }
 
 
@@ -69,11 +69,11 @@ class GroundTruthLighting:
         color: linear RGB colour of all fixtures (warm white).
     """
 
-    ceiling_lamp_w: float = 150.0
-    other_lamp_w: float = 60.0
-    lightband_w_per_m2: float = 120.0
-    lamp_emission: float = 6.0
-    ceiling_glow: float = 0.6
+    ceiling_lamp_w: float = 9.0
+    other_lamp_w: float = 3.6
+    lightband_w_per_m2: float = 7.2
+    lamp_emission: float = 3.0
+    ceiling_glow: float = 0.036
     color: tuple[float, float, float] = (1.0, 0.94, 0.86)
 
 

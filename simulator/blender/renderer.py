@@ -12,13 +12,9 @@ import numpy as np
 from mathutils import Matrix
 
 from simulator.blender.scene_builder import BuiltScene
-from spotlessgs.io.exr import read_exr
+from spotlessgs.io.exr import blender_depth_to_planar, read_exr
 
 log = logging.getLogger(__name__)
-
-#: Blender writes "infinite" depth for rays that hit nothing as a huge number; above this it becomes inf.
-BACKGROUND_DEPTH = 1e9
-
 
 @dataclass(frozen=True)
 class CyclesSettings:
@@ -186,8 +182,7 @@ def render_pair(built: BuiltScene, c2w_blender: np.ndarray, settings: CyclesSett
         _set_mode(built, "gt", settings)
         gt = _render_exr(work, "gt")
     combined = (".Combined.R", ".Combined.G", ".Combined.B")
-    depth = _channels(spot, (".Depth.Z",), work).astype(np.float32)
-    depth = np.where(np.isfinite(depth) & (depth < BACKGROUND_DEPTH) & (depth > 0), depth, np.inf).astype(np.float32)
+    depth = blender_depth_to_planar(_channels(spot, (".Depth.Z",), work))
     return RenderedPair(
         uneven=_channels(spot, combined, work).astype(np.float32),
         gt=_channels(gt, combined, work).astype(np.float32),

@@ -1,0 +1,129 @@
+"""Render speed against error: one view at several sample counts vs a high-sample reference.
+
+    python -m simulator.benchmark --scene scenes/bedroom/house.json --out bench/render
+
+renders the first pose of the room's camera loop at each sample count (with and without OpenImageDenoise) and a
+reference at ``--reference-samples`` (denoised), then reports seconds per paired frame (both renders) against the
+PSNR of each render relative to the reference, as ``render_benchmark.json``, a Markdown table and a plot. Timings are
+wall-clock on whatever machine runs it: compare rows of one run, not runs of different machines.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import time
+from pathlib import Path
+
+import click
+import numpy as np
+
+from simulator.front3d import LoadOptions
+from simulator.render_pipeline import RenderConfig, plan_poses
+from spotlessgs.io.atomic import atomic_path, write_json, write_text
+from spotlessgs.io.colorspace import linear_to_srgb
+from spotlessgs.io.provenance import provenance
+
+
+def psnr_srgb(image_linear: np.ndarray, reference_linear: np.ndarray) -> float:
+    """PSNR (dB) between two linear renders after sRGB encoding (clipped to [0, 1]), as images are compared."""
+    a, b = linear_to_srgb(image_linear), linear_to_srgb(reference_linear)
+    mse = float(np.mean((a - b) ** 2))
+    return float("inf") if mse == 0 else 10.0 * np.log10(1.0 / mse)
+
+
+def run_benchmark(scene_path: Path, out_dir: Path, samples: list[int], reference_samples: int, width: int,
+                  height: int, threads: int, frame: int = 0) -> list[dict]:
+    """Render one pose at each setting; returns one row per (samples, denoise) with seconds and PSNRs."""
+    from simulator.blender import renderer, scene_builder
+
+    config = RenderConfig(width=width, height=height, frames=max(frame + 1, 8))
+    scene, _room, objects, poses = plan_poses(scene_path, config, LoadOptions())
+    scene_builder.reset_blender()
+    base = renderer.CyclesSettings(width=width, height=height, threads=threads, device="cpu")
+    renderer.configure(base)
+    built = scene_builder.build_scene(dataclasses.replace(scene, objects=objects), config.spotlight,
+                                      config.ground_truth.ceiling_glow, config.intrinsics())
+
+    def render(n: int, denoise: bool):
+        settings = dataclasses.replace(base, samples=n, denoise=denoise)
+        renderer.configure(settings)
+        start = time.perf_counter()
+        pair = renderer.render_pair(built, poses[frame], settings, seed=1234)
+        return pair, time.perf_counter() - start
+
+    from tqdm import tqdm
+
+    reference, ref_seconds = render(reference_samples, True)
+    rows = [{"samples": reference_samples, "denoise": True, "seconds_per_pair": ref_seconds, "psnr_uneven": None,
+             "psnr_gt": None, "reference": True}]
+    for n, denoise in tqdm([(n, d) for n in samples for d in (False, True)], desc="render benchmark"):
+        pair, seconds = render(n, denoise)
+        rows.append({"samples": n, "denoise": denoise, "seconds_per_pair": seconds,
+                     "psnr_uneven": psnr_srgb(pair.uneven, reference.uneven),
+                     "psnr_gt": psnr_srgb(pair.gt, reference.gt), "reference": False})
+    out_dir.mkdir(parents=True, exist_ok=True)
+    write_json(out_dir / "render_benchmark.json",
+               {"scene": str(scene_path), "width": width, "height": height, "threads": threads, "rows": rows,
+                "provenance": provenance(extra_packages=("bpy",))})
+    write_text(out_dir / "render_benchmark.md", markdown_table(rows, width, height))
+    plot(rows, out_dir / "render_benchmark.png", width, height)
+    return rows
+
+
+def markdown_table(rows: list[dict], width: int, height: int) -> str:
+    """The benchmark as a Markdown table."""
+    lines = [f"Render cost vs error at {width}x{height} (PSNR vs the reference, both renders of one pose)", "",
+             "| samples | denoise | s / pair | PSNR uneven (dB) | PSNR ground truth (dB) |", "|---|---|---|---|---|"]
+    for r in rows:
+        if r["reference"]:
+            lines.append(f"| {r['samples']} (reference) | yes | {r['seconds_per_pair']:.1f} | – | – |")
+        else:
+            lines.append(f"| {r['samples']} | {'yes' if r['denoise'] else 'no'} | {r['seconds_per_pair']:.1f} | "
+                         f"{r['psnr_uneven']:.2f} | {r['psnr_gt']:.2f} |")
+    return "\n".join(lines) + "\n"
+
+
+def plot(rows: list[dict], path: Path, width: int, height: int) -> None:
+    """Seconds per pair (x) against PSNR (y), one curve per render and denoise setting."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(figsize=(6, 4))
+    for denoise, style in ((False, "--"), (True, "-")):
+        sel = [r for r in rows if not r["reference"] and r["denoise"] == denoise]
+        for key, label in (("psnr_uneven", "spotlight"), ("psnr_gt", "ground truth")):
+            ax.plot([r["seconds_per_pair"] for r in sel], [r[key] for r in sel], style, marker="o",
+                    label=f"{label}{' + OIDN' if denoise else ''}")
+            for r in sel:
+                ax.annotate(str(r["samples"]), (r["seconds_per_pair"], r[key]), fontsize=7)
+    ax.set_xscale("log")
+    ax.set_xlabel("seconds per paired frame (wall clock)")
+    ax.set_ylabel("PSNR vs reference (dB)")
+    ax.set_title(f"Cycles CPU, {width}x{height}")
+    ax.grid(True, alpha=0.3)
+    ax.legend(fontsize=8)
+    fig.tight_layout()
+    with atomic_path(path) as tmp:
+        fig.savefig(tmp, dpi=120)
+    plt.close(fig)
+
+
+@click.command()
+@click.option("--scene", "scene_path", required=True, type=click.Path(exists=True, dir_okay=False, path_type=Path))
+@click.option("--out", "out_dir", required=True, type=click.Path(file_okay=False, path_type=Path))
+@click.option("--samples", default="4,8,16,32,64", show_default=True, help="Comma-separated sample counts.")
+@click.option("--reference-samples", default=512, show_default=True, type=int)
+@click.option("--width", default=320, show_default=True, type=int)
+@click.option("--height", default=240, show_default=True, type=int)
+@click.option("--threads", default=2, show_default=True, type=int)
+def main(scene_path, out_dir, samples, reference_samples, width, height, threads):
+    """Benchmark render speed against error."""
+    counts = [int(s) for s in samples.split(",") if s.strip()]
+    rows = run_benchmark(scene_path, out_dir, counts, reference_samples, width, height, threads)
+    click.echo(markdown_table(rows, width, height))
+
+
+if __name__ == "__main__":
+    main()
