@@ -173,9 +173,9 @@ class SpotLight(nn.Module):
     @torch.no_grad()
     def rid_curve(self, thetas: torch.Tensor | np.ndarray | Sequence[float]) -> torch.Tensor:
         """Φ(θ) at the given angles (K,) radians → (K,), detached; for plots."""
-        th = torch.as_tensor(np.asarray(thetas, dtype=np.float32)).reshape(-1, 1)
-        dev = self.log_tau.device
-        return self.rid_of_angle(th.to(dev)).reshape(-1).cpu()
+        th = torch.as_tensor(np.asarray(thetas, dtype=np.float64)).reshape(-1, 1)
+        th = th.to(device=self.log_tau.device, dtype=self.log_tau.dtype)
+        return self.rid_of_angle(th).reshape(-1).cpu()
 
     def fit_rid_to_cone(
         self,
