@@ -130,7 +130,7 @@ def test_learned_brdf_starts_as_clamped_analytic_and_stays_bounded():
         brdf.mlp[-1].bias.fill_(50.0)  # tanh → 1: factor 1.2
     out = brdf(a, rough, metal, n, v, l)
     torch.testing.assert_close(out, (1.2 * math.pi * disney_brdf(a, rough, metal, n, v, l)).clamp(0, 1))
-    assert float(out.max()) <= 1.0 and float(out.min()) >= 0.0
+    assert float(out.detach().max()) <= 1.0 and float(out.detach().min()) >= 0.0
 
 
 def test_learned_brdf_gradients_reach_the_mlp():
