@@ -37,9 +37,10 @@ ROUGHNESS_INIT = 0.5
 METALNESS_INIT = 0.01
 OPACITY_INIT = 0.1
 ALBEDO_INIT_RANGE = (0.01, 0.99)  # linear albedo is clamped here before the logit
-# Normals: n̂ = normalize(raw + NORMAL_FALLBACK_WEIGHT · (unit direction to the camera)). A zero raw normal therefore
-# faces the camera with a finite gradient ((I - f fᵀ) / weight), while a unit raw normal is tilted by at most 1e-4 rad.
-NORMAL_FALLBACK_WEIGHT = 1e-4
+# Normals: n̂ = normalize(raw + δ exp(-|raw|²/δ²) f̂), f̂ the unit direction to the camera, δ = NORMAL_FALLBACK_SCALE.
+# A zero raw normal faces the camera with a finite gradient ((I - f fᵀ)/δ); for |raw| > 6δ the added term is below
+# 1e-18 and vanishes in float arithmetic, so ordinary normals are used as they are (no camera dependence).
+NORMAL_FALLBACK_SCALE = 1e-3
 SCALE_NEIGHBOURS = 3
 # Duplicate points have zero neighbour distance: distances are floored at this fraction of the median positive one.
 SCALE_FLOOR_FRACTION = 0.1
@@ -197,9 +198,10 @@ class GaussianParams(nn.Module):
     def normals(self, camera_center: torch.Tensor) -> torch.Tensor:
         """Unit normals (N, 3), world frame.
 
-        n̂ = normalize(raw + w f̂) with f̂ the unit direction from the Gaussian to `camera_center` and w = 1e-4: a zero
-        raw normal faces the camera with a finite, nonzero gradient. If the sum is still zero (raw = -w f̂ exactly, or
-        a Gaussian at the camera centre) the result is f̂, or +z.
+        n̂ = normalize(raw + δ exp(-|raw|²/δ²) f̂) with f̂ the unit direction from the Gaussian to `camera_center` and
+        δ = 1e-3: a zero raw normal faces the camera with a finite, nonzero gradient, while normals longer than ~6δ are
+        used unchanged. If the sum is still zero (raw = -δ e⁻¹ f̂ exactly, or a Gaussian at the camera centre) the
+        result is f̂, or +z.
 
         Args:
             camera_center: (3,) camera centre C, world frame.
@@ -207,7 +209,9 @@ class GaussianParams(nn.Module):
         if camera_center.shape != (3,):
             raise ValueError(f"camera_center must have shape (3,), got {tuple(camera_center.shape)}")
         towards = safe_normalize(camera_center.to(self.means.dtype) - self.means)
-        return safe_normalize(self.params["normals_raw"] + NORMAL_FALLBACK_WEIGHT * towards, fallback=towards)
+        raw = self.params["normals_raw"]
+        weight = NORMAL_FALLBACK_SCALE * torch.exp(-(raw * raw).sum(-1, keepdim=True) / NORMAL_FALLBACK_SCALE**2)
+        return safe_normalize(raw + weight * towards, fallback=towards)
 
 
 def initial_scales(xyz: np.ndarray) -> np.ndarray:
