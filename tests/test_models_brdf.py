@@ -12,6 +12,11 @@ from spotlessgs.models.brdf import LambertianBRDF, LearnedBRDF, disney_brdf
 from spotlessgs.models.shading import hemisphere_directions
 
 torch.set_num_threads(1)
+
+
+def _scalar(x) -> float:
+    """A Python float of a number or a one-element tensor (detached)."""
+    return float(x.detach()) if isinstance(x, torch.Tensor) else float(x)
 F64 = torch.float64
 
 
@@ -75,7 +80,7 @@ def _directional_albedo(rough: float, metal: float, cos_v: float, count: int = 2
     n, v = _rows(count, [0.0, 0.0, 1.0], [math.sqrt(1 - cos_v**2), 0.0, cos_v])
     f = disney_brdf(torch.ones(count, 3, dtype=F64), torch.full((count,), rough, dtype=F64),
                     torch.full((count,), metal, dtype=F64), n, v, dirs)
-    return float((math.pi * f[:, 0]).mean())
+    return _scalar((math.pi * f[:, 0]).mean())
 
 
 @pytest.mark.parametrize("rough", [0.3, 0.5, 0.99])
@@ -130,7 +135,7 @@ def test_learned_brdf_starts_as_clamped_analytic_and_stays_bounded():
         brdf.mlp[-1].bias.fill_(50.0)  # tanh → 1: factor 1.2
     out = brdf(a, rough, metal, n, v, l)
     torch.testing.assert_close(out, (1.2 * math.pi * disney_brdf(a, rough, metal, n, v, l)).clamp(0, 1))
-    assert float(out.detach().max()) <= 1.0 and float(out.detach().min()) >= 0.0
+    assert _scalar(out.detach().max()) <= 1.0 and _scalar(out.detach().min()) >= 0.0
 
 
 def test_learned_brdf_gradients_reach_the_mlp():
@@ -140,7 +145,7 @@ def test_learned_brdf_gradients_reach_the_mlp():
     v = torch.nn.functional.normalize(torch.tensor([[-0.2, 0.1, 1.0], [0.0, 0.0, 1.0], [0.0, 1.0, 0.0]]), dim=-1)
     out = brdf(torch.full((3, 3), 0.5), torch.full((3, 1), 0.5), torch.zeros(3, 1), n, v, l)
     out.sum().backward()
-    assert float(brdf.mlp[-1].weight.grad.abs().sum()) > 0
+    assert _scalar(brdf.mlp[-1].weight.grad.abs().sum()) > 0
     assert all(torch.isfinite(p.grad).all() for p in brdf.parameters())
 
 

@@ -13,6 +13,11 @@ from spotlessgs.models.gaussians import PARAM_NAMES, GaussianParams, initial_sca
 torch.set_num_threads(1)
 
 
+def _scalar(x) -> float:
+    """A Python float of a number or a one-element tensor (detached)."""
+    return float(x.detach()) if isinstance(x, torch.Tensor) else float(x)
+
+
 def _cloud(n: int = 10, seed: int = 0):
     rng = np.random.default_rng(seed)
     return rng.normal(size=(n, 3)), rng.integers(0, 256, size=(n, 3)).astype(np.uint8)
@@ -66,7 +71,7 @@ def test_zero_normal_faces_camera_with_finite_nonzero_gradient():
     torch.testing.assert_close(n[1], torch.nn.functional.normalize(cam - torch.tensor([1.0, 0, 0]), dim=0))
     (n * torch.tensor([1.0, 2.0, 3.0])).sum().backward()
     grad = g.params["normals_raw"].grad
-    assert torch.isfinite(grad).all() and float(grad.abs().sum()) > 0
+    assert torch.isfinite(grad).all() and _scalar(grad.abs().sum()) > 0
 
 
 def test_unit_normals_are_kept_and_fully_degenerate_normal_is_finite():
@@ -101,8 +106,8 @@ def test_activations_stay_in_their_open_intervals_with_finite_gradients():
         g.params["quats"][0] = 0.0
     r, m = g.roughness.detach(), g.metalness.detach()
     # float32 sigmoid saturates to exactly 0/1, so the bounds are reached (never passed) at extreme raw values.
-    assert float(r.min()) >= 0.09 - 1e-7 and float(r.max()) <= 0.99 + 1e-7 and r.shape == (4, 1) and m.shape == (4, 1)
-    assert float(m.min()) >= 0.0 and float(m.max()) <= 1.0
+    assert _scalar(r.min()) >= 0.09 - 1e-7 and _scalar(r.max()) <= 0.99 + 1e-7 and r.shape == (4, 1) and m.shape == (4, 1)
+    assert _scalar(m.min()) >= 0.0 and _scalar(m.max()) <= 1.0
     torch.testing.assert_close(g.quats[0], torch.tensor([1.0, 0, 0, 0]))
     (g.roughness.sum() + g.metalness.sum() + g.quats.sum()).backward()
     assert all(torch.isfinite(g.params[k].grad).all() for k in ("roughness_raw", "metalness_raw", "quats"))

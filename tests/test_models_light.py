@@ -18,6 +18,11 @@ from spotlessgs.models.sh import SH_C0
 torch.set_num_threads(1)
 
 
+def _scalar(x) -> float:
+    """A Python float of a number or a one-element tensor (detached)."""
+    return float(x.detach()) if isinstance(x, torch.Tensor) else float(x)
+
+
 def _camera(dtype=torch.float32) -> torch.Tensor:
     """A camera at C = (1, 2, 0.5) rotated by a generic rotation."""
     c2w = torch.eye(4, dtype=dtype)
@@ -103,12 +108,12 @@ def test_incident_is_finite_with_finite_gradients_at_hard_points(x_l, theta):
     c2w = _camera(torch.float64)
     x = _world_from_light(light, c2w, torch.tensor([x_l], dtype=torch.float64)).requires_grad_(True)
     x_light = light.to_light_frame(x, c2w)
-    assert float(SpotLight.angle_off_axis(x_light).detach()) == pytest.approx(theta, abs=1e-5)
+    assert _scalar(SpotLight.angle_off_axis(x_light).detach()) == pytest.approx(theta, abs=1e-5)
     radiance, l_hat = light.incident(x, c2w)
-    d_sq = float((torch.tensor(x_l) ** 2).sum())
-    expected = (0.3 + d_sq) ** -1.0 * float(light.rid_curve([theta])[0])
-    assert float(radiance.detach()) == pytest.approx(expected, rel=1e-5)
-    assert torch.isfinite(l_hat).all() and float(l_hat.detach().norm()) == pytest.approx(1.0)
+    d_sq = _scalar((torch.tensor(x_l) ** 2).sum())
+    expected = (0.3 + d_sq) ** -1.0 * _scalar(light.rid_curve([theta])[0])
+    assert _scalar(radiance.detach()) == pytest.approx(expected, rel=1e-5)
+    assert torch.isfinite(l_hat).all() and _scalar(l_hat.detach().norm()) == pytest.approx(1.0)
     (radiance.sum() + l_hat.sum()).backward()
     assert _all_grads_finite(light, x)
     assert light.translation.grad.abs().sum() > 0 and light.log_tau.grad.abs() > 0
@@ -126,7 +131,7 @@ def test_falloff_hand_values():
     light = SpotLight(gamma=2.0, tau=0.5).double()
     x_l = torch.tensor([[0.0, 0.0, 2.0], [1.0, 1.0, 1.0]], dtype=torch.float64)
     np.testing.assert_allclose(light.falloff(x_l).detach().numpy()[:, 0], [4.5**-2, 3.5**-2], rtol=1e-7)
-    assert float(light.gamma) == pytest.approx(2.0) and float(light.tau) == pytest.approx(0.5)
+    assert light.gamma.item() == pytest.approx(2.0) and light.tau.item() == pytest.approx(0.5)
 
 
 def test_pose_can_be_frozen():
@@ -167,8 +172,8 @@ def test_rid_fitted_to_cone_reproduces_the_profile(half_deg, blend, intensity, t
     thetas = torch.linspace(0, math.pi, 1001)
     target = intensity * cone_profile(thetas, math.radians(half_deg), blend)
     err = (light.rid_curve(thetas) - target).abs()
-    assert max_err < tol and float(err.max()) < tol
-    assert float(err.pow(2).mean().sqrt()) < tol / 5  # good on average, the worst error sits on the edge
+    assert max_err < tol and _scalar(err.max()) < tol
+    assert _scalar(err.pow(2).mean().sqrt()) < tol / 5  # good on average, the worst error sits on the edge
     again = SpotLight(seed=0)
     again.fit_rid_to_cone(math.radians(half_deg), blend, intensity=intensity)
     torch.testing.assert_close(again.rid_curve(thetas), light.rid_curve(thetas), rtol=0, atol=0)
@@ -185,13 +190,13 @@ def test_fit_rid_errors():
 def test_prior_loss_zero_at_prior_and_real_gradient_elsewhere():
     light = SpotLight(translation=[0.1, 0.2, 0.3]).double()
     at_prior = light.prior_loss([0.1, 0.2, 0.3], weight=2.0)
-    assert float(at_prior) == pytest.approx(0.0, abs=1e-9)
+    assert at_prior.item() == pytest.approx(0.0, abs=1e-9)
     loss = light_prior_loss(light, torch.tensor([0.4, 0.6, 0.3]), weight=2.0)
     diff = np.array([-0.3, -0.4, 0.0])
-    assert float(loss) == pytest.approx(2.0 * (math.sqrt(0.25 + 1e-6) - 1e-3), rel=1e-6)
+    assert loss.item() == pytest.approx(2.0 * (math.sqrt(0.25 + 1e-6) - 1e-3), rel=1e-6)
     loss.backward()
     np.testing.assert_allclose(light.translation.grad.numpy(), 2.0 * diff / math.sqrt(0.25 + 1e-6), rtol=1e-6)
-    assert float(light.translation.grad.norm()) > 1.9  # ≈ weight: a real pull, not a dead term
+    assert _scalar(light.translation.grad.norm()) > 1.9  # ≈ weight: a real pull, not a dead term
 
 
 def test_prior_loss_errors():
@@ -220,9 +225,9 @@ def test_sh_light_starts_dark_but_learns():
     lf = LowFrequencyLight(3)
     n = torch.nn.functional.normalize(torch.randn(20, 3, generator=torch.Generator().manual_seed(0)), dim=-1)
     out = lf(n)
-    assert out.shape == (20, 3) and float(out.abs().max()) == 0.0
+    assert out.shape == (20, 3) and out.detach().abs().max().item() == 0.0
     out.sum().backward()
-    assert float(lf.coeffs.grad[0].abs().min()) > 0  # gradient passes the clamp at exactly 0
+    assert _scalar(lf.coeffs.grad[0].abs().min()) > 0  # gradient passes the clamp at exactly 0
 
 
 def test_sh_light_is_non_negative_with_finite_gradient():

@@ -23,6 +23,11 @@ from spotlessgs.models.shading import (
 torch.set_num_threads(1)
 
 
+def _scalar(x) -> float:
+    """A Python float of a number or a one-element tensor (detached)."""
+    return float(x.detach()) if isinstance(x, torch.Tensor) else float(x)
+
+
 def _look_at_c2w(center, target, dtype=torch.float32) -> torch.Tensor:
     """OpenCV camera at `center` looking at `target` (z forward, y down, world z up)."""
     c, t = np.asarray(center, float), np.asarray(target, float)
@@ -51,7 +56,7 @@ def test_each_variant_shape_finite_and_differentiable(variant):
     g = _scene()
     m = build_appearance_models(variant, seed=1)
     colours = shade(variant, g, m.light, m.lf_light, m.brdf, CAM)
-    assert colours.shape == (40, 3) and torch.isfinite(colours).all() and float(colours.min()) >= 0.0
+    assert colours.shape == (40, 3) and torch.isfinite(colours).all() and _scalar(colours.min()) >= 0.0
     colours.sum().backward()
     grads = [p.grad for p in g.parameters() if p.grad is not None] + [
         p.grad for p in m.module_dict().parameters() if p.grad is not None
@@ -85,7 +90,7 @@ def test_darkgs_colour_by_hand():
                                         rgb_is_srgb=False).double()
     light, amb = SpotLight(seed=0).double(), ConstantAmbient(0.05).double()
     colour = shade("darkgs", g, light, amb, LambertianBRDF(), c2w)
-    expected = np.array([0.2, 0.5, 0.8]) * (float(light.rid_curve([0.0])[0]) / (0.3 + 4.0) + 0.05)
+    expected = np.array([0.2, 0.5, 0.8]) * (_scalar(light.rid_curve([0.0])[0]) / (0.3 + 4.0) + 0.05)
     np.testing.assert_allclose(colour.detach().numpy()[0], expected, rtol=1e-5)
 
 
@@ -97,7 +102,7 @@ def test_grazing_and_back_facing_light_give_zero_spot_colour_with_finite_gradien
     cfg = dataclasses.replace(MODEL_VARIANTS["spotless"], two_sided_normals=False)
     m = build_appearance_models(cfg)
     colour = shade(cfg, g, m.light, m.lf_light, m.brdf, c2w)
-    assert float(colour[0].abs().max()) < 1e-3 and float(colour[1].abs().max()) == 0.0
+    assert _scalar(colour[0].abs().max()) < 1e-3 and _scalar(colour[1].abs().max()) == 0.0
     colour.sum().backward()
     assert all(torch.isfinite(p.grad).all() for p in g.parameters() if p.grad is not None)
 
@@ -108,7 +113,7 @@ def test_sh_degree_zero_equals_constant_ambient_variant():
     m = build_appearance_models("darkgs", seed=2)
     lf = LowFrequencyLight(0)
     with torch.no_grad():
-        lf.coeffs.fill_(float(m.lf_light.value) / SH_C0)
+        lf.coeffs.fill_(_scalar(m.lf_light.value) / SH_C0)
     torch.testing.assert_close(shade(sh0, g, m.light, lf, m.brdf, CAM), shade("darkgs", g, m.light, m.lf_light, m.brdf, CAM))
 
 
@@ -129,7 +134,7 @@ def test_relit_colours_ignore_light_pose_and_camera(variant):
     torch.testing.assert_close(shade(variant, g, None, m.lf_light, m.brdf, CAM, relight_l0=l0), relit)
     other = _look_at_c2w([-1.0, -1.5, 3.0], [0.2, 0.1, 0.0])  # same side of the (upward) normals
     torch.testing.assert_close(shade(variant, g, m.light, m.lf_light, m.brdf, other, relight_l0=l0), relit)
-    assert float(relit.min()) >= 0.0
+    assert _scalar(relit.min()) >= 0.0
 
 
 def test_relit_lambertian_is_albedo_times_total_light_and_not_clipped():
@@ -137,7 +142,7 @@ def test_relit_lambertian_is_albedo_times_total_light_and_not_clipped():
     m = build_appearance_models("darkgs")
     relit = shade("darkgs", g, m.light, m.lf_light, m.brdf, CAM, relight_l0=(4.0, 4.0, 4.0))
     torch.testing.assert_close(relit, g.albedo * (4.0 + m.lf_light.value))
-    assert float(relit.max()) > 1.0
+    assert _scalar(relit.max()) > 1.0
 
 
 def test_relit_learned_reflectance_is_a_bounded_directional_albedo():
@@ -146,7 +151,7 @@ def test_relit_learned_reflectance_is_a_bounded_directional_albedo():
     brdf = LearnedBRDF(seed=0)
     args = (g.albedo.detach(), g.roughness.detach(), g.metalness.detach(), normals.detach())
     r = relit_reflectance(*args, brdf, directions=32)
-    assert r.shape == (40, 3) and float(r.min()) >= 0.0 and float(r.max()) <= 1.0
+    assert r.shape == (40, 3) and _scalar(r.min()) >= 0.0 and _scalar(r.max()) <= 1.0
     # The 32-direction estimate converges to the directional albedo (reference: 512 directions); ρ = 0.5 keeps the
     # specular lobe wide enough for 32 directions.
     dense = relit_reflectance(*args, brdf, directions=512)
@@ -159,10 +164,10 @@ def test_relit_learned_reflectance_is_a_bounded_directional_albedo():
 def test_hemisphere_directions_are_cosine_weighted():
     d = hemisphere_directions(512, torch.float64)
     np.testing.assert_allclose(d.norm(dim=-1).numpy(), 1.0, atol=1e-12)
-    assert float(d[:, 2].min()) > 0.0
+    assert _scalar(d[:, 2].min()) > 0.0
     # (1/π) ∫ cos · cos dω = 2/3 and (1/π) ∫ x · cos dω = 0.
-    assert float(d[:, 2].mean()) == pytest.approx(2 / 3, abs=2e-3)
-    assert abs(float(d[:, 0].mean())) < 5e-3
+    assert _scalar(d[:, 2].mean()) == pytest.approx(2 / 3, abs=2e-3)
+    assert abs(_scalar(d[:, 0].mean())) < 5e-3
 
 
 def test_relit_reflectance_uses_a_full_hemisphere_around_any_normal():
@@ -177,7 +182,7 @@ def test_relit_reflectance_uses_a_full_hemisphere_around_any_normal():
 
     relit_reflectance(torch.ones(50, 3), torch.ones(50, 1), torch.zeros(50, 1), normals, Probe(), directions=64)
     cosines = torch.stack(calls)  # (64, 50)
-    assert float(cosines.min()) > 0.0
+    assert _scalar(cosines.min()) > 0.0
     np.testing.assert_allclose(cosines.mean(0).numpy(), 2 / 3, atol=5e-3)
 
 
@@ -223,5 +228,5 @@ def test_calibrated_build_freezes_pose_and_fits_cone():
     m = build_appearance_models(calibrated, light_translation=[0.1, 0.0, 0.0], cone=(math.radians(40), 0.5))
     assert not m.light.translation.requires_grad and not m.light.rotvec.requires_grad
     curve = m.light.rid_curve([0.0, math.radians(60)])
-    assert float(curve[0]) == pytest.approx(1.0, abs=0.05) and float(curve[1]) < 0.05
+    assert _scalar(curve[0]) == pytest.approx(1.0, abs=0.05) and _scalar(curve[1]) < 0.05
     assert build_appearance_models("3dgs").module_dict() is not None and len(build_appearance_models("3dgs").module_dict()) == 0
