@@ -11,7 +11,6 @@ import torch
 from spotlessgs.models.brdf import LambertianBRDF, LearnedBRDF, disney_brdf
 from spotlessgs.models.shading import hemisphere_directions
 
-torch.set_num_threads(1)
 
 
 def _scalar(x) -> float:

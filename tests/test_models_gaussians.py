@@ -10,7 +10,6 @@ import torch
 
 from spotlessgs.models.gaussians import PARAM_NAMES, GaussianParams, initial_scales, logit_roughness, srgb_to_linear
 
-torch.set_num_threads(1)
 
 
 def _scalar(x) -> float:

@@ -208,7 +208,7 @@ class GaussianParams(nn.Module):
         """
         if camera_center.shape != (3,):
             raise ValueError(f"camera_center must have shape (3,), got {tuple(camera_center.shape)}")
-        towards = safe_normalize(camera_center.to(self.means.dtype) - self.means)
+        towards = safe_normalize(camera_center.to(self.means) - self.means)
         raw = self.params["normals_raw"]
         weight = NORMAL_FALLBACK_SCALE * torch.exp(-(raw * raw).sum(-1, keepdim=True) / NORMAL_FALLBACK_SCALE**2)
         return safe_normalize(raw + weight * towards, fallback=towards)

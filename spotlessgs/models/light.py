@@ -85,7 +85,11 @@ class SpotLight(nn.Module):
         if gamma <= 0 or tau <= 0:
             raise ValueError(f"SpotLight: gamma and tau must be > 0, got gamma={gamma}, tau={tau}")
         self.rotvec = nn.Parameter(torch.as_tensor(_rotvec_from(rotation), dtype=torch.float32))
-        t = torch.zeros(3) if translation is None else torch.as_tensor(np.asarray(translation, np.float64), dtype=torch.float32)
+        if translation is None:
+            t = torch.zeros(3)
+        else:
+            raw = translation.detach().cpu() if isinstance(translation, torch.Tensor) else translation
+            t = torch.as_tensor(np.asarray(raw, dtype=np.float64), dtype=torch.float32)
         if t.shape != (3,):
             raise ValueError(f"SpotLight: translation must have shape (3,), got {tuple(t.shape)}")
         self.translation = nn.Parameter(t.clone())
@@ -229,7 +233,7 @@ class SpotLight(nn.Module):
             return float((self.rid_of_angle(theta) - intensity * target).abs().max())
 
     # ---- prior ----------------------------------------------------------------------------------------------------
-    def prior_loss(self, t_prior: torch.Tensor | Sequence[float], weight: float) -> torch.Tensor:
+    def light_prior_loss(self, t_prior: torch.Tensor | Sequence[float], weight: float) -> torch.Tensor:
         """Translation prior weight · (sqrt(|t - t_prior|² + ε²) - ε), ε = 1 mm; scalar tensor.
 
         A smooth version of weight · |t - t_prior|₂ (the paper's term): 0 at the prior, gradient weight · unit vector
@@ -245,8 +249,8 @@ class SpotLight(nn.Module):
 
 
 def light_prior_loss(light: SpotLight, t_prior: torch.Tensor | Sequence[float], weight: float) -> torch.Tensor:
-    """Functional form of `SpotLight.prior_loss`: weight · (sqrt(|t - t_prior|² + ε²) - ε), scalar."""
-    return light.prior_loss(t_prior, weight)
+    """Functional form of `SpotLight.light_prior_loss`: weight · (sqrt(|t - t_prior|² + ε²) - ε), scalar."""
+    return light.light_prior_loss(t_prior, weight)
 
 
 class LowFrequencyLight(nn.Module):

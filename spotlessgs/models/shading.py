@@ -114,7 +114,7 @@ def resolve_variant(variant: str | ModelConfig) -> ModelConfig:
 # ---- geometry per Gaussian ---------------------------------------------------------------------------------------
 def view_directions(means: torch.Tensor, camera_center: torch.Tensor) -> torch.Tensor:
     """Unit vectors (N, 3) from each Gaussian (N, 3) towards the camera centre (3,); +z for a Gaussian at the centre."""
-    return safe_normalize(camera_center.to(means.dtype) - means)
+    return safe_normalize(camera_center.to(means) - means)
 
 
 def orient_normals(normals: torch.Tensor, view_dirs: torch.Tensor) -> torch.Tensor:
