@@ -216,6 +216,8 @@ def test_config_and_module_errors():
         ModelConfig("x", sh_degree=5)
     with pytest.raises(ValueError, match="relight_directions must be >= 1"):
         ModelConfig("x", relight_directions=0)
+    with pytest.raises(ValueError, match="brdf_hidden must be >= 1"):
+        ModelConfig("x", brdf_hidden=0)
     with pytest.raises(dataclasses.FrozenInstanceError):
         MODEL_VARIANTS["spotless"].brdf = "lambert"
 
@@ -228,6 +230,8 @@ def test_calibrated_build_freezes_pose_and_fits_cone():
     assert not m.light.translation.requires_grad and not m.light.rotvec.requires_grad
     curve = m.light.rid_curve([0.0, math.radians(60)])
     assert _scalar(curve[0]) == pytest.approx(1.0, abs=0.05) and _scalar(curve[1]) < 0.05
+    small = build_appearance_models(dataclasses.replace(MODEL_VARIANTS["spotless"], brdf_hidden=32))
+    assert small.brdf.mlp[0].out_features == 32 and small.brdf.mlp[0].in_features == 117
     assert build_appearance_models("3dgs").module_dict() is not None and len(build_appearance_models("3dgs").module_dict()) == 0
 
 

@@ -70,6 +70,8 @@ class ModelConfig:
     two_sided_normals: bool = True
     # Number of hemisphere directions of the relighting quadrature (learned BRDF only; Lambertian is exact).
     relight_directions: int = 16
+    # Hidden width of the learned-BRDF MLP (paper: 256; CPU presets may use less, the MLP dominates shading time).
+    brdf_hidden: int = 256
 
     def __post_init__(self) -> None:
         if self.light_model not in ("none", "spotlight"):
@@ -89,6 +91,8 @@ class ModelConfig:
         check_sh_degree(self.colour_sh_degree)
         if self.relight_directions < 1:
             raise ValueError(f"ModelConfig {self.name!r}: relight_directions must be >= 1, got {self.relight_directions}")
+        if self.brdf_hidden < 1:
+            raise ValueError(f"ModelConfig {self.name!r}: brdf_hidden must be >= 1, got {self.brdf_hidden}")
 
 
 MODEL_VARIANTS: dict[str, ModelConfig] = {
@@ -305,5 +309,5 @@ def build_appearance_models(
         light.fit_rid_to_cone(*cone)
         light.set_pose_trainable(False)
     lf_light = ConstantAmbient(ambient_init) if cfg.ambient == "constant" else LowFrequencyLight(cfg.sh_degree)
-    brdf = LambertianBRDF() if cfg.brdf == "lambert" else LearnedBRDF(seed=seed)
+    brdf = LambertianBRDF() if cfg.brdf == "lambert" else LearnedBRDF(hidden=cfg.brdf_hidden, seed=seed)
     return AppearanceModels(light, lf_light, brdf)
