@@ -204,8 +204,8 @@ class SpotLight(nn.Module):
                 f"fit_rid_to_cone: need adam_steps >= 0, lbfgs_iters >= 0, n_samples >= 2, "
                 f"got {adam_steps}, {lbfgs_iters}, {n_samples}"
             )
-        dev = self.log_tau.device
-        theta = torch.linspace(0.0, math.pi, n_samples, device=dev).reshape(-1, 1)
+        theta = torch.linspace(0.0, math.pi, n_samples, device=self.log_tau.device, dtype=self.log_tau.dtype)
+        theta = theta.reshape(-1, 1)
         target = cone_profile(theta, half_angle, blend)  # (n_samples, 1), peak 1
 
         def loss_fn() -> torch.Tensor:  # relative error, so the schedule does not depend on `intensity`
