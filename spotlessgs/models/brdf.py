@@ -1,0 +1,166 @@
+"""Reflectance models: Lambertian (DarkGS), analytic Disney/GGX, and the learned BRDF of SpotlessGS.
+
+Units. `disney_brdf` returns the physical BRDF f (1/sr). The shading modules use the π-scaled reflectance
+f̃ = π f, for which a Lambertian surface of albedo a gives exactly f̃ = a; the colour of a Gaussian is then
+f̃ · max(0, n̂·l̂) · L_in (see `spotlessgs.models.shading`). The albedo a enters the Disney model as its base colour and
+is NOT multiplied in a second time (the research code applied softplus(albedo) on top of a Disney term that already
+contained the raw albedo).
+
+Disney/GGX, all dot products of unit vectors, h = normalize(l + v):
+    α = max(ρ², α_min)                                     GGX width from roughness ρ
+    D = α² / (π (cos²θ_h (α² - 1) + 1)²)                   GGX normal distribution
+    k = (ρ + 1)² / 8,  G1(c) = c / (c (1 - k) + k)           Smith-Schlick shadowing (Karis' analytic-light remap)
+    F = F0 + (1 - F0)(1 - l·h)⁵,  F0 = lerp(0.04, a, η)      Schlick Fresnel, metalness η
+    f_spec = D F G1(n·l) G1(n·v) / (4 (n·l)(n·v)) = D F / (4 (n·l (1-k) + k)(n·v (1-k) + k))
+    f_diff = (1 - η) a/π (1 + (F_D90 - 1)(1 - n·l)⁵)(1 + (F_D90 - 1)(1 - n·v)⁵),  F_D90 = ½ + 2 ρ (l·h)²   (Burley)
+Guards: n·l and n·v are clamped to [ε, 1] (ε = 1e-4) inside the BRDF, α ≥ 1e-3, and the G1 ratio is simplified
+algebraically so that no denominator goes below k² ≥ 1/64. The model is symmetric in (l, v) (reciprocity).
+
+Learned BRDF (the released SpotlessGS variant, written afresh):
+    f̃ = clamp(π f_Disney(a, ρ, η; v, l, n) · (1 + 0.2 tanh(MLP(γ(v), γ(l), γ(n)))), 0, 1)
+γ is the sinusoidal encoding with 6 frequency bands (2^k π, k = 0..5) plus the identity: 3 · (1 + 2·6) = 39 features per
+unit vector, 117 for (v, l, n) together — the research code's 117-wide input. MLP 117→256→256→1 (ReLU), last layer
+zero-initialised so that f̃ starts equal to the clamped analytic model. The upper clamp f̃ ≤ 1 bounds the reflected
+fraction of any incident light: ∫ f cos dω = (1/π) ∫ f̃ cos dω ≤ 1 (white-furnace bound).
+"""
+
+from __future__ import annotations
+
+import math
+
+import torch
+from torch import nn
+
+from spotlessgs.io.seeding import torch_generator
+from spotlessgs.models.geometry import safe_normalize
+from spotlessgs.models.nets import encoding_size, seeded_linear, sinusoidal_encoding
+
+# Lower clamp of n·l and n·v inside the BRDF (grazing angles).
+COS_EPS = 1e-4
+# Lower clamp of the GGX width α = ρ².
+ALPHA_MIN = 1e-3
+# Dielectric reflectance at normal incidence (index ≈ 1.5).
+F0_DIELECTRIC = 0.04
+# Learned-BRDF settings (see module docstring).
+BRDF_FREQUENCIES = 6
+BRDF_HIDDEN = 256
+BRDF_RESIDUAL = 0.2
+
+
+def disney_brdf(
+    albedo: torch.Tensor,
+    roughness: torch.Tensor,
+    metalness: torch.Tensor,
+    normals: torch.Tensor,
+    view_dirs: torch.Tensor,
+    light_dirs: torch.Tensor,
+) -> torch.Tensor:
+    """Physical Disney/GGX BRDF f (1/sr), without the cosine factor.
+
+    Args:
+        albedo: (N, 3) base colour in [0, 1].
+        roughness: (N, 1) or (N,) ρ in [0, 1].
+        metalness: (N, 1) or (N,) η in [0, 1].
+        normals, view_dirs, light_dirs: (N, 3) unit vectors n̂, v̂ (point → camera), l̂ (point → light).
+    Returns:
+        (N, 3) BRDF values ≥ 0, finite for all inputs including ρ = 0, grazing and back-facing directions.
+    """
+    rough = _column(roughness, "roughness")
+    metal = _column(metalness, "metalness")
+    n_l = (normals * light_dirs).sum(-1, keepdim=True).clamp(COS_EPS, 1.0)
+    n_v = (normals * view_dirs).sum(-1, keepdim=True).clamp(COS_EPS, 1.0)
+    half = safe_normalize(light_dirs + view_dirs, fallback=normals)
+    n_h = (normals * half).sum(-1, keepdim=True).clamp(0.0, 1.0)
+    l_h = (light_dirs * half).sum(-1, keepdim=True).clamp(0.0, 1.0)
+
+    alpha = (rough * rough).clamp_min(ALPHA_MIN)
+    alpha_sq = alpha * alpha
+    d_denom = n_h * n_h * (alpha_sq - 1.0) + 1.0  # ≥ α² > 0
+    ndf = alpha_sq / (math.pi * d_denom * d_denom)
+    k = (rough + 1.0) ** 2 / 8.0
+    vis = 1.0 / (4.0 * (n_l * (1.0 - k) + k) * (n_v * (1.0 - k) + k))
+    f0 = F0_DIELECTRIC * (1.0 - metal) + albedo * metal
+    fresnel = f0 + (1.0 - f0) * (1.0 - l_h) ** 5
+    specular = ndf * vis * fresnel
+
+    fd90 = 0.5 + 2.0 * rough * l_h * l_h
+    diffuse = (1.0 - metal) * albedo / math.pi
+    diffuse = diffuse * (1.0 + (fd90 - 1.0) * (1.0 - n_l) ** 5) * (1.0 + (fd90 - 1.0) * (1.0 - n_v) ** 5)
+    return diffuse + specular
+
+
+class LambertianBRDF(nn.Module):
+    """Lambertian reflectance f̃ = a (π-scaled, see module docstring); no parameters."""
+
+    def forward(
+        self,
+        albedo: torch.Tensor,
+        roughness: torch.Tensor | None,
+        metalness: torch.Tensor | None,
+        normals: torch.Tensor,
+        view_dirs: torch.Tensor,
+        light_dirs: torch.Tensor,
+    ) -> torch.Tensor:
+        """Return albedo (N, 3); the other arguments (shapes as in `disney_brdf`) are accepted for a common interface."""
+        return albedo
+
+
+class LearnedBRDF(nn.Module):
+    """SpotlessGS learned BRDF: clamp(π f_Disney · (1 + 0.2 tanh(MLP(γ(v), γ(l), γ(n)))), 0, 1), shared by all Gaussians.
+
+    Args:
+        num_frequencies: bands of the sinusoidal encoding γ (input width 9 · (1 + 2F), 117 for F = 6).
+        hidden: hidden width.
+        residual: modulation strength (0.2: the learned factor stays in [0.8, 1.2]).
+        seed: seed of the hidden-layer initialisation (stage "brdf_mlp").
+    """
+
+    def __init__(
+        self,
+        num_frequencies: int = BRDF_FREQUENCIES,
+        hidden: int = BRDF_HIDDEN,
+        residual: float = BRDF_RESIDUAL,
+        seed: int = 0,
+    ) -> None:
+        super().__init__()
+        if not 0.0 <= residual < 1.0:
+            raise ValueError(f"LearnedBRDF residual must be in [0, 1) to keep the factor positive, got {residual}")
+        self.num_frequencies = num_frequencies
+        self.residual = residual
+        self.input_size = encoding_size(9, num_frequencies)
+        gen = torch_generator(seed, "brdf_mlp")
+        last = nn.Linear(hidden, 1)
+        nn.init.zeros_(last.weight)
+        nn.init.zeros_(last.bias)
+        self.mlp = nn.Sequential(
+            seeded_linear(self.input_size, hidden, gen), nn.ReLU(),
+            seeded_linear(hidden, hidden, gen), nn.ReLU(),
+            last,
+        )
+
+    def modulation(self, normals: torch.Tensor, view_dirs: torch.Tensor, light_dirs: torch.Tensor) -> torch.Tensor:
+        """Learned factor 1 + r tanh(MLP(γ(v), γ(l), γ(n))) for unit vectors (N, 3) each → (N, 1) in [1-r, 1+r]."""
+        dirs = torch.cat([view_dirs, light_dirs, normals], dim=-1)
+        return 1.0 + self.residual * torch.tanh(self.mlp(sinusoidal_encoding(dirs, self.num_frequencies)))
+
+    def forward(
+        self,
+        albedo: torch.Tensor,
+        roughness: torch.Tensor,
+        metalness: torch.Tensor,
+        normals: torch.Tensor,
+        view_dirs: torch.Tensor,
+        light_dirs: torch.Tensor,
+    ) -> torch.Tensor:
+        """π-scaled reflectance f̃ (N, 3) in [0, 1]; argument shapes as in `disney_brdf`."""
+        analytic = math.pi * disney_brdf(albedo, roughness, metalness, normals, view_dirs, light_dirs)
+        return (analytic * self.modulation(normals, view_dirs, light_dirs)).clamp(0.0, 1.0)
+
+
+def _column(x: torch.Tensor, name: str) -> torch.Tensor:
+    """(N,) or (N, 1) → (N, 1)."""
+    if x.ndim == 1:
+        return x.unsqueeze(-1)
+    if x.ndim == 2 and x.shape[1] == 1:
+        return x
+    raise ValueError(f"{name} must have shape (N,) or (N, 1), got {tuple(x.shape)}")

@@ -1,0 +1,313 @@
+"""Per-Gaussian shading: one linear RGB colour per Gaussian for a camera, for each model variant.
+
+Spotlight-lit colour (training and novel views), for Gaussian i with albedo a, normal n̂, view direction v̂ (towards the
+camera) and light direction l̂ (towards the lamp):
+
+    c_i = f̃(a, ρ, η; v̂, l̂, n̂) · max(0, n̂·l̂) · (L_spot + L_lf(n̂))
+
+f̃ is the π-scaled reflectance (Lambertian: f̃ = a, see `brdf`), L_spot = Ψ Φ the spotlight (see `light`), L_lf the
+low-frequency light (DarkGS constant A, or the SH light evaluated at n̂). The cosine multiplies L_lf as well, as in
+the research code (there the SH term is multiplied by n̂·l̂); applying it once to the sum keeps DarkGS exactly
+a (Ψ Φ + A) max(0, n̂·l̂) and avoids the research code's second cosine inside its BRDF.
+
+Relighting (METHOD.md §5, paper eq. 8): the spotlight is replaced by a constant RGB radiance L0 arriving uniformly
+from the whole hemisphere (the paper: "similar to an environment light with constant intensity"). The reflected
+radiance of a uniform environment is L_in times the directional albedo R = (1/π) ∫ f̃ cos dω, so
+
+    ĉ_i = R_i · (L0 + L_lf(n̂)),   R_i = mean_k f̃(a, ρ, η; v̂ = n̂, l̂_k, n̂)
+
+with a fixed, deterministic cosine-weighted set of K hemisphere directions l̂_k around n̂ (a Fibonacci spiral on the
+disk lifted to the hemisphere). Choices: there is no light direction, so no single cosine (it is inside R); the
+Lambertian R is exactly a for any K; L_lf keeps its value at n̂ without the spotlight cosine; and v̂ = n̂, which makes
+every Gaussian's relit colour independent of the camera (view-consistent, no flicker between frames) and of the
+learned light pose. The spotlight is never evaluated. Relit colours are linear and not clipped: the caller decides.
+
+Normals are two-sided by default: n̂ is flipped into the camera's hemisphere (a splat is seen from its visible side;
+point-cloud normals are often unoriented).
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass
+from typing import Literal
+
+import torch
+from torch import nn
+
+from spotlessgs.models.brdf import LambertianBRDF, LearnedBRDF
+from spotlessgs.models.gaussians import GaussianParams
+from spotlessgs.models.geometry import check_c2w, orthonormal_basis, safe_normalize
+from spotlessgs.models.light import ConstantAmbient, LowFrequencyLight, SpotLight
+from spotlessgs.models.sh import check_sh_degree, eval_sh
+
+# Default constant relighting radiance L0 (linear RGB): with it a white Lambertian surface relights to 1.0 (+ L_lf).
+RELIGHT_L0_DEFAULT = (1.0, 1.0, 1.0)
+# 3DGS adds this offset to its SH colour before clamping at 0.
+SH_COLOUR_OFFSET = 0.5
+
+
+@dataclass(frozen=True)
+class ModelConfig:
+    """Switches of one appearance-model variant."""
+
+    # Preset name, recorded in run folders.
+    name: str
+    # "none": vanilla 3DGS view-dependent SH colour (no light model); "spotlight": camera-mounted spotlight model.
+    light_model: Literal["none", "spotlight"] = "spotlight"
+    # Low-frequency light: "none" (3DGS only), "constant" (DarkGS scalar ambient A) or "sh" (SpotlessGS SH light).
+    ambient: Literal["none", "constant", "sh"] = "sh"
+    # Degree 0..3 of the SH low-frequency light (used when ambient == "sh"; degree 0 = an RGB constant ambient).
+    sh_degree: int = 3
+    # Reflectance: "lambert" (DarkGS) or "mlp" (learned Disney-modulated BRDF).
+    brdf: Literal["lambert", "mlp"] = "mlp"
+    # Light pose and RID given (true pose, RID fitted to the known cone) and frozen, instead of optimised jointly.
+    calibrated: bool = False
+    # Degree 0..3 of the vanilla 3DGS colour SH (light_model == "none").
+    colour_sh_degree: int = 3
+    # Flip normals into the camera's hemisphere before shading.
+    two_sided_normals: bool = True
+    # Number of hemisphere directions of the relighting quadrature (learned BRDF only; Lambertian is exact).
+    relight_directions: int = 16
+    # Hidden width of the learned-BRDF MLP (paper: 256; CPU presets may use less, the MLP dominates shading time).
+    brdf_hidden: int = 256
+
+    def __post_init__(self) -> None:
+        if self.light_model not in ("none", "spotlight"):
+            raise ValueError(f"ModelConfig {self.name!r}: light_model must be 'none' or 'spotlight', got {self.light_model!r}")
+        if self.ambient not in ("none", "constant", "sh"):
+            raise ValueError(f"ModelConfig {self.name!r}: ambient must be 'none', 'constant' or 'sh', got {self.ambient!r}")
+        if self.brdf not in ("lambert", "mlp"):
+            raise ValueError(f"ModelConfig {self.name!r}: brdf must be 'lambert' or 'mlp', got {self.brdf!r}")
+        if (self.light_model == "none") != (self.ambient == "none"):
+            raise ValueError(
+                f"ModelConfig {self.name!r}: ambient 'none' goes with light_model 'none' only "
+                f"(got light_model={self.light_model!r}, ambient={self.ambient!r})"
+            )
+        if self.light_model == "none" and self.calibrated:
+            raise ValueError(f"ModelConfig {self.name!r}: calibrated needs light_model 'spotlight'")
+        check_sh_degree(self.sh_degree)
+        check_sh_degree(self.colour_sh_degree)
+        if self.relight_directions < 1:
+            raise ValueError(f"ModelConfig {self.name!r}: relight_directions must be >= 1, got {self.relight_directions}")
+        if self.brdf_hidden < 1:
+            raise ValueError(f"ModelConfig {self.name!r}: brdf_hidden must be >= 1, got {self.brdf_hidden}")
+
+
+MODEL_VARIANTS: dict[str, ModelConfig] = {
+    "3dgs": ModelConfig("3dgs", light_model="none", ambient="none", brdf="lambert"),
+    "darkgs": ModelConfig("darkgs", ambient="constant", brdf="lambert"),
+    "darkgs+sh": ModelConfig("darkgs+sh", ambient="sh", brdf="lambert"),
+    "darkgs+brdf": ModelConfig("darkgs+brdf", ambient="constant", brdf="mlp"),
+    "spotless": ModelConfig("spotless", ambient="sh", brdf="mlp"),
+}
+"""The five variants of the paper's tables. DarkGS with a calibrated light is
+`dataclasses.replace(MODEL_VARIANTS["darkgs"], calibrated=True)`."""
+
+
+def resolve_variant(variant: str | ModelConfig) -> ModelConfig:
+    """A preset name or a ModelConfig → ModelConfig (ValueError naming the known presets otherwise)."""
+    if isinstance(variant, ModelConfig):
+        return variant
+    if variant not in MODEL_VARIANTS:
+        raise ValueError(f"unknown model variant {variant!r}; known: {sorted(MODEL_VARIANTS)}")
+    return MODEL_VARIANTS[variant]
+
+
+# ---- geometry per Gaussian ---------------------------------------------------------------------------------------
+def view_directions(means: torch.Tensor, camera_center: torch.Tensor) -> torch.Tensor:
+    """Unit vectors (N, 3) from each Gaussian (N, 3) towards the camera centre (3,); +z for a Gaussian at the centre."""
+    return safe_normalize(camera_center.to(means) - means)
+
+
+def orient_normals(normals: torch.Tensor, view_dirs: torch.Tensor) -> torch.Tensor:
+    """Flip unit normals (N, 3) whose dot product with the view directions (N, 3) is negative (two-sided splats)."""
+    facing = (normals * view_dirs).sum(-1, keepdim=True)
+    return torch.where(facing < 0, -normals, normals)
+
+
+def lambert_cosine(normals: torch.Tensor, light_dirs: torch.Tensor) -> torch.Tensor:
+    """max(0, n̂·l̂) for unit vectors (N, 3) → (N, 1)."""
+    return (normals * light_dirs).sum(-1, keepdim=True).clamp_min(0.0)
+
+
+def hemisphere_directions(count: int, dtype: torch.dtype = torch.float32) -> torch.Tensor:
+    """Deterministic cosine-weighted hemisphere directions (count, 3) around +z (Fibonacci spiral on the unit disk,
+    lifted by Malley's method: z = sqrt(1 - r²)). The mean of g over them estimates (1/π) ∫ g cos dω."""
+    if count < 1:
+        raise ValueError(f"hemisphere_directions: count must be >= 1, got {count}")
+    i = torch.arange(count, dtype=torch.float64)
+    r = torch.sqrt((i + 0.5) / count)
+    phi = i * (math.pi * (3.0 - math.sqrt(5.0)))
+    dirs = torch.stack([r * torch.cos(phi), r * torch.sin(phi), torch.sqrt(1.0 - r * r)], dim=-1)
+    return dirs.to(dtype)
+
+
+# ---- colours -----------------------------------------------------------------------------------------------------
+def vanilla_colours(gaussians: GaussianParams, c2w: torch.Tensor, degree: int = 3) -> torch.Tensor:
+    """Vanilla 3DGS colour: max(0, SH(d̂) + 0.5) with d̂ the unit direction camera → Gaussian; (N, 3)."""
+    check_c2w(c2w)
+    dirs = -view_directions(gaussians.means, c2w[:3, 3])
+    return (eval_sh(gaussians.sh_colour_coeffs(), dirs, degree) + SH_COLOUR_OFFSET).clamp_min(0.0)
+
+
+def spot_lit_colours(
+    albedo: torch.Tensor,
+    roughness: torch.Tensor,
+    metalness: torch.Tensor,
+    normals: torch.Tensor,
+    view_dirs: torch.Tensor,
+    light_dirs: torch.Tensor,
+    spot_radiance: torch.Tensor,
+    low_frequency: torch.Tensor,
+    brdf: nn.Module,
+) -> torch.Tensor:
+    """c = f̃ · max(0, n̂·l̂) · (L_spot + L_lf).
+
+    Args:
+        albedo (N, 3), roughness (N, 1), metalness (N, 1), normals/view_dirs/light_dirs (N, 3) unit vectors,
+        spot_radiance (N, 1), low_frequency (N, 3), brdf: a LambertianBRDF or LearnedBRDF.
+    Returns:
+        (N, 3) linear colours ≥ 0.
+    """
+    reflectance = brdf(albedo, roughness, metalness, normals, view_dirs, light_dirs)
+    return reflectance * lambert_cosine(normals, light_dirs) * (spot_radiance + low_frequency)
+
+
+def relit_reflectance(
+    albedo: torch.Tensor,
+    roughness: torch.Tensor,
+    metalness: torch.Tensor,
+    normals: torch.Tensor,
+    brdf: nn.Module,
+    directions: int = 16,
+) -> torch.Tensor:
+    """Directional albedo R = (1/π) ∫ f̃(v̂ = n̂, l̂) cos dω under uniform light, (N, 3).
+
+    Lambertian: exactly the albedo. Learned BRDF: mean over `hemisphere_directions(directions)` rotated to each n̂
+    (N rows per direction, so memory stays at one (N, hidden) activation). Depends on the Gaussian only, so a caller
+    may cache it across frames.
+    """
+    if isinstance(brdf, LambertianBRDF):
+        return albedo
+    t1, t2 = orthonormal_basis(normals)
+    local = hemisphere_directions(directions, dtype=normals.dtype).to(normals.device)
+    total = torch.zeros_like(albedo)
+    for d in local:
+        light_dirs = d[0] * t1 + d[1] * t2 + d[2] * normals
+        total = total + brdf(albedo, roughness, metalness, normals, normals, light_dirs)
+    return total / directions
+
+
+def relight_radiance(relight_l0: torch.Tensor | Sequence[float], like: torch.Tensor) -> torch.Tensor:
+    """Validate L0 (3,) (finite, ≥ 0) and return it as a (1, 3) tensor with the dtype/device of `like`."""
+    l0 = torch.as_tensor(relight_l0, dtype=like.dtype, device=like.device)
+    if l0.shape != (3,) or not torch.isfinite(l0).all() or (l0 < 0).any():
+        raise ValueError(f"relight_l0 must be three finite non-negative linear RGB values, got {relight_l0!r}")
+    return l0.reshape(1, 3)
+
+
+def shade(
+    variant: str | ModelConfig,
+    gaussians: GaussianParams,
+    light: SpotLight | None,
+    lf_light: LowFrequencyLight | ConstantAmbient | None,
+    brdf: LambertianBRDF | LearnedBRDF | None,
+    c2w: torch.Tensor,
+    relight_l0: torch.Tensor | Sequence[float] | None = None,
+) -> torch.Tensor:
+    """Linear RGB colour of every Gaussian seen from camera `c2w`, (N, 3); differentiable; never clipped above.
+
+    Args:
+        variant: preset name of `MODEL_VARIANTS` or a ModelConfig.
+        gaussians: the Gaussians (N).
+        light: the spotlight (unused by "3dgs" and by relighting; may then be None).
+        lf_light: ConstantAmbient for ambient "constant", LowFrequencyLight for "sh" (None for "3dgs").
+        brdf: LambertianBRDF for brdf "lambert", LearnedBRDF for "mlp" (None for "3dgs").
+        c2w: (4, 4) camera-to-world, OpenCV axes.
+        relight_l0: None to render under the learned spotlight, or L0 (3,) to relight (see module docstring);
+            "3dgs" ignores it (its relit output is its normal render).
+    """
+    cfg = resolve_variant(variant)
+    check_c2w(c2w)
+    if cfg.light_model == "none":
+        return vanilla_colours(gaussians, c2w, cfg.colour_sh_degree)
+    _check_modules(cfg, light, lf_light, brdf, relit=relight_l0 is not None)
+    center = c2w[:3, 3]
+    view_dirs = view_directions(gaussians.means, center)
+    normals = gaussians.normals(center)
+    if cfg.two_sided_normals:
+        normals = orient_normals(normals, view_dirs)
+    albedo, rough, metal = gaussians.albedo, gaussians.roughness, gaussians.metalness
+    low_frequency = lf_light.radiance(normals)
+    if relight_l0 is not None:
+        l0 = relight_radiance(relight_l0, albedo)
+        reflect = relit_reflectance(albedo, rough, metal, normals, brdf, cfg.relight_directions)
+        return reflect * (l0 + low_frequency)
+    spot, light_dirs = light.incident(gaussians.means, c2w)
+    return spot_lit_colours(albedo, rough, metal, normals, view_dirs, light_dirs, spot, low_frequency, brdf)
+
+
+def _check_modules(cfg: ModelConfig, light, lf_light, brdf, relit: bool) -> None:
+    """Raise ValueError when a module does not match the variant."""
+    if not relit and not isinstance(light, SpotLight):
+        raise ValueError(f"variant {cfg.name!r} needs a SpotLight, got {type(light).__name__}")
+    want_lf = ConstantAmbient if cfg.ambient == "constant" else LowFrequencyLight
+    if not isinstance(lf_light, want_lf):
+        raise ValueError(f"variant {cfg.name!r} (ambient={cfg.ambient!r}) needs a {want_lf.__name__}, got {type(lf_light).__name__}")
+    if cfg.ambient == "sh" and lf_light.degree != cfg.sh_degree:
+        raise ValueError(f"variant {cfg.name!r} wants SH degree {cfg.sh_degree}, the LowFrequencyLight has {lf_light.degree}")
+    want_brdf = LambertianBRDF if cfg.brdf == "lambert" else LearnedBRDF
+    if not isinstance(brdf, want_brdf):
+        raise ValueError(f"variant {cfg.name!r} (brdf={cfg.brdf!r}) needs a {want_brdf.__name__}, got {type(brdf).__name__}")
+
+
+@dataclass
+class AppearanceModels:
+    """The shared (non-per-Gaussian) appearance modules of one variant; `None` where the variant has none."""
+
+    # Spotlight (None for "3dgs").
+    light: SpotLight | None
+    # ConstantAmbient or LowFrequencyLight (None for "3dgs").
+    lf_light: LowFrequencyLight | ConstantAmbient | None
+    # LambertianBRDF or LearnedBRDF (None for "3dgs").
+    brdf: LambertianBRDF | LearnedBRDF | None
+
+    def module_dict(self) -> nn.ModuleDict:
+        """The present modules by name ("light", "lf_light", "brdf"), e.g. for `.to(device)` and optimizer groups."""
+        return nn.ModuleDict({k: m for k, m in vars(self).items() if m is not None})
+
+
+def build_appearance_models(
+    variant: str | ModelConfig,
+    seed: int = 0,
+    light_rotation=None,
+    light_translation=None,
+    cone: tuple[float, float] | None = None,
+    ambient_init: float = 0.05,
+) -> AppearanceModels:
+    """Create the light, low-frequency light and BRDF of a variant.
+
+    Args:
+        variant: preset name or ModelConfig.
+        seed: command seed (the RID and BRDF networks draw from their own stages of it).
+        light_rotation: initial light→camera rotation, (3, 3) or axis-angle (3,); default identity.
+        light_translation: initial light origin in camera coordinates (3,), metres; default 0.
+        cone: (half_angle rad, blend) of the known spot cone; required when calibrated.
+        ambient_init: initial DarkGS ambient A.
+    Calibrated variants start from the given pose and freeze it, and fit the RID to the cone (unit peak); the RID,
+    τ and γ stay trainable so that the unknown lamp power can still be learned.
+    """
+    cfg = resolve_variant(variant)
+    if cfg.light_model == "none":
+        return AppearanceModels(None, None, None)
+    light = SpotLight(rotation=light_rotation, translation=light_translation, seed=seed)
+    if cfg.calibrated:
+        if cone is None or light_translation is None:
+            raise ValueError(f"variant {cfg.name!r} is calibrated: pass light_translation (and rotation) and cone")
+        light.fit_rid_to_cone(*cone)
+        light.set_pose_trainable(False)
+    lf_light = ConstantAmbient(ambient_init) if cfg.ambient == "constant" else LowFrequencyLight(cfg.sh_degree)
+    brdf = LambertianBRDF() if cfg.brdf == "lambert" else LearnedBRDF(hidden=cfg.brdf_hidden, seed=seed)
+    return AppearanceModels(light, lf_light, brdf)
