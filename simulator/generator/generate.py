@@ -121,7 +121,8 @@ def build_house(kind: str, seed: int, config: GeneratorConfig) -> HouseFiles:
     m_ceiling = add_material("ceiling", palette.ceiling, ts // 2)
     m_base = add_material("baseboard", palette.baseboard, fs // 2)
     m_door = add_material("door", palette.door, fs)
-    m_band = add_material("lightband", Surface("", color=(255, 250, 240), roughness=0.9), None)
+    if room_plan.light_bands:
+        m_band = add_material("lightband", Surface("", color=(255, 250, 240), roughness=0.9), None)
 
     # --- architecture meshes
     poly, h = room_plan.polygon, room_plan.height

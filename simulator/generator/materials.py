@@ -115,7 +115,7 @@ PALETTES: dict[str, Palette] = {
         door=surf("wood", 0.6, color=(120, 85, 55)),
         default=surf("wood", 0.55, uv_span=1.2, color=(120, 80, 50)),
         furniture={
-            "sofa": surf("fabric", 0.9, uv_span=1.0, color=(110, 120, 105), accent=(200, 90, 60)),
+            "sofa": surf("fabric", 0.9, uv_span=1.0, color=(100, 112, 98), accent=(235, 205, 150)),
             "armchair": surf("fabric", 0.9, uv_span=0.8, color=(170, 130, 90), accent=(60, 60, 70)),
             "coffee_table": surf("tiles", 0.08, uv_span=1.0, color=(225, 222, 215), count=3),
             "tv_stand": surf("wood", 0.2, uv_span=1.5, color=(60, 45, 35)),

@@ -400,11 +400,12 @@ def plan_room(kind: str, recipe: RoomRecipe, sizes: dict[str, list[np.ndarray]],
     dw = walls[recipe.door_edge]
     door = Door(recipe.door_edge, round(float(rng.uniform(0.3 + 0.45, dw.length - 0.3 - 0.45)) * 20) / 20)
     walkway = walkway_region(poly, walls, recipe.bands, recipe.default_band)
-    # the door leaf plus the floor in front of it (1 m) stay free, full height
+    # the door leaf plus the floor in front of it (1 m) stay free up to just above the door (ceiling lights may pass)
     dc = dw.start + dw.direction * door.centre
     a = dc - dw.direction * (door.width / 2 + 0.1)
     b = dc + dw.direction * (door.width / 2 + 0.1) + dw.normal * 1.0
-    keep = (np.array([min(a[0], b[0]), 0.0, min(a[1], b[1])]), np.array([max(a[0], b[0]), height, max(a[1], b[1])]))
+    keep = (np.array([min(a[0], b[0]), 0.0, min(a[1], b[1])]), np.array([max(a[0], b[0]), door.height + 0.15,
+                                                                       max(a[1], b[1])]))
     bands_out: list[Rect] = []
     if recipe.light_bands:
         x0, z0, x1, z1 = poly.bounds

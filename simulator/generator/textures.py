@@ -16,8 +16,24 @@ from scipy import ndimage
 RGB = tuple[int, int, int]
 
 
+def _cubic_matrix(n_out: int, cells: int) -> np.ndarray:
+    """(n_out, cells + 4) Catmull-Rom interpolation weights that sample a lattice of ``cells + 4`` knots at
+    ``n_out`` evenly spaced points spanning ``cells`` cells (knots 1.5 .. cells + 1.5, away from the lattice ends)."""
+    t = np.linspace(1.5, cells + 1.5, n_out)
+    i = np.floor(t).astype(int)
+    f = t - i
+    w = np.stack([(-f + 2 * f**2 - f**3) / 2, (2 - 5 * f**2 + 3 * f**3) / 2, (f + 4 * f**2 - 3 * f**3) / 2,
+                  (-(f**2) + f**3) / 2], axis=1)
+    m = np.zeros((n_out, cells + 4))
+    rows = np.arange(n_out)
+    for k in range(4):
+        m[rows, np.clip(i - 1 + k, 0, cells + 3)] += w[:, k]
+    return m
+
+
 def value_noise(rng: np.random.Generator, shape: tuple[int, int], cells: tuple[int, int]) -> np.ndarray:
-    """Smooth random noise: a ``(cells_y + 4, cells_x + 4)`` random lattice interpolated by cubic splines.
+    """Smooth random noise: a ``(cells_y + 4, cells_x + 4)`` random lattice interpolated by Catmull-Rom splines
+    (separable, as two matrix products).
 
     Args:
         rng: random generator.
@@ -30,10 +46,7 @@ def value_noise(rng: np.random.Generator, shape: tuple[int, int], cells: tuple[i
     h, w = shape
     cy, cx = max(1, int(cells[0])), max(1, int(cells[1]))
     lattice = rng.standard_normal((cy + 4, cx + 4))
-    yy = np.linspace(1.5, cy + 1.5, h)[:, None] * np.ones((1, w))
-    xx = np.linspace(1.5, cx + 1.5, w)[None, :] * np.ones((h, 1))
-    out = ndimage.map_coordinates(lattice, [yy, xx], order=3, mode="reflect")
-    return _standardise(out)
+    return _standardise(_cubic_matrix(h, cy) @ lattice @ _cubic_matrix(w, cx).T)
 
 
 def fbm(rng: np.random.Generator, shape: tuple[int, int], cells: int, octaves: int = 5, gain: float = 0.55,
@@ -89,7 +102,7 @@ def plaster(rng: np.random.Generator, size: int, color: RGB, width: int | None =
     """
     shape = (size, width or size)
     aspect = shape[1] / shape[0]
-    shade = 1.0 + 0.045 * fbm(rng, shape, 3, 6, 0.6, aspect) + 0.035 * fbm(rng, shape, 24, 2, 0.5, aspect)
+    shade = 1.0 + 0.045 * fbm(rng, shape, 3, 6, 0.6, aspect) + 0.04 * fbm(rng, shape, 24, 3, 0.6, aspect)
     shade += 0.015 * rng.standard_normal(shape)
     yy, xx = np.mgrid[0 : shape[0], 0 : shape[1]]
     for _ in range(int(6 * aspect)):
@@ -109,7 +122,8 @@ def wood(rng: np.random.Generator, size: int, color: RGB, planks: int = 0) -> np
     shape = (size, size)
     img = np.zeros(shape + (3,))
     rows = max(1, planks)
-    edges = np.linspace(0, size, rows + 1).round().astype(int)
+    widths = rng.uniform(0.7, 1.3, rows)
+    edges = np.concatenate([[0], np.cumsum(widths) / widths.sum() * size]).round().astype(int)
     for r in range(rows):
         y0, y1 = edges[r], edges[r + 1]
         cuts = [0, size] if planks == 0 else sorted({0, size, *rng.integers(size // 5, size - size // 5, 2).tolist()})
@@ -131,29 +145,37 @@ def wood(rng: np.random.Generator, size: int, color: RGB, planks: int = 0) -> np
             tone = _jitter(rng, color, 0.12)
             img[y0:y1, x0:x1] = np.clip(shade[..., None] * tone, 0, 1)
             if planks:
-                img[y0:y1, x0 : min(x0 + 1, x1)] *= 0.55
+                img[y0:y1, x0 : min(x0 + 1, x1)] *= 0.7
         if planks:
-            img[y0 : min(y0 + 1, y1)] *= 0.5
+            img[y0 : min(y0 + 1, y1)] *= 0.7
     return to_uint8(img)
 
 
-def tiles(rng: np.random.Generator, size: int, color: RGB, count: int, grout: RGB = (70, 70, 68)) -> np.ndarray:
-    """Marble-like square tiles (``count`` per side), each with its own tone and veins, separated by grout lines.
-
-    Returns (size, size, 3) uint8.
-    """
+def tiles(rng: np.random.Generator, size: int, color: RGB, count: int) -> np.ndarray:
+    """Marble-like tiles (about ``count`` per side, hand-laid: every joint line is jittered), each with its own tone
+    and veins, separated by thin grout a little darker than the tiles. Returns (size, size, 3) uint8."""
     img = np.zeros((size, size, 3))
-    edges = np.linspace(0, size, count + 1).round().astype(int)
-    gw = max(1, size // (count * 24))
+    pitch = size / count
+    jitter = 0.04 * pitch
+    ys = np.clip(np.round(np.arange(count + 1) * pitch + rng.uniform(-jitter, jitter, count + 1)), 0, size).astype(int)
+    ys[0], ys[-1] = 0, size
+    gw = max(1, size // (count * 32))
+    grout = np.asarray(color, dtype=np.float64) / 255.0 * 0.72
     for i in range(count):
+        xs = np.clip(np.round(np.arange(count + 1) * pitch + rng.uniform(-jitter, jitter, count + 1)), 0, size)
+        xs = xs.astype(int)
+        xs[0], xs[-1] = 0, size
         for j in range(count):
-            y0, y1, x0, x1 = edges[i], edges[i + 1], edges[j], edges[j + 1]
+            y0, y1, x0, x1 = ys[i], ys[i + 1], xs[j], xs[j + 1]
             h, w = y1 - y0, x1 - x0
+            if h <= 0 or w <= 0:
+                continue
             vein = np.abs(fbm(rng, (h, w), 2, 5, 0.6))
-            shade = 1.0 - 0.35 * np.exp(-vein * 6.0) + 0.05 * fbm(rng, (h, w), 8, 3) + 0.01 * rng.standard_normal((h, w))
+            shade = (1.0 - 0.35 * np.exp(-vein * 6.0) + 0.05 * fbm(rng, (h, w), 8, 3)
+                     + 0.01 * rng.standard_normal((h, w)))
             img[y0:y1, x0:x1] = np.clip(shade[..., None] * _jitter(rng, color, 0.1), 0, 1)
-            img[y0 : y0 + gw, x0:x1] = np.asarray(grout) / 255.0
-            img[y0:y1, x0 : x0 + gw] = np.asarray(grout) / 255.0
+            img[y0 : y0 + gw, x0:x1] = grout
+            img[y0:y1, x0 : x0 + gw] = grout
     return to_uint8(img)
 
 
@@ -194,27 +216,27 @@ def carpet(rng: np.random.Generator, size: int, color: RGB) -> np.ndarray:
 
 
 def fabric(rng: np.random.Generator, size: int, color: RGB, accent: RGB | None = None) -> np.ndarray:
-    """Woven upholstery: a fine weave, irregular stripes of an accent colour, and wrinkles/shading.
+    """Upholstery: fine irregular slub (yarn) noise, wavy stripes of irregular width in an accent colour, and large
+    soft folds. No periodic weave: a regular pattern finer than a pixel would alias into moire.
 
     Returns (size, size, 3) uint8.
     """
     shape = (size, size)
     yy, xx = np.mgrid[0:size, 0:size].astype(np.float64)
-    period = max(3.0, size / 96)
-    weave = 0.5 + 0.5 * np.sin(2 * np.pi * xx / period) * np.sin(2 * np.pi * yy / period)
-    shade = 1.0 - 0.12 * weave + 0.14 * fbm(rng, shape, 3, 5, 0.6) + 0.015 * rng.standard_normal(shape)
+    slub = fbm(rng, shape, max(4, size // 6), 2, 0.5, 0.25)
+    shade = 1.0 + 0.07 * slub + 0.14 * fbm(rng, shape, 3, 5, 0.6) + 0.015 * rng.standard_normal(shape)
     img = _tint(color, shade)
     if accent is not None:
-        x = 0.0
+        warp = 0.04 * size * fbm(rng, shape, 2, 2)
+        cols = xx + warp
+        accent_img = _tint(accent, shade)
+        x = float(rng.uniform(0, 0.1) * size)
         while x < size:
             w = rng.uniform(0.01, 0.06) * size
-            gap = rng.uniform(0.03, 0.2) * size
-            x0, x1 = int(x + gap), int(x + gap + w)
-            warp = (4 * fbm(rng, shape, 2, 2)).round().astype(int)
-            cols = (xx.astype(int) + warp)
-            stripe = (cols >= x0) & (cols < x1)
-            img[stripe] = _tint(accent, shade)[stripe]
-            x = x + gap + w
+            x0 = x + rng.uniform(0.03, 0.2) * size
+            stripe = (cols >= x0) & (cols < x0 + w)
+            img[stripe] = accent_img[stripe]
+            x = x0 + w
     return to_uint8(img)
 
 
