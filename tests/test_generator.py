@@ -495,9 +495,19 @@ def test_error_paths(tmp_path):
     other = tmp_path / "mine"
     other.mkdir()
     (other / "notes.txt").write_text("keep me")
-    with pytest.raises(FileExistsError, match="not a generated room"):
+    with pytest.raises(FileExistsError, match="not a room made by this generator"):
         generate_room("bedroom", other, 0, TINY)
     assert (other / "notes.txt").read_text() == "keep me"
+    foreign = tmp_path / "front"
+    foreign.mkdir()
+    (foreign / "house.json").write_text(json.dumps({"uid": "a-real-3d-front-house"}))
+    with pytest.raises(FileExistsError, match="not a room made by this generator"):
+        generate_room("bedroom", foreign, 0, TINY)
+    assert json.loads((foreign / "house.json").read_text()) == {"uid": "a-real-3d-front-house"}
+    a_file = tmp_path / "file"
+    a_file.write_text("x")
+    with pytest.raises(FileExistsError, match="not a room made by this generator"):
+        generate_room("bedroom", a_file, 0, TINY)
     with pytest.raises(ValueError, match="texture_size must be an even number >= 32"):
         GeneratorConfig(texture_size=31)
     with pytest.raises(ValueError, match="unknown texture kind 'marble'"):
@@ -525,7 +535,7 @@ def test_layout_errors():
     walls = arch.edges(arch.outline([(0, 0, 3, 3)]))
     with pytest.raises(ValueError, match="walkway too narrow"):
         rooms.walkway_region(arch.outline([(0, 0, 3, 3)]), walls, narrow.bands, narrow.default_band)
-    huge = {t: [np.array([3.0, 1.0, 0.6])] for t in rooms.model_counts(recipe)}
+    huge = {t: [np.array([6.0, 1.0, 0.6])] for t in rooms.model_counts(recipe)}  # longer than any wall
     with pytest.raises(RuntimeError, match="no layout after"):
         rooms.plan_room("storage_room", recipe, huge, numpy_rng(0, "layout"))
     bad_door = rooms.RoomRecipe("StorageRoom", (5.0, 5.0), (4.0, 4.0), (2.6, 2.6), None, {}, 0.7, 9, False, ())
@@ -566,10 +576,18 @@ def test_shipped_scenes_exist_and_are_small():
 
 
 def _check_reproduces(kind: str, tmp_path: Path) -> None:
+    """Regenerate a shipped room: JSON/OBJ/MTL must match byte for byte, PNGs pixel for pixel (their compressed
+    bytes also match under the same Pillow/zlib build, but zlib implementations may encode differently)."""
     shipped = REPO / "scenes" / kind
     house = json.loads((shipped / "house.json").read_text())
     out = generate_room(kind, tmp_path / kind, house["spotlessgs"]["seed"]).parent
-    assert tree_digest(out) == tree_digest(shipped)
+    new, old = tree_digest(out), tree_digest(shipped)
+    assert set(new) == set(old)
+    for rel in sorted(new):
+        if rel.endswith(".png"):
+            np.testing.assert_array_equal(np.asarray(Image.open(out / rel)), np.asarray(Image.open(shipped / rel)))
+        else:
+            assert new[rel] == old[rel], rel
 
 
 def test_shipped_storage_room_reproduces_byte_for_byte(tmp_path):

@@ -14,6 +14,7 @@ half-written room and a failed run leaves the previous room untouched.
 from __future__ import annotations
 
 import contextlib
+import json
 import os
 import shutil
 import tempfile
@@ -43,24 +44,30 @@ class HouseFiles:
 
 
 def _is_replaceable(out_dir: Path) -> bool:
-    """An absent or empty folder, or one that holds a previously generated room, may be replaced."""
+    """An absent or empty folder, or one holding a room made by this generator (its house.json has our
+    ``spotlessgs`` block), may be replaced; anything else (a real 3D-FRONT house, user files) may not."""
     if not out_dir.exists():
         return True
     if not out_dir.is_dir():
         return False
-    entries = {p.name for p in out_dir.iterdir()}
-    return not entries or "house.json" in entries
+    if not any(out_dir.iterdir()):
+        return True
+    try:
+        house = json.loads((out_dir / "house.json").read_text(encoding="utf-8"))
+    except (OSError, ValueError):
+        return False
+    return isinstance(house, dict) and isinstance(house.get("spotlessgs"), dict)
 
 
 def write_house(out_dir: Path, files: HouseFiles) -> Path:
     """Write ``files`` into ``out_dir`` (replacing a previously generated room there); returns ``house.json``'s path.
 
     Raises:
-        FileExistsError: ``out_dir`` exists and is neither empty nor a generated room (it has no house.json).
+        FileExistsError: ``out_dir`` exists and is neither empty nor a room made by this generator.
     """
     out_dir = Path(out_dir)
     if not _is_replaceable(out_dir):
-        raise FileExistsError(f"{out_dir}: exists and is not a generated room (no house.json); refusing to replace it")
+        raise FileExistsError(f"{out_dir}: exists and is not a room made by this generator; refusing to replace it")
     out_dir.parent.mkdir(parents=True, exist_ok=True)
     tmp = Path(tempfile.mkdtemp(prefix=f".{out_dir.name}.tmp-", dir=out_dir.parent))
     try:

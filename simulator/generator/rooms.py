@@ -148,7 +148,7 @@ class RoomPlan:
     Attributes:
         kind: generator room kind.
         room_type: 3D-FRONT room type.
-        rects: floor as non-overlapping-or-overlapping rectangles (x0, z0, x1, z1) whose union is the outline.
+        rects: floor rectangles (x0, z0, x1, z1) whose union is the outline.
         polygon: floor outline, counter-clockwise in (x, z).
         height: ceiling height (m).
         door: the door.

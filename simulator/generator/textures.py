@@ -179,7 +179,7 @@ def tiles(rng: np.random.Generator, size: int, color: RGB, count: int) -> np.nda
     return to_uint8(img)
 
 
-def terrazzo(rng: np.random.Generator, size: int, color: RGB, chips: int = 900) -> np.ndarray:
+def terrazzo(rng: np.random.Generator, size: int, color: RGB, chips: int = 2500) -> np.ndarray:
     """Polished terrazzo/epoxy: a base with random stone chips of varied size, colour and shape.
 
     Returns (size, size, 3) uint8.
@@ -192,7 +192,7 @@ def terrazzo(rng: np.random.Generator, size: int, color: RGB, chips: int = 900) 
                         [0.3, 0.36, 0.42]])
     for _ in range(n):
         cy, cx = rng.uniform(0, size, 2)
-        r = size * rng.uniform(0.003, 0.016)
+        r = size * rng.uniform(0.002, 0.008)
         a, b = r * rng.uniform(0.5, 1.5), r * rng.uniform(0.5, 1.5)
         th = rng.uniform(0, np.pi)
         y0, y1 = int(max(0, cy - 2 * r - 2)), int(min(size, cy + 2 * r + 3))
