@@ -426,6 +426,23 @@ def test_wall_texture_is_wide_and_floor_maps_once(tiny_rooms):
     assert u_all.min() == 0 and u_all.max() == pytest.approx(1.0)
 
 
+def test_long_room_gets_wide_floor_texture_along_its_long_side(tiny_rooms):
+    r = tiny_rooms["corridor"]
+    (floor,) = r.meshes_of("Floor")
+    x0, z0, x1, z1 = r.floor_polygon().bounds
+    assert (x1 - x0) / (z1 - z0) > 2.5
+    img = Image.open(r.dir / "textures" / r.materials[floor["material"]]["jid"] / "texture.png")
+    assert img.size == (3 * (TINY.texture_size // 2), TINY.texture_size // 2)
+    xyz = np.asarray(floor["xyz"]).reshape(-1, 3)
+    uv = np.asarray(floor["uv"]).reshape(-1, 2)
+    np.testing.assert_allclose(uv[:, 0], (xyz[:, 0] - x0) / (x1 - x0), atol=1e-6)  # u runs along x, the long side
+    np.testing.assert_allclose(uv[:, 1], (xyz[:, 2] - z0) / (z1 - z0), atol=1e-6)
+    assert arch.floor_aspect((0, 0, 2, 9)) == 3 and arch.floor_aspect((0, 0, 5, 4)) == 1
+    assert arch.floor_aspect((0, 0, 3, 5)) == 2
+    tall = arch.horizontal([(0, 0, 2, 6)], 0.0, True, (0, 0, 2, 6))  # longer along z: u follows z
+    np.testing.assert_allclose(tall.uvs[:, 0], tall.positions[:, 2] / 6)
+
+
 # ---------------------------------------------------------------------------------------------- unit-level geometry
 def test_placed_box_and_yaw_quaternion_by_hand():
     size = np.array([2.0, 1.0, 0.5])
@@ -447,9 +464,10 @@ def test_outline_edges_and_baseboard_mitre():
     assert [w.offset for w in walls] == [0, 4, 6, 8, 9, 11]
     bb = arch.baseboards(walls, 13.0)
     front = bb.positions[np.abs(bb.normals[:, 1]) < 0.5]
-    d = BASE = arch.BASEBOARD_DEPTH
-    assert {tuple(np.round(p[[0, 2]], 9)) for p in front} >= {(d, d), (4 - d, d), (2 - d, 2 - d), (2 - d, 3 - d)}
-    assert BASE == d
+    d = arch.BASEBOARD_DEPTH
+    # mitred: convex corners move in along both walls, the concave corner (2, 2) moves out of the notch
+    assert {tuple(np.round(p[[0, 2]], 9)) for p in front} == {
+        (d, d), (4 - d, d), (4 - d, 2 - d), (2 - d, 2 - d), (2 - d, 3 - d), (d, 3 - d)}
     floor = arch.horizontal(arch.disjoint_rects([(0, 0, 4, 2), (0, 2, 2, 3)]), 0.0, True, poly.bounds)
     area = trimesh.Trimesh(floor.positions, floor.faces, process=False).area
     assert area == pytest.approx(poly.area)

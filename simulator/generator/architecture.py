@@ -16,7 +16,7 @@ import numpy as np
 import shapely
 from shapely.geometry import Polygon
 
-from .meshes import MeshData, box, flat_from_trimesh
+from .meshes import MeshData, box, concatenate, flat_from_trimesh
 
 BASEBOARD_HEIGHT = 0.08
 """Baseboard height (m)."""
@@ -85,26 +85,33 @@ def _quad(corners: np.ndarray, normal: np.ndarray, uvs: np.ndarray) -> MeshData:
 
 
 def _join(parts: list[MeshData]) -> MeshData:
-    from .meshes import concatenate
-
     return concatenate(parts)
+
+
+def floor_aspect(bounds: tuple[float, float, float, float]) -> int:
+    """Width/height of the floor and ceiling textures: the room's long/short side ratio rounded to 1, 2 or 3."""
+    x0, z0, x1, z1 = bounds
+    ex, ez = x1 - x0, z1 - z0
+    return int(min(3, max(1, round(max(ex, ez) / min(ex, ez)))))
 
 
 def horizontal(rects: list[tuple[float, float, float, float]], y: float, up: bool,
                bounds: tuple[float, float, float, float]) -> MeshData:
     """Floor (``up``: normal +y) or ceiling (normal -y) at height ``y`` over the rectangles.
 
-    UVs map ``bounds`` (x0, z0, x1, z1) onto the unit square, keeping the aspect (the longer side spans [0, 1]).
+    UVs map ``bounds`` (x0, z0, x1, z1) onto the unit square once, u along the longer side (use a texture
+    :func:`floor_aspect` times wider than high to keep texels about square).
     """
     bx0, bz0, bx1, bz1 = bounds
-    span = max(bx1 - bx0, bz1 - bz0)
+    ex, ez = bx1 - bx0, bz1 - bz0
     normal = np.array([0.0, 1.0 if up else -1.0, 0.0])
     parts = []
     for x0, z0, x1, z1 in rects:
         # seen from +y (looking down), counter-clockwise in (x, z) appears clockwise: order accordingly
         xz = [(x0, z0), (x0, z1), (x1, z1), (x1, z0)] if up else [(x0, z0), (x1, z0), (x1, z1), (x0, z1)]
         corners = np.array([[x, y, z] for x, z in xz])
-        uv = np.array([[(x - bx0) / span, (z - bz0) / span] for x, z in xz])
+        st = np.array([[(x - bx0) / ex, (z - bz0) / ez] for x, z in xz])
+        uv = st if ex >= ez else st[:, ::-1]
         parts.append(_quad(corners, normal, uv))
     return _join(parts)
 
@@ -144,7 +151,8 @@ def baseboards(walls: list[Edge], perimeter: float) -> MeshData:
         a, b = inner[i], inner[(i + 1) % k]
         u0, u1 = e.offset / perimeter * 8, (e.offset + e.length) / perimeter * 8
         n = np.array([e.normal[0], 0.0, e.normal[1]])
-        front = np.array([[a[0], 0, a[1]], [b[0], 0, b[1]], [b[0], BASEBOARD_HEIGHT, b[1]], [a[0], BASEBOARD_HEIGHT, a[1]]])
+        hb = BASEBOARD_HEIGHT
+        front = np.array([[a[0], 0, a[1]], [b[0], 0, b[1]], [b[0], hb, b[1]], [a[0], hb, a[1]]])
         uv = np.array([[u0, 0], [u1, 0], [u1, 0.1], [u0, 0.1]])
         if np.dot(np.cross(front[1] - front[0], front[2] - front[0]), n) <= 0:
             front, uv = front[[1, 0, 3, 2]], uv[[1, 0, 3, 2]]

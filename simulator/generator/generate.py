@@ -13,6 +13,7 @@ from . import architecture as arch
 from .furniture import FURNITURE_TYPES, FurnitureModel, build_model, stable_uuid
 from .house_writer import HouseFiles, write_house
 from .materials import PALETTES, Surface
+from .meshes import MeshData
 from .rooms import RECIPES, RoomPlan, model_counts, plan_room, yaw_quaternion
 
 ROOM_KINDS: tuple[str, ...] = ("bedroom", "living_room", "office", "storage_room", "corridor")
@@ -30,7 +31,7 @@ _IDENTITY_UV = [1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0]
 class GeneratorConfig:
     """Generation settings (the layout does not depend on them; only image sizes do)."""
 
-    texture_size: int = 512  # floor texture side (px); walls get (size/2) x (3 size), ceiling size/2
+    texture_size: int = 512  # floor texture height (px; size/2 in long rooms); walls and ceiling are size/2 high
     furniture_texture_size: int = 256  # furniture/door/painting texture side (px); lamps and baseboards get half
 
     def __post_init__(self) -> None:
@@ -96,13 +97,14 @@ def build_house(kind: str, seed: int, config: GeneratorConfig) -> HouseFiles:
     palette = PALETTES[kind]
     prefix = f"{kind}-{seed}"
 
-    def tex(name: str, surface: Surface, size: int) -> np.ndarray:
-        return surface.image(numpy_rng(seed, f"generator/{kind}/texture/{name}"), size)
+    def tex(name: str, surface: Surface, size: int, aspect: int | None = None) -> np.ndarray:
+        rng = numpy_rng(seed, f"generator/{kind}/texture/{name}")
+        return surface.wide_image(rng, size, surface.aspect if aspect is None else aspect)
 
     # --- architecture materials and textures
     materials, textures = [], []
 
-    def add_material(name: str, surface: Surface, size: int | None) -> str:
+    def add_material(name: str, surface: Surface, size: int | None, aspect: int | None = None) -> str:
         uid = f"{prefix}/material/{name}"
         jid = stable_uuid("texture", kind, seed, name)
         entry = {"uid": uid, "jid": jid, "texture": "", "normaltexture": "",
@@ -111,14 +113,15 @@ def build_house(kind: str, seed: int, config: GeneratorConfig) -> HouseFiles:
         if surface.texture and size:
             entry["texture"] = f"https://spotlessgs.invalid/texture/{jid}/texture.png"
             entry["color"] = [255, 255, 255, 255]
-            textures.append((jid, tex(name, surface, size)))
+            textures.append((jid, tex(name, surface, size, aspect)))
         materials.append(entry)
         return uid
 
     ts, fs = config.texture_size, config.furniture_texture_size
-    m_floor = add_material("floor", palette.floor, ts)
+    wide = arch.floor_aspect(room_plan.polygon.bounds)  # long rooms get wide floor/ceiling textures
+    m_floor = add_material("floor", palette.floor, ts if wide == 1 else ts // 2, wide)
     m_wall = add_material("wall", palette.walls, ts // 2)
-    m_ceiling = add_material("ceiling", palette.ceiling, ts // 2)
+    m_ceiling = add_material("ceiling", palette.ceiling, ts // 2, wide)
     m_base = add_material("baseboard", palette.baseboard, fs // 2)
     m_door = add_material("door", palette.door, fs)
     if room_plan.light_bands:
@@ -130,7 +133,7 @@ def build_house(kind: str, seed: int, config: GeneratorConfig) -> HouseFiles:
     perimeter = float(sum(e.length for e in walls))
     rects = arch.disjoint_rects(list(room_plan.rects))
     bounds = poly.bounds
-    meshes: list[tuple[str, str, arch.MeshData]] = [
+    meshes: list[tuple[str, str, MeshData]] = [
         ("Floor", m_floor, arch.horizontal(rects, 0.0, True, bounds)),
         ("Ceiling", m_ceiling, arch.horizontal(rects, h, False, bounds)),
     ]

@@ -45,11 +45,18 @@ class Surface:
         """The texture image, (size, size * aspect, 3) uint8; raises if the surface is untextured."""
         if not self.texture:
             raise ValueError("an untextured surface has no image")
+        return self.wide_image(rng, size, self.aspect)
+
+    def wide_image(self, rng: np.random.Generator, size: int, aspect: int) -> np.ndarray:
+        """The texture image ``aspect`` times wider than high, (size, size * aspect, 3) uint8 (only the kinds that
+        take a ``width``: plaster, wood, tiles, terrazzo, carpet)."""
+        if not self.texture:
+            raise ValueError("an untextured surface has no image")
         kw = dict(self.params)
         if self.texture != "painting":
             kw.setdefault("color", self.color)
-        if self.aspect != 1:
-            kw["width"] = size * self.aspect
+        if aspect != 1:
+            kw["width"] = size * aspect
         return make_texture(self.texture, rng, size, **kw)
 
 
@@ -158,7 +165,7 @@ PALETTES: dict[str, Palette] = {
         },
     ),
     "corridor": Palette(
-        floor=surf("tiles", 0.12, color=(205, 200, 190), count=8),
+        floor=surf("tiles", 0.12, color=(205, 200, 190), count=6),
         walls=surf("plaster", 0.7, aspect=6, color=(222, 210, 190)),
         ceiling=surf("plaster", 0.9, color=(240, 238, 232)),
         baseboard=surf("wood", 0.4, color=(90, 65, 45)),

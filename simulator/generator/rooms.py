@@ -459,8 +459,8 @@ RECIPES: dict[str, RoomRecipe] = {
         ),
     ),
     "living_room": RoomRecipe(
-        "LivingRoom", (5.6, 6.0), (5.2, 5.6), (2.75, 2.9), (0.3, 0.36), {0: 0.9, 1: 0.6, 2: 0.5, 3: 0.5, 4: 0.9, 5: 1.95},
-        0.9, 3, False,
+        "LivingRoom", (5.6, 6.0), (5.2, 5.6), (2.75, 2.9), (0.3, 0.36),
+        {0: 0.9, 1: 0.6, 2: 0.5, 3: 0.5, 4: 0.9, 5: 1.95}, 0.9, 3, False,
         (
             _it("sofa", "wall", edges=(5,)),
             _it("coffee_table", "front", parent=0),

@@ -1,9 +1,9 @@
 """Procedural surface textures (numpy only) with plenty of non-repeating detail for SIFT.
 
-Every generator takes its own ``numpy.random.Generator`` and an image side ``size`` and returns an sRGB image as a
-``(size, size, 3)`` uint8 array (``size`` x ``size`` unless noted). Patterns that are regular by nature (planks, tiles,
-weave) always carry per-element random variation and large-scale noise on top, so that no two patches of a texture look
-alike: repetitive textures make structure-from-motion match the wrong patches.
+Every generator takes its own ``numpy.random.Generator`` and an image height ``size`` and returns an sRGB image as a
+``(size, size, 3)`` uint8 array; the floor/wall/ceiling kinds also take a ``width`` for long rooms and walls. Patterns
+that are regular by nature (planks, tiles) always carry per-element random variation and large-scale noise on top, so
+that no two patches of a texture look alike: repetitive textures make structure-from-motion match the wrong patches.
 """
 
 from __future__ import annotations
@@ -113,20 +113,25 @@ def plaster(rng: np.random.Generator, size: int, color: RGB, width: int | None =
     return to_uint8(_tint(color, shade))
 
 
-def wood(rng: np.random.Generator, size: int, color: RGB, planks: int = 0) -> np.ndarray:
-    """Wood with warped growth rings and knots; ``planks > 0`` splits it into that many staggered floor planks.
+def wood(rng: np.random.Generator, size: int, color: RGB, planks: int = 0, width: int | None = None) -> np.ndarray:
+    """Wood with warped growth rings and knots; ``planks > 0`` splits it into that many rows of floor boards (rows of
+    random width, boards of random length with staggered end joints).
 
-    Each plank (and each board segment between end joints) has its own tone and its own grain, so the texture never
-    repeats. Grain runs along x. Returns (size, size, 3) uint8.
+    Each board has its own tone and its own grain, so the texture never repeats. Grain runs along x.
+    Returns (size, width or size, 3) uint8.
     """
-    shape = (size, size)
-    img = np.zeros(shape + (3,))
+    w_img = width or size
+    img = np.zeros((size, w_img, 3))
     rows = max(1, planks)
     widths = rng.uniform(0.7, 1.3, rows)
     edges = np.concatenate([[0], np.cumsum(widths) / widths.sum() * size]).round().astype(int)
     for r in range(rows):
         y0, y1 = edges[r], edges[r + 1]
-        cuts = [0, size] if planks == 0 else sorted({0, size, *rng.integers(size // 5, size - size // 5, 2).tolist()})
+        if planks == 0:
+            cuts = [0, w_img]
+        else:
+            n_cuts = 2 * max(1, round(w_img / size))
+            cuts = sorted({0, w_img, *rng.integers(size // 5, w_img - size // 5, n_cuts).tolist()})
         for x0, x1 in zip(cuts[:-1], cuts[1:]):
             h, w = y1 - y0, x1 - x0
             if h <= 0 or w <= 0:
@@ -151,21 +156,28 @@ def wood(rng: np.random.Generator, size: int, color: RGB, planks: int = 0) -> np
     return to_uint8(img)
 
 
-def tiles(rng: np.random.Generator, size: int, color: RGB, count: int) -> np.ndarray:
-    """Marble-like tiles (about ``count`` per side, hand-laid: every joint line is jittered), each with its own tone
-    and veins, separated by thin grout a little darker than the tiles. Returns (size, size, 3) uint8."""
-    img = np.zeros((size, size, 3))
-    pitch = size / count
-    jitter = 0.04 * pitch
-    ys = np.clip(np.round(np.arange(count + 1) * pitch + rng.uniform(-jitter, jitter, count + 1)), 0, size).astype(int)
-    ys[0], ys[-1] = 0, size
+def _joints(rng: np.random.Generator, length: int, count: int) -> np.ndarray:
+    """``count + 1`` jittered joint positions from 0 to ``length`` (hand-laid tiles), (count + 1,) int."""
+    pitch = length / count
+    pos = np.round(np.arange(count + 1) * pitch + rng.uniform(-0.04 * pitch, 0.04 * pitch, count + 1))
+    pos = np.clip(pos, 0, length).astype(int)
+    pos[0], pos[-1] = 0, length
+    return pos
+
+
+def tiles(rng: np.random.Generator, size: int, color: RGB, count: int, width: int | None = None) -> np.ndarray:
+    """Marble-like tiles (``count`` along the height, as many as fit square along the width; every joint line is
+    jittered, as when laid by hand), each with its own tone and veins, separated by thin grout a little darker than
+    the tiles. Returns (size, width or size, 3) uint8."""
+    w_img = width or size
+    count_x = max(1, round(count * w_img / size))
+    img = np.zeros((size, w_img, 3))
+    ys = _joints(rng, size, count)
     gw = max(1, size // (count * 32))
     grout = np.asarray(color, dtype=np.float64) / 255.0 * 0.72
     for i in range(count):
-        xs = np.clip(np.round(np.arange(count + 1) * pitch + rng.uniform(-jitter, jitter, count + 1)), 0, size)
-        xs = xs.astype(int)
-        xs[0], xs[-1] = 0, size
-        for j in range(count):
+        xs = _joints(rng, w_img, count_x)
+        for j in range(count_x):
             y0, y1, x0, x1 = ys[i], ys[i + 1], xs[j], xs[j + 1]
             h, w = y1 - y0, x1 - x0
             if h <= 0 or w <= 0:
@@ -179,24 +191,25 @@ def tiles(rng: np.random.Generator, size: int, color: RGB, count: int) -> np.nda
     return to_uint8(img)
 
 
-def terrazzo(rng: np.random.Generator, size: int, color: RGB, chips: int = 2500) -> np.ndarray:
-    """Polished terrazzo/epoxy: a base with random stone chips of varied size, colour and shape.
-
-    Returns (size, size, 3) uint8.
+def terrazzo(rng: np.random.Generator, size: int, color: RGB, chips: int = 2500,
+             width: int | None = None) -> np.ndarray:
+    """Polished terrazzo/epoxy: a base with random stone chips of varied size, colour and shape (``chips`` per
+    512 x 512 pixels). Returns (size, width or size, 3) uint8.
     """
-    shade = 1.0 + 0.06 * fbm(rng, (size, size), 3, 5)
+    w_img = width or size
+    shade = 1.0 + 0.06 * fbm(rng, (size, w_img), 3, 5, aspect=w_img / size)
     img = _tint(color, shade)
-    n = int(chips * (size / 512) ** 2)
-    yy, xx = np.mgrid[0:size, 0:size]
+    n = int(chips * size * w_img / 512**2)
+    yy, xx = np.mgrid[0:size, 0:w_img]
     palette = np.array([[0.15, 0.15, 0.16], [0.55, 0.52, 0.48], [0.85, 0.84, 0.8], [0.62, 0.35, 0.25],
                         [0.3, 0.36, 0.42]])
     for _ in range(n):
-        cy, cx = rng.uniform(0, size, 2)
+        cy, cx = rng.uniform(0, size), rng.uniform(0, w_img)
         r = size * rng.uniform(0.002, 0.008)
         a, b = r * rng.uniform(0.5, 1.5), r * rng.uniform(0.5, 1.5)
         th = rng.uniform(0, np.pi)
         y0, y1 = int(max(0, cy - 2 * r - 2)), int(min(size, cy + 2 * r + 3))
-        x0, x1 = int(max(0, cx - 2 * r - 2)), int(min(size, cx + 2 * r + 3))
+        x0, x1 = int(max(0, cx - 2 * r - 2)), int(min(w_img, cx + 2 * r + 3))
         dy, dx = yy[y0:y1, x0:x1] - cy, xx[y0:y1, x0:x1] - cx
         u = dx * np.cos(th) + dy * np.sin(th)
         v = -dx * np.sin(th) + dy * np.cos(th)
@@ -205,12 +218,14 @@ def terrazzo(rng: np.random.Generator, size: int, color: RGB, chips: int = 2500)
     return to_uint8(img)
 
 
-def carpet(rng: np.random.Generator, size: int, color: RGB) -> np.ndarray:
-    """Cut-pile carpet: fibre speckle over a mottled, irregularly patterned tone. Returns (size, size, 3) uint8."""
-    shape = (size, size)
-    pattern = fbm(rng, shape, 4, 4, 0.6)
-    bands = np.tanh(3.0 * pattern)
-    shade = 1.0 + 0.18 * bands + 0.1 * fbm(rng, shape, 40, 2) + 0.05 * rng.standard_normal(shape)
+def carpet(rng: np.random.Generator, size: int, color: RGB, width: int | None = None) -> np.ndarray:
+    """Cut-pile carpet: fibre speckle over a mottled, irregularly patterned tone.
+
+    Returns (size, width or size, 3) uint8."""
+    shape = (size, width or size)
+    aspect = shape[1] / shape[0]
+    bands = np.tanh(3.0 * fbm(rng, shape, 4, 4, 0.6, aspect))
+    shade = 1.0 + 0.18 * bands + 0.1 * fbm(rng, shape, 40, 2, 0.5, aspect) + 0.05 * rng.standard_normal(shape)
     shade = ndimage.gaussian_filter(shade, 0.6)
     return to_uint8(_tint(color, shade))
 
