@@ -91,18 +91,17 @@ def plan(kind: str, seed: int) -> tuple[RoomPlan, dict[str, list[FurnitureModel]
     return plan_room(kind, RECIPES[kind], sizes, numpy_rng(seed, f"generator/{kind}/layout")), models
 
 
-def build_house(kind: str, seed: int, config: GeneratorConfig) -> HouseFiles:
-    """Everything of one room in memory: the house JSON object, the models and all texture images."""
-    room_plan, models = plan(kind, seed)
-    palette = PALETTES[kind]
-    prefix = f"{kind}-{seed}"
+def _texture(kind: str, seed: int, name: str, surface: Surface, size: int, aspect: int | None = None) -> np.ndarray:
+    """The image of one texture, from its own random stage (so adding a texture never changes the others)."""
+    rng = numpy_rng(seed, f"generator/{kind}/texture/{name}")
+    return surface.wide_image(rng, size, surface.aspect if aspect is None else aspect)
 
-    def tex(name: str, surface: Surface, size: int, aspect: int | None = None) -> np.ndarray:
-        rng = numpy_rng(seed, f"generator/{kind}/texture/{name}")
-        return surface.wide_image(rng, size, surface.aspect if aspect is None else aspect)
 
-    # --- architecture materials and textures
-    materials, textures = [], []
+def _architecture(kind: str, seed: int, room_plan: RoomPlan, config: GeneratorConfig):
+    """Architecture of a room: (material entries, textures [(jid, image)], mesh entries, room children)."""
+    palette, prefix = PALETTES[kind], f"{kind}-{seed}"
+    materials: list[dict] = []
+    textures: list[tuple[str, np.ndarray]] = []
 
     def add_material(name: str, surface: Surface, size: int | None, aspect: int | None = None) -> str:
         uid = f"{prefix}/material/{name}"
@@ -113,72 +112,81 @@ def build_house(kind: str, seed: int, config: GeneratorConfig) -> HouseFiles:
         if surface.texture and size:
             entry["texture"] = f"https://spotlessgs.invalid/texture/{jid}/texture.png"
             entry["color"] = [255, 255, 255, 255]
-            textures.append((jid, tex(name, surface, size, aspect)))
+            textures.append((jid, _texture(kind, seed, name, surface, size, aspect)))
         materials.append(entry)
         return uid
 
     ts, fs = config.texture_size, config.furniture_texture_size
-    wide = arch.floor_aspect(room_plan.polygon.bounds)  # long rooms get wide floor/ceiling textures
-    m_floor = add_material("floor", palette.floor, ts if wide == 1 else ts // 2, wide)
-    m_wall = add_material("wall", palette.walls, ts // 2)
-    m_ceiling = add_material("ceiling", palette.ceiling, ts // 2, wide)
-    m_base = add_material("baseboard", palette.baseboard, fs // 2)
-    m_door = add_material("door", palette.door, fs)
-    if room_plan.light_bands:
-        m_band = add_material("lightband", Surface("", color=(255, 250, 240), roughness=0.9), None)
-
-    # --- architecture meshes
     poly, h = room_plan.polygon, room_plan.height
+    wide = arch.floor_aspect(poly.bounds)  # long rooms get wide floor/ceiling textures
     walls = arch.edges(poly)
     perimeter = float(sum(e.length for e in walls))
     rects = arch.disjoint_rects(list(room_plan.rects))
-    bounds = poly.bounds
-    meshes: list[tuple[str, str, MeshData]] = [
-        ("Floor", m_floor, arch.horizontal(rects, 0.0, True, bounds)),
-        ("Ceiling", m_ceiling, arch.horizontal(rects, h, False, bounds)),
-    ]
-    meshes += [("WallInner", m_wall, arch.wall(e, h, perimeter)) for e in walls]
-    meshes.append(("Baseboard", m_base, arch.baseboards(walls, perimeter)))
     d = room_plan.door
-    meshes.append(("Door", m_door, arch.door(walls[d.edge], d.centre, d.width, d.height, d.thickness)))
-    meshes += [("LightBand", m_band, arch.light_band(*r, h - 0.005)) for r in room_plan.light_bands]
-    mesh_entries, children = [], []
+    m_floor = add_material("floor", palette.floor, ts if wide == 1 else ts // 2, wide)
+    m_wall = add_material("wall", palette.walls, ts // 2)
+    meshes: list[tuple[str, str, MeshData]] = [
+        ("Floor", m_floor, arch.horizontal(rects, 0.0, True, poly.bounds)),
+        ("Ceiling", add_material("ceiling", palette.ceiling, ts // 2, wide),
+         arch.horizontal(rects, h, False, poly.bounds)),
+        *[("WallInner", m_wall, arch.wall(e, h, perimeter)) for e in walls],
+        ("Baseboard", add_material("baseboard", palette.baseboard, fs // 2), arch.baseboards(walls, perimeter)),
+        ("Door", add_material("door", palette.door, fs), arch.door(walls[d.edge], d.centre, d.width, d.height,
+                                                                   d.thickness)),
+    ]
+    if room_plan.light_bands:
+        m_band = add_material("lightband", Surface("", color=(255, 250, 240), roughness=0.9), None)
+        meshes += [("LightBand", m_band, arch.light_band(*r, h - 0.005)) for r in room_plan.light_bands]
+    entries, children = [], []
     for i, (mtype, mat, m) in enumerate(meshes):
         uid = f"{prefix}/mesh/{i}"
-        mesh_entries.append({"uid": uid, "jid": stable_uuid("mesh", kind, seed, i), "type": mtype, "material": mat,
-                             "xyz": _flat(m.positions), "normal": _flat(m.normals), "uv": _flat(m.uvs),
-                             "faces": [int(v) for v in m.faces.reshape(-1)]})
-        children.append({"ref": uid, "instanceid": f"{mtype.lower()}/{i}", "pos": [0.0, 0.0, 0.0],
+        entries.append({"uid": uid, "jid": stable_uuid("mesh", kind, seed, i), "type": mtype, "material": mat,
+                        "xyz": _flat(m.positions), "normal": _flat(m.normals), "uv": _flat(m.uvs),
+                        "faces": [int(v) for v in m.faces.reshape(-1)]})
+        children.append({"ref": uid, "instanceid": f"{mtype.lower()}-{i}", "pos": [0.0, 0.0, 0.0],
                          "rot": [0.0, 0.0, 0.0, 1.0], "scale": [1.0, 1.0, 1.0]})
+    return materials, textures, entries, children
 
-    # --- furniture (only models that were placed)
+
+def _furniture(kind: str, seed: int, room_plan: RoomPlan, models: dict[str, list[FurnitureModel]],
+               config: GeneratorConfig):
+    """Furniture of a room: (furniture entries, [(model, texture image)], room children); only placed models."""
     used = sorted({(p.type_name, p.model) for p in room_plan.placements},
                   key=lambda tm: (list(FURNITURE_TYPES).index(tm[0]), tm[1]))
-    furniture, model_files, uid_of = [], [], {}
+    fs = config.furniture_texture_size
+    entries, files, uid_of = [], [], {}
     for type_name, k in used:
         model = models[type_name][k]
-        uid = f"{prefix}/furniture/{len(furniture)}"
+        uid = f"{kind}-{seed}/furniture/{len(entries)}"
         uid_of[(type_name, k)] = uid
         ft = model.kind
-        furniture.append({"uid": uid, "jid": model.jid, "title": ft.title, "category": ft.category, "valid": True,
-                          "size": _flat(model.size)})
+        entries.append({"uid": uid, "jid": model.jid, "title": ft.title, "category": ft.category, "valid": True,
+                        "size": _flat(model.size)})
         size = fs // 2 if "lamp" in ft.category.lower() else fs
-        model_files.append((model, tex(f"model/{type_name}/{k}", model.surface, size)))
-    for j, p in enumerate(room_plan.placements):
-        children.append({"ref": uid_of[(p.type_name, p.model)], "instanceid": f"furniture/{j}",
-                         "pos": _flat(p.position), "rot": _flat(yaw_quaternion(p.yaw)), "scale": [1.0, 1.0, 1.0]})
+        files.append((model, _texture(kind, seed, f"model/{type_name}/{k}", model.surface, size)))
+    children = [{"ref": uid_of[(p.type_name, p.model)], "instanceid": f"furniture-{j}", "pos": _flat(p.position),
+                 "rot": _flat(yaw_quaternion(p.yaw)), "scale": [1.0, 1.0, 1.0]}
+                for j, p in enumerate(room_plan.placements)]
+    return entries, files, children
 
-    room = {"type": room_plan.room_type, "instanceid": f"{room_plan.room_type}-{seed}", "size": _r(poly.area),
-            "pos": [0.0, 0.0, 0.0], "rot": [0.0, 0.0, 0.0, 1.0], "scale": [1.0, 1.0, 1.0], "empty": 0,
-            "children": children}
+
+def build_house(kind: str, seed: int, config: GeneratorConfig) -> HouseFiles:
+    """Everything of one room in memory: the house JSON object, the models and all texture images."""
+    room_plan, models = plan(kind, seed)
+    materials, textures, meshes, arch_children = _architecture(kind, seed, room_plan, config)
+    furniture, model_files, furniture_children = _furniture(kind, seed, room_plan, models, config)
+    identity = {"pos": [0.0, 0.0, 0.0], "rot": [0.0, 0.0, 0.0, 1.0], "scale": [1.0, 1.0, 1.0]}
+    room = {"type": room_plan.room_type, "instanceid": f"{room_plan.room_type.replace('/', '')}-{seed}",
+            "size": _r(room_plan.polygon.area), **identity, "empty": 0,
+            "children": arch_children + furniture_children}
     house = {
-        "uid": f"spotlessgs-{prefix}",
+        "uid": f"spotlessgs-{kind}-{seed}",
         "jid": stable_uuid("house", kind, seed),
         "furniture": furniture,
-        "mesh": mesh_entries,
+        "mesh": meshes,
         "material": materials,
-        "scene": {"uid": f"{prefix}/scene", "jid": stable_uuid("scene", kind, seed), "pos": [0.0, 0.0, 0.0],
-                  "rot": [0.0, 0.0, 0.0, 1.0], "scale": [1.0, 1.0, 1.0], "room": [room]},
+        "scene": {"uid": f"{kind}-{seed}/scene", "jid": stable_uuid("scene", kind, seed), **identity,
+                  "room": [room]},
         "spotlessgs": {"generator": "simulator.generator", "generator_version": GENERATOR_VERSION, "kind": kind,
                        "seed": int(seed), "config": asdict(config)},
     }
