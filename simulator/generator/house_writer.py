@@ -1,0 +1,112 @@
+"""Write a generated room as a 3D-FRONT house folder, all at once.
+
+Layout written::
+
+    <out_dir>/house.json                          3D-FRONT house (y up, metres)
+    <out_dir>/models/<jid>/raw_model.obj|model.mtl|texture.png   3D-FUTURE models
+    <out_dir>/models/model_info.json              3D-FUTURE model list
+    <out_dir>/textures/<material jid>/texture.png architecture textures (3D-FRONT-texture layout)
+
+Everything is written into a fresh sibling folder which then replaces ``out_dir`` by renames, so a reader never sees a
+half-written room and a failed run leaves the previous room untouched.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import json
+import os
+import shutil
+import tempfile
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from spotlessgs.io.atomic import write_json
+
+from .furniture import FurnitureModel, model_info, save_png, write_model
+
+
+@dataclass(frozen=True)
+class HouseFiles:
+    """Everything a house folder holds.
+
+    Attributes:
+        house: the house JSON object.
+        models: furniture models with their texture images ((H, W, 3) uint8).
+        textures: architecture textures by material jid, (H, W, 3) uint8.
+    """
+
+    house: dict
+    models: tuple[tuple[FurnitureModel, np.ndarray], ...]
+    textures: tuple[tuple[str, np.ndarray], ...]
+
+
+def _is_replaceable(out_dir: Path) -> bool:
+    """An absent or empty folder, or one holding a room made by this generator (its house.json has our
+    ``spotlessgs`` block), may be replaced; anything else (a real 3D-FRONT house, user files) may not."""
+    if not out_dir.exists():
+        return True
+    if not out_dir.is_dir():
+        return False
+    if not any(out_dir.iterdir()):
+        return True
+    try:
+        house = json.loads((out_dir / "house.json").read_text(encoding="utf-8"))
+    except (OSError, ValueError):
+        return False
+    return isinstance(house, dict) and isinstance(house.get("spotlessgs"), dict)
+
+
+def write_house(out_dir: Path, files: HouseFiles) -> Path:
+    """Write ``files`` into ``out_dir`` (replacing a previously generated room there); returns ``house.json``'s path.
+
+    Raises:
+        FileExistsError: ``out_dir`` exists and is neither empty nor a room made by this generator.
+    """
+    out_dir = Path(out_dir)
+    if not _is_replaceable(out_dir):
+        raise FileExistsError(f"{out_dir}: exists and is not a room made by this generator; refusing to replace it")
+    out_dir.parent.mkdir(parents=True, exist_ok=True)
+    tmp = Path(tempfile.mkdtemp(prefix=f".{out_dir.name}.tmp-", dir=out_dir.parent))
+    try:
+        for model, image in files.models:
+            write_model(model, tmp / "models", image)
+        write_json(tmp / "models" / "model_info.json", [model_info(m) for m, _ in files.models])
+        for jid, image in files.textures:
+            save_png(tmp / "textures" / jid / "texture.png", image)
+        write_json(tmp / "house.json", files.house)
+        _make_readable(tmp)
+        _swap_in(tmp, out_dir)
+    except BaseException:
+        shutil.rmtree(tmp, ignore_errors=True)
+        raise
+    return out_dir / "house.json"
+
+
+def _make_readable(root: Path) -> None:
+    """Give the new tree ordinary permissions (temporary files and folders are created private): 0644/0755 less
+    the process umask."""
+    mask = os.umask(0)
+    os.umask(mask)
+    for path in [root, *root.rglob("*")]:
+        path.chmod((0o755 if path.is_dir() else 0o644) & ~mask)
+
+
+def _swap_in(new: Path, target: Path) -> None:
+    """Replace ``target`` by the folder ``new`` (two renames; the old folder is deleted afterwards)."""
+    old = None
+    if target.exists():
+        old = Path(tempfile.mkdtemp(prefix=f".{target.name}.old-", dir=target.parent))
+        os.rmdir(old)
+        os.replace(target, old)
+    try:
+        os.replace(new, target)
+    except BaseException:
+        if old is not None:
+            os.replace(old, target)
+        raise
+    if old is not None:
+        with contextlib.suppress(OSError):
+            shutil.rmtree(old)
