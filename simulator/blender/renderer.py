@@ -96,7 +96,6 @@ def configure(settings: CyclesSettings) -> str:
     scene.display_settings.display_device = "sRGB"
     if scene.world is None:
         scene.world = bpy.data.worlds.new("world")
-    scene.world.use_nodes = True
     layer = scene.view_layers[0]
     layer.use_pass_z = True
     layer.use_pass_normal = True

@@ -54,7 +54,6 @@ def build_material(mat: Material, built: BuiltScene, ceiling_glow: float = 0.0) 
     ``ceiling_glow`` > 0 makes the surface emit for indirect rays only (camera rays see the plain BSDF).
     """
     bm = bpy.data.materials.new(mat.name)
-    bm.use_nodes = True
     nodes, links = bm.node_tree.nodes, bm.node_tree.links
     nodes.clear()
     out = nodes.new("ShaderNodeOutputMaterial")

@@ -1,0 +1,167 @@
+"""A tiny paired render of a shipped room with Blender: image statistics, geometric and light-pose consistency, resume.
+
+Marked `blender`; it stays in the default suite because the renders are tiny (64x48, 4 samples, 6 frames).
+"""
+
+from __future__ import annotations
+
+import json
+import os
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+pytestmark = pytest.mark.blender
+
+ROOT = Path(__file__).resolve().parents[1]
+SCENE = ROOT / "scenes" / "bedroom" / "house.json"
+TINY = dict(frames=6, width=64, height=48, samples=4, seed=3)
+
+
+def _render(out, **overrides):
+    from simulator.render_pipeline import ExecutionOptions, RenderConfig, render_dataset
+
+    kwargs = {**TINY, **overrides}
+    shard = kwargs.pop("shard", (0, 1))
+    preset = kwargs.pop("preset", "uneven")
+    config = RenderConfig.from_preset(preset, **kwargs)
+    return render_dataset(SCENE, out, config, execution=ExecutionOptions(shard=shard, progress=False))
+
+
+@pytest.fixture(scope="module")
+def dataset(tmp_path_factory):
+    out = tmp_path_factory.mktemp("render") / "bedroom"
+    summary = _render(out)
+    assert summary == {**summary, "rendered": 6, "skipped": 0, "complete": True}
+    return out
+
+
+def _load(dataset):
+    from spotlessgs.io.transforms import read_transforms
+
+    return read_transforms(dataset / "transforms.json")
+
+
+def test_dataset_files_and_split(dataset):
+    desc = _load(dataset)
+    assert desc.n_frames == 6
+    assert list(desc.split.test) == [0] and list(desc.split.train) == [1, 2, 3, 4, 5]
+    for k in range(6):
+        for sub, ext in (("images", "png"), ("gt", "png"), ("exr", "exr")):
+            assert (dataset / sub / f"frame_{k:05d}.{ext}").is_file()
+    assert (dataset / "points3d.ply").is_file()
+    meta = json.loads((dataset / "transforms.json").read_text())["spotless"]
+    assert meta["seed"] == 3 and meta["preset"] == "uneven"
+    assert meta["provenance"]["blender_version"].startswith("5.0")
+
+
+def test_uneven_images_are_less_uniform_than_ground_truth(dataset):
+    from spotlessgs.io.images import read_image
+
+    def variation(img):
+        lum = img.mean(axis=2)
+        return lum.std() / max(lum.mean(), 1e-6)
+
+    cv_uneven = np.mean([variation(read_image(p)) for p in sorted((dataset / "images").glob("*.png"))])
+    cv_gt = np.mean([variation(read_image(p)) for p in sorted((dataset / "gt").glob("*.png"))])
+    assert cv_uneven > 1.5 * cv_gt, (cv_uneven, cv_gt)
+    # the spotlight leaves the image corners darker than the centre
+    img = np.mean([read_image(p).mean(axis=2) for p in sorted((dataset / "images").glob("*.png"))], axis=0)
+    h, w = img.shape
+    centre = img[h // 3: 2 * h // 3, w // 3: 2 * w // 3].mean()
+    corners = np.mean([img[:6, :8].mean(), img[:6, -8:].mean(), img[-6:, :8].mean(), img[-6:, -8:].mean()])
+    assert centre > 2.0 * corners, (centre, corners)
+
+
+def _world_points(desc, k, exr):
+    """Back-project frame k's depth with independent pinhole maths: (H, W, 3) world points (OpenCV pose)."""
+    intr = desc.intrinsics
+    h, w = exr.depth.shape
+    u, v = np.meshgrid(np.arange(w) + 0.5, np.arange(h) + 0.5)
+    cam = np.stack([(u - intr.cx) / intr.fx, (v - intr.cy) / intr.fy, np.ones_like(u)], -1) * exr.depth[..., None]
+    c2w = desc.c2w_opencv[k]
+    return cam @ c2w[:3, :3].T + c2w[:3, 3]
+
+
+def test_poses_intrinsics_and_depth_agree_with_the_room_geometry(dataset):
+    """Pixels whose normal points up are floor pixels: back-projected, they must lie on the floor plane z = 0."""
+    from simulator.front3d import load_house
+    from spotlessgs.io.exr import read_frame_exr
+
+    desc = _load(dataset)
+    room = load_house(SCENE).room()
+    checked = 0
+    for k in range(desc.n_frames):
+        exr = read_frame_exr(dataset / "exr" / f"frame_{k:05d}.exr")
+        pts = _world_points(desc, k, exr)
+        floor = (exr.normal[..., 2] > 0.95) & np.isfinite(exr.depth)
+        # exclude pixels within a pixel of a depth edge (tops of furniture also face up, but sit higher)
+        low = floor & (pts[..., 2] < room.floor_z + 0.05)
+        if low.sum() < 20:
+            continue
+        checked += 1
+        assert np.median(np.abs(pts[low][:, 2] - room.floor_z)) < 0.01
+        # and floor points lie inside the room outline
+        from shapely.geometry import Point, Polygon
+
+        outline = Polygon(room.floor_polygon).buffer(0.05)
+        assert all(outline.contains(Point(p[0], p[1])) for p in pts[low][::7])
+    assert checked >= 3
+
+
+def test_light_pose_in_transforms_matches_the_lit_pixels(dataset):
+    """Pixels inside the recorded spotlight cone are much brighter (per unit of ground-truth albedo) than outside."""
+    from spotlessgs.io.exr import read_frame_exr
+
+    desc = _load(dataset)
+    light = desc.light
+    inside, outside = [], []
+    for k in range(desc.n_frames):
+        exr = read_frame_exr(dataset / "exr" / f"frame_{k:05d}.exr")
+        pts = _world_points(desc, k, exr)
+        c2w = desc.c2w_opencv[k]
+        cam = (pts - c2w[:3, 3]) @ c2w[:3, :3]  # world -> camera
+        x_l = (cam - light.position_in_camera) @ light.rotation_in_camera  # camera -> light: R^T (x - t)
+        theta = np.degrees(np.arctan2(np.linalg.norm(x_l[..., :2], axis=-1), x_l[..., 2]))
+        ok = np.isfinite(exr.depth)
+        lum = exr.uneven.mean(axis=2) / np.maximum(exr.gt.mean(axis=2), 1e-3)
+        inside.append(lum[ok & (theta < light.cone_angle_deg * 0.25)])
+        outside.append(lum[ok & (theta > light.cone_angle_deg * 0.6)])
+    inside, outside = np.concatenate(inside), np.concatenate(outside)
+    assert inside.size > 50 and outside.size > 50
+    assert np.median(inside) > 4.0 * np.median(outside), (np.median(inside), np.median(outside))
+
+
+def test_rerun_resumes_and_renders_only_missing_frames(dataset):
+    before = {p: p.stat().st_mtime_ns for p in dataset.rglob("frame_*")}
+    summary = _render(dataset)
+    assert summary["rendered"] == 0 and summary["skipped"] == 6 and summary["complete"]
+    (dataset / "images" / "frame_00004.png").unlink()
+    summary = _render(dataset)
+    assert summary["rendered"] == 1 and summary["skipped"] == 5
+    after = {p: p.stat().st_mtime_ns for p in dataset.rglob("frame_*")}
+    changed = sorted(p.name for p in before if after.get(p) != before[p])
+    assert changed == ["frame_00004.exr", "frame_00004.png", "frame_00004.png"]
+
+
+def test_other_settings_in_the_same_folder_are_refused(dataset):
+    from simulator.render_pipeline import DatasetFolderError
+
+    with pytest.raises(DatasetFolderError, match="differs in: samples"):
+        _render(dataset, samples=8)
+
+
+def test_shards_render_disjoint_parts_and_complete_together(tmp_path):
+    out = tmp_path / "sharded"
+    first = _render(out, frames=3, shard=(0, 2))
+    assert first["rendered"] == 2 and not first["complete"]
+    assert not (out / "transforms.json").exists()
+    second = _render(out, frames=3, shard=(1, 2))
+    assert second["rendered"] == 1 and second["complete"]
+    assert (out / "transforms.json").is_file()
+    import pycolmap
+
+    rec = pycolmap.Reconstruction(str(out / "sparse" / "0"))
+    assert rec.num_images() == 3
+    assert os.path.getsize(out / "points3d.ply") > 0
