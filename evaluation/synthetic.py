@@ -146,3 +146,50 @@ def render_room_sequence(
 def _encode_srgb(x: np.ndarray) -> np.ndarray:
     """sRGB transfer of linear values in [0, 1] (any shape)."""
     return np.where(x <= 0.0031308, 12.92 * x, 1.055 * np.power(np.maximum(x, 0.0031308), 1 / 2.4) - 0.055)
+
+
+def _save_png(path, img: np.ndarray) -> None:
+    """Write (H, W, 3) floats in [0, 1] as an 8-bit RGB PNG, atomically."""
+    from PIL import Image
+
+    from spotlessgs.io.atomic import atomic_path
+
+    with atomic_path(path) as tmp:
+        Image.fromarray(np.round(np.clip(img, 0, 1) * 255.0).astype(np.uint8)).save(tmp, format="PNG")
+
+
+def write_dataset_folder(seq: SyntheticSequence, root, with_depth: bool = True, test_every: int = 11) -> list[str]:
+    """Write ``seq`` as a minimal dataset folder (transforms.json, images/ = spotlight, gt/ = even, depth/*.exr).
+
+    Only the fields the evaluation reads are written (see :mod:`evaluation.dataset`). Returns the image names.
+    """
+    from pathlib import Path
+
+    import OpenEXR
+
+    from spotlessgs.io.atomic import atomic_path, write_json
+
+    root = Path(root)
+    frames, names = [], []
+    for k in range(len(seq.even)):
+        name = f"frame_{k:05d}.png"
+        names.append(name)
+        _save_png(root / "images" / name, seq.spot[k])
+        _save_png(root / "gt" / name, seq.even[k])
+        frame = {"file_path": f"images/{name}", "gt_file_path": f"gt/{name}",
+                 "transform_matrix": seq.c2w_opengl[k].tolist()}
+        if with_depth:
+            exr = root / "depth" / f"frame_{k:05d}.exr"
+            exr.parent.mkdir(parents=True, exist_ok=True)
+            header = {"compression": OpenEXR.ZIP_COMPRESSION, "type": OpenEXR.scanlineimage}
+            with atomic_path(exr) as tmp:
+                OpenEXR.File(header, {"depth.Z": seq.depth[k].astype(np.float32)}).write(str(tmp))
+            frame["exr_file_path"] = f"depth/frame_{k:05d}.exr"
+        frames.append(frame)
+    intr = seq.intrinsics
+    write_json(root / "transforms.json", {
+        "fl_x": intr.fx, "fl_y": intr.fy, "cx": intr.cx, "cy": intr.cy, "w": intr.width, "h": intr.height,
+        "camera_model": "PINHOLE", "frames": frames,
+        "spotless": {"split": {"test": [i for i in range(len(frames)) if i % test_every == 0]}},
+    })
+    return names
