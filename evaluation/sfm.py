@@ -45,6 +45,7 @@ class SfmConfig:
     num_threads: int = 2  # CPU threads for extraction, matching and mapping
     seed: int = 0  # random seed for COLMAP's RANSAC and mapping (deterministic runs)
     refine_intrinsics: bool = False  # let bundle adjustment refine known intrinsics (False keeps them fixed)
+    verbose: bool = False  # let COLMAP log its INFO messages to stderr (False: warnings and errors only)
 
     def __post_init__(self) -> None:
         if self.matcher not in ("sequential", "exhaustive"):
@@ -145,7 +146,19 @@ def run_sfm(
     database = work / "database.db"
     step = progress or (lambda _s: None)
     pycolmap.set_random_seed(config.seed)
+    old_level = pycolmap.logging.minloglevel
+    pycolmap.logging.minloglevel = 0 if config.verbose else 1
+    try:
+        return _pipeline(pycolmap, image_dir, names, work, database, config, intrinsics, step)
+    finally:
+        pycolmap.logging.minloglevel = old_level
 
+
+def _pipeline(
+    pycolmap, image_dir: Path, names: list[str], work: Path, database: Path, config: SfmConfig,
+    intrinsics: PinholeIntrinsics | None, step: Callable[[str], None],
+) -> SfmResult:
+    """The COLMAP steps of :func:`run_sfm` (arguments as there; ``step`` reports progress)."""
     reader = pycolmap.ImageReaderOptions()
     if intrinsics is not None:
         reader.camera_model = "PINHOLE"

@@ -114,7 +114,8 @@ def warp_into(
     zs_safe = torch.where(in_front, zs, torch.ones_like(zs))
     u = K[0, 0] * p[:, 0] / zs_safe + K[0, 2]
     v = K[1, 1] * p[:, 1] / zs_safe + K[1, 2]
-    inside = (u >= 0.5) & (u <= w - 0.5) & (v >= 0.5) & (v <= h - 0.5)  # bilinear support fully inside
+    tol = 1e-6  # pixels: round-off at the border must not drop the outermost pixel centres
+    inside = (u >= 0.5 - tol) & (u <= w - 0.5 + tol) & (v >= 0.5 - tol) & (v <= h - 0.5 + tol)  # bilinear support
     valid = finite.reshape(-1) & in_front & inside
     grid = torch.stack([2 * u / w - 1, 2 * v / h - 1], dim=-1).reshape(1, h, w, 2)
     warped = F.grid_sample(src[None].to(dt), grid, mode="bilinear", padding_mode="border", align_corners=False)[0]
