@@ -163,4 +163,6 @@ def lpips(pred: Tensor, gt: Tensor, batch_size: int = 8) -> Tensor:
         raise ValueError(f"batch_size must be positive, got {batch_size}")
     pred, gt = check_image_pair(pred, gt, min_size=LPIPS_MIN_SIZE)
     model = default_lpips()
+    if model.shift.device != pred.device:
+        model.to(pred.device)  # the shared model follows the inputs (CPU by default)
     return torch.cat([model(pred[i : i + batch_size], gt[i : i + batch_size]) for i in range(0, len(pred), batch_size)])

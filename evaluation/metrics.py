@@ -67,7 +67,7 @@ def psnr(pred: Tensor, gt: Tensor, data_range: float = 1.0) -> Tensor:
     if data_range <= 0:
         raise ValueError(f"data_range must be positive, got {data_range}")
     pred, gt = check_image_pair(pred, gt)
-    mse = (pred.double() - gt.double()).pow(2).flatten(1).mean(dim=1)
+    mse = (pred - gt).pow(2).flatten(1).mean(dim=1, dtype=torch.float64)  # accumulate in float64
     out = 10.0 * torch.log10(data_range**2 / mse)  # mse == 0 gives +inf
     return out.to(pred.dtype)
 

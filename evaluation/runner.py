@@ -41,13 +41,12 @@ class EvalConfig:
     sfm: bool = False  # run downstream SfM (pycolmap, CPU)
     sfm_config: SfmConfig = field(default_factory=SfmConfig)  # SfM settings (matcher, features, threads, seed)
     grid_frames: int = 4  # frames shown in the side-by-side figure
-    lpips_batch_size: int = 4  # image pairs per LPIPS forward pass (memory bound)
     num_threads: int | None = None  # torch CPU threads while evaluating (None: leave torch's setting)
     progress: bool = True  # show progress bars on stderr
 
     def __post_init__(self) -> None:
-        if self.grid_frames < 1 or self.lpips_batch_size < 1:
-            raise ValueError("grid_frames and lpips_batch_size must be at least 1")
+        if self.grid_frames < 1:
+            raise ValueError(f"grid_frames must be at least 1, got {self.grid_frames}")
         if self.num_threads is not None and self.num_threads < 1:
             raise ValueError(f"num_threads must be at least 1, got {self.num_threads}")
 
@@ -111,7 +110,7 @@ def score_pairs(pairs: Sequence[ImagePair], config: EvalConfig = EvalConfig(), l
         row["psnr" + suffix] = float(psnr(pred, gt)[0])
         row["ssim" + suffix] = float(ssim(pred, gt)[0])
         if config.lpips:
-            row["lpips" + suffix] = float(lpips(pred[None], gt[None], batch_size=config.lpips_batch_size)[0])
+            row["lpips" + suffix] = float(lpips(pred, gt)[0])
 
     with _torch_threads(config.num_threads), torch.no_grad():
         for pair, row in _bar(list(zip(pairs, per_image)), config, f"{label}", total=len(pairs)):
@@ -165,10 +164,16 @@ def _sfm_block(
     intrinsics: PinholeIntrinsics | None = None, true_c2w: dict[str, np.ndarray] | None = None,
 ) -> tuple[dict, SfmResult]:
     """Run SfM on one sequence with a progress bar over its steps; returns (JSON summary, result)."""
-    steps = ["features", "matching", "mapping"]
-    with _bar(steps, config, f"SfM {label}", total=len(steps)) as bar:
-        result = run_sfm(image_dir, names, work, config.sfm_config, intrinsics,
-                         progress=lambda s: (bar.set_postfix_str(s), bar.update(0 if s == "features" else 1)))
+    with _bar(None, config, f"SfM {label}", total=3) as bar:  # three steps: features, matching, mapping
+        started: list[str] = []
+
+        def on_step(name: str) -> None:
+            if started:
+                bar.update(1)  # the previous step has finished
+            started.append(name)
+            bar.set_postfix_str(name)
+
+        result = run_sfm(image_dir, names, work, config.sfm_config, intrinsics, progress=on_step)
         bar.update(1)
     return result.summary(true_c2w, names), result
 

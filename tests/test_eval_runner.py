@@ -165,7 +165,7 @@ def test_cli_usage_errors(run_dir):
 
 
 def test_config_errors():
-    with pytest.raises(ValueError, match="grid_frames and lpips_batch_size must be at least 1"):
+    with pytest.raises(ValueError, match="grid_frames must be at least 1, got 0"):
         EvalConfig(grid_frames=0)
     with pytest.raises(ValueError, match="num_threads must be at least 1, got 0"):
         EvalConfig(num_threads=0)
