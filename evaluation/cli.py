@@ -35,12 +35,15 @@ def eval_command(run, pred, gt, sfm, matcher, out_dir, json_path, no_lpips, thre
         raise click.UsageError("give a RUN folder, or both --pred DIR and --gt DIR")
     sfm_config = SfmConfig(matcher=matcher, **({"num_threads": threads} if threads else {}))
     config = EvalConfig(lpips=not no_lpips, sfm=sfm, sfm_config=sfm_config, num_threads=threads, progress=not quiet)
-    if run is not None:
-        results = evaluate_run(run, config, out_dir=out_dir, json_path=json_path)
-        where = out_dir or run / "eval"
-    else:
-        results = evaluate_folders(pred, gt, config, json_path=json_path, out_dir=out_dir)
-        where = out_dir or json_path
+    try:
+        if run is not None:
+            results = evaluate_run(run, config, out_dir=out_dir, json_path=json_path)
+            where = out_dir or run / "eval"
+        else:
+            results = evaluate_folders(pred, gt, config, json_path=json_path, out_dir=out_dir)
+            where = out_dir or json_path
+    except (ValueError, FileNotFoundError) as exc:  # bad inputs: a one-line message, not a traceback
+        raise click.ClickException(str(exc)) from exc
     from evaluation.report import markdown_report
 
     click.echo(markdown_report(results))

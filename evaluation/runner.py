@@ -138,6 +138,8 @@ def temporal_block(
     depth and poses for every frame (same order as ``paths``), ``tmp_psnr_warped`` and ``tmp_ssim_warped``."""
     if len(paths) < 2:
         return {}
+    if posed is not None and len(posed.frames) != len(paths):
+        raise ValueError(f"temporal {label}: {len(paths)} images but {len(posed.frames)} posed frames")
     with _torch_threads(config.num_threads), torch.no_grad():
         frames = (_chw(load_image(p)) for p in _bar(paths, config, f"temporal {label}", total=len(paths)))
         plain = temporal_scores(frames)

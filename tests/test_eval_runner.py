@@ -162,6 +162,9 @@ def test_cli_usage_errors(run_dir):
     assert r.exit_code == 2 and "give either RUN or --pred/--gt, not both" in r.output
     r = CliRunner().invoke(eval_command, ["--pred", str(run_dir)])
     assert r.exit_code == 2 and "give a RUN folder, or both --pred DIR and --gt DIR" in r.output
+    r = CliRunner().invoke(eval_command, ["--pred", str(run_dir / "relit"), "--gt", str(run_dir.parent / "data"),
+                                          "--quiet"])
+    assert r.exit_code == 1 and "Error: " in r.output and "non-image files found: transforms.json" in r.output
 
 
 def test_config_errors():
@@ -169,3 +172,14 @@ def test_config_errors():
         EvalConfig(grid_frames=0)
     with pytest.raises(ValueError, match="num_threads must be at least 1, got 0"):
         EvalConfig(num_threads=0)
+
+
+def test_temporal_block_needs_one_pose_per_image(run_dir):
+    from evaluation.dataset import read_dataset
+    from evaluation.runner import temporal_block
+
+    data = read_dataset(run_dir.parent / "data")
+    paths = [f.input_path for f in data.frames[:3]]
+    with pytest.raises(ValueError, match="temporal input: 3 images but 12 posed frames"):
+        temporal_block(paths, EvalConfig(progress=False), "input", data)
+    assert temporal_block(paths[:1], EvalConfig(progress=False), "input") == {}
