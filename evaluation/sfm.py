@@ -42,7 +42,7 @@ class SfmConfig:
     sequential_overlap: int = 10  # sequential matching: each image is matched with this many successors
     max_num_features: int = 8192  # SIFT features kept per image
     min_num_matches: int = 15  # verified matches needed for an image pair to count in mapping
-    num_threads: int = 2  # CPU threads for extraction, matching and mapping
+    num_threads: int = 1  # CPU threads for extraction, matching and mapping (1: bit-reproducible; more may vary)
     seed: int = 0  # random seed for COLMAP's RANSAC and mapping (deterministic runs)
     refine_intrinsics: bool = False  # let bundle adjustment refine known intrinsics (False keeps them fixed)
     verbose: bool = False  # let COLMAP log its INFO messages to stderr (False: warnings and errors only)

@@ -148,7 +148,7 @@ def _encode_srgb(x: np.ndarray) -> np.ndarray:
     return np.where(x <= 0.0031308, 12.92 * x, 1.055 * np.power(np.maximum(x, 0.0031308), 1 / 2.4) - 0.055)
 
 
-def _save_png(path, img: np.ndarray) -> None:
+def save_png(path, img: np.ndarray) -> None:
     """Write (H, W, 3) floats in [0, 1] as an 8-bit RGB PNG, atomically."""
     from PIL import Image
 
@@ -174,8 +174,8 @@ def write_dataset_folder(seq: SyntheticSequence, root, with_depth: bool = True, 
     for k in range(len(seq.even)):
         name = f"frame_{k:05d}.png"
         names.append(name)
-        _save_png(root / "images" / name, seq.spot[k])
-        _save_png(root / "gt" / name, seq.even[k])
+        save_png(root / "images" / name, seq.spot[k])
+        save_png(root / "gt" / name, seq.even[k])
         frame = {"file_path": f"images/{name}", "gt_file_path": f"gt/{name}",
                  "transform_matrix": seq.c2w_opengl[k].tolist()}
         if with_depth:

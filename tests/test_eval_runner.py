@@ -17,7 +17,7 @@ from evaluation.images import load_image
 from evaluation.metrics import psnr, ssim
 from evaluation.runner import EvalConfig, evaluate_folders, evaluate_run
 from evaluation.sfm import SfmConfig
-from evaluation.synthetic import _save_png, render_room_sequence, write_dataset_folder
+from evaluation.synthetic import save_png, render_room_sequence, write_dataset_folder
 from spotlessgs.io.atomic import write_json
 
 TOP_KEYS = {"psnr", "ssim", "lpips", "psnr_aligned", "ssim_aligned", "lpips_aligned", "tmp_psnr", "tmp_ssim", "sfm"}
@@ -37,13 +37,13 @@ def run_dir(tmp_path_factory):
     run = root / "run"
     write_json(run / "run.json", {"data_dir": "../data"})  # relative to the run folder
     for k, n in enumerate(names):
-        _save_png(run / "relit" / n, _darker(seq.even[k], 0.5))  # a perfect relighting at half the exposure
+        save_png(run / "relit" / n, _darker(seq.even[k], 0.5))  # a perfect relighting at half the exposure
     return run
 
 
 @pytest.fixture(scope="module")
 def run_results(run_dir):
-    cfg = EvalConfig(sfm=True, sfm_config=SfmConfig(num_threads=2), progress=False, num_threads=2)
+    cfg = EvalConfig(sfm=True, sfm_config=SfmConfig(seed=0), progress=False, num_threads=2)
     return evaluate_run(run_dir, cfg)
 
 
@@ -106,7 +106,7 @@ def test_folders_mode_via_cli(run_dir, tmp_path):
 def test_folders_identical_images(tmp_path):
     for sub in ("a", "b"):
         for k in range(2):
-            _save_png(tmp_path / sub / f"{k}.png", np.full((40, 40, 3), 0.25 + 0.5 * k))
+            save_png(tmp_path / sub / f"{k}.png", np.full((40, 40, 3), 0.25 + 0.5 * k))
     r = evaluate_folders(tmp_path / "a", tmp_path / "b", EvalConfig(progress=False), json_path=tmp_path / "r.json")
     assert math.isinf(r["psnr"]) and r["ssim"] == pytest.approx(1.0) and r["lpips"] == 0.0
     assert r["exposure_gain"] == pytest.approx(1.0)
@@ -124,8 +124,8 @@ def test_folders_with_sfm_and_estimated_intrinsics(run_dir, tmp_path):
 
 
 def test_size_mismatch_is_named(tmp_path):
-    _save_png(tmp_path / "p" / "x.png", np.zeros((20, 30, 3)))
-    _save_png(tmp_path / "g" / "x.png", np.zeros((20, 31, 3)))
+    save_png(tmp_path / "p" / "x.png", np.zeros((20, 30, 3)))
+    save_png(tmp_path / "g" / "x.png", np.zeros((20, 31, 3)))
     with pytest.raises(ValueError, match=r"x.png: size mismatch: prediction .* is 30x20, reference .* is 31x20"):
         evaluate_folders(tmp_path / "p", tmp_path / "g", EvalConfig(progress=False))
 
@@ -140,7 +140,7 @@ def test_run_errors(run_dir, tmp_path):
     write_json(bad / "run.json", {"data_dir": str(run_dir.parent / "data")})
     with pytest.raises(FileNotFoundError, match="the run has no relit images"):
         evaluate_run(bad, EvalConfig(progress=False))
-    _save_png(bad / "relit" / "frame_00000.png", np.zeros((150, 200, 3)))
+    save_png(bad / "relit" / "frame_00000.png", np.zeros((150, 200, 3)))
     with pytest.raises(FileNotFoundError, match=r"missing relit images for 11 view\(s\)"):
         evaluate_run(bad, EvalConfig(progress=False))
 
