@@ -10,6 +10,15 @@ import torch
 from evaluation.alignment import GainAccumulator, apply_gain, exposure_gain, linear_to_srgb, srgb_to_linear
 from evaluation.metrics import psnr
 
+@pytest.fixture(autouse=True, scope="module")
+def _one_torch_thread():
+    """One torch thread: the test machines are shared, and contended OpenMP threads slow small ops 100×."""
+    old = torch.get_num_threads()
+    torch.set_num_threads(1)
+    yield
+    torch.set_num_threads(old)
+
+
 
 def test_srgb_known_values_and_round_trip():
     x = torch.tensor([0.0, 0.04045, 0.5, 1.0], dtype=torch.float64)

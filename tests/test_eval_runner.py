@@ -21,7 +21,17 @@ from evaluation.synthetic import save_png, render_room_sequence, write_dataset_f
 from spotlessgs.io.atomic import write_json
 
 TOP_KEYS = {"psnr", "ssim", "lpips", "psnr_aligned", "ssim_aligned", "lpips_aligned", "tmp_psnr", "tmp_ssim", "sfm"}
+QUIET = EvalConfig(progress=False, num_threads=1)  # no progress bars, one torch thread
 SFM_KEYS = {"reprojection_error_px", "observations_per_image", "registered_images", "total_images", "points3d"}
+
+@pytest.fixture(autouse=True, scope="module")
+def _one_torch_thread():
+    """One torch thread: the test machines are shared, and contended OpenMP threads slow small ops 100×."""
+    old = torch.get_num_threads()
+    torch.set_num_threads(1)
+    yield
+    torch.set_num_threads(old)
+
 
 
 def _darker(img: np.ndarray, factor: float) -> np.ndarray:
@@ -43,7 +53,7 @@ def run_dir(tmp_path_factory):
 
 @pytest.fixture(scope="module")
 def run_results(run_dir):
-    cfg = EvalConfig(sfm=True, sfm_config=SfmConfig(seed=0), progress=False, num_threads=2)
+    cfg = EvalConfig(sfm=True, sfm_config=SfmConfig(seed=0), progress=False, num_threads=1)
     return evaluate_run(run_dir, cfg)
 
 
@@ -107,14 +117,14 @@ def test_folders_identical_images(tmp_path):
     for sub in ("a", "b"):
         for k in range(2):
             save_png(tmp_path / sub / f"{k}.png", np.full((40, 40, 3), 0.25 + 0.5 * k))
-    r = evaluate_folders(tmp_path / "a", tmp_path / "b", EvalConfig(progress=False), json_path=tmp_path / "r.json")
+    r = evaluate_folders(tmp_path / "a", tmp_path / "b", QUIET, json_path=tmp_path / "r.json")
     assert math.isinf(r["psnr"]) and r["ssim"] == pytest.approx(1.0) and r["lpips"] == 0.0
     assert r["exposure_gain"] == pytest.approx(1.0)
     assert json.loads((tmp_path / "r.json").read_text())["psnr"] is None  # JSON has no infinity
 
 
 def test_folders_with_sfm_and_estimated_intrinsics(run_dir, tmp_path):
-    cfg = EvalConfig(lpips=False, aligned=False, temporal=False, sfm=True, progress=False)
+    cfg = EvalConfig(lpips=False, aligned=False, temporal=False, sfm=True, progress=False, num_threads=1)
     r = evaluate_folders(run_dir / "relit", run_dir.parent / "data" / "gt", cfg, out_dir=tmp_path)
     assert "lpips" not in r and "psnr_aligned" not in r
     # COLMAP has to find the focal length itself here (a harder problem): part of the sequence registers
@@ -127,22 +137,22 @@ def test_size_mismatch_is_named(tmp_path):
     save_png(tmp_path / "p" / "x.png", np.zeros((20, 30, 3)))
     save_png(tmp_path / "g" / "x.png", np.zeros((20, 31, 3)))
     with pytest.raises(ValueError, match=r"x.png: size mismatch: prediction .* is 30x20, reference .* is 31x20"):
-        evaluate_folders(tmp_path / "p", tmp_path / "g", EvalConfig(progress=False))
+        evaluate_folders(tmp_path / "p", tmp_path / "g", QUIET)
 
 
 def test_run_errors(run_dir, tmp_path):
     with pytest.raises(FileNotFoundError, match="not a training run folder"):
-        evaluate_run(tmp_path, EvalConfig(progress=False))
+        evaluate_run(tmp_path, QUIET)
     bad = tmp_path / "bad"
     write_json(bad / "run.json", {"seed": 1})
     with pytest.raises(ValueError, match="missing key 'data_dir'"):
-        evaluate_run(bad, EvalConfig(progress=False))
+        evaluate_run(bad, QUIET)
     write_json(bad / "run.json", {"data_dir": str(run_dir.parent / "data")})
     with pytest.raises(FileNotFoundError, match="the run has no relit images"):
-        evaluate_run(bad, EvalConfig(progress=False))
+        evaluate_run(bad, QUIET)
     save_png(bad / "relit" / "frame_00000.png", np.zeros((150, 200, 3)))
     with pytest.raises(FileNotFoundError, match=r"missing relit images for 11 view\(s\)"):
-        evaluate_run(bad, EvalConfig(progress=False))
+        evaluate_run(bad, QUIET)
 
 
 def test_run_without_ground_truth(run_dir, tmp_path):
@@ -154,7 +164,7 @@ def test_run_without_ground_truth(run_dir, tmp_path):
     write_json(tmp_path / "run" / "run.json", {"data_dir": str(tmp_path / "data")})
     (tmp_path / "run" / "relit").symlink_to(run_dir / "relit")
     with pytest.raises(ValueError, match="no test view has a ground-truth image"):
-        evaluate_run(tmp_path / "run", EvalConfig(progress=False))
+        evaluate_run(tmp_path / "run", QUIET)
 
 
 def test_cli_usage_errors(run_dir):
@@ -181,5 +191,5 @@ def test_temporal_block_needs_one_pose_per_image(run_dir):
     data = read_dataset(run_dir.parent / "data")
     paths = [f.input_path for f in data.frames[:3]]
     with pytest.raises(ValueError, match="temporal input: 3 images but 12 posed frames"):
-        temporal_block(paths, EvalConfig(progress=False), "input", data)
-    assert temporal_block(paths[:1], EvalConfig(progress=False), "input") == {}
+        temporal_block(paths, QUIET, "input", data)
+    assert temporal_block(paths[:1], QUIET, "input") == {}

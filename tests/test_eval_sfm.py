@@ -23,7 +23,7 @@ def room_images(tmp_path_factory):
     return root, names, seq.intrinsics, true
 
 
-@pytest.mark.parametrize("matcher", ["sequential", "exhaustive"])
+@pytest.mark.parametrize("matcher", ["sequential", pytest.param("exhaustive", marks=pytest.mark.slow)])
 def test_all_images_register_with_accurate_poses(room_images, tmp_path, matcher):
     root, names, intr, true = room_images
     result = run_sfm(root / "even", names, tmp_path / "work", SfmConfig(matcher=matcher), intr)

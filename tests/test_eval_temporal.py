@@ -19,6 +19,15 @@ from evaluation.temporal import (
 )
 from evaluation.trajectory import opengl_to_opencv_c2w
 
+@pytest.fixture(autouse=True, scope="module")
+def _one_torch_thread():
+    """One torch thread: the test machines are shared, and contended OpenMP threads slow small ops 100×."""
+    old = torch.get_num_threads()
+    torch.set_num_threads(1)
+    yield
+    torch.set_num_threads(old)
+
+
 
 @pytest.fixture(scope="module")
 def room():
