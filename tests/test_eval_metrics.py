@@ -124,3 +124,12 @@ def test_psnr_errors():
         psnr(torch.rand(3, 4, 4), torch.rand(3, 4, 4), data_range=-1)
     with pytest.raises(ValueError, match="gt contains NaN or infinite"):
         psnr(torch.rand(3, 4, 4), torch.full((3, 4, 4), float("inf")))
+
+
+def test_agrees_with_kornia_valid_padding():
+    kornia = pytest.importorskip("kornia")
+    g = torch.Generator().manual_seed(7)
+    a = torch.rand(2, 3, 33, 47, generator=g)
+    b = (a + 0.1 * torch.randn(a.shape, generator=g)).clamp(0, 1)
+    want = kornia.metrics.ssim(a, b, 11, max_val=1.0, padding="valid").flatten(1).mean(1)
+    assert torch.allclose(ssim(a, b), want, atol=2e-6)
