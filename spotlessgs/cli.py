@@ -4,6 +4,7 @@ function."""
 from __future__ import annotations
 
 import click
+from evaluation.cli import eval_command
 
 
 @click.group(context_settings={"help_option_names": ["-h", "--help"]})
@@ -12,5 +13,6 @@ def main() -> None:
     """SpotlessGS: relightable Gaussian Splatting for images lit by an onboard spotlight."""
 
 
+main.add_command(eval_command, name="eval")
 if __name__ == "__main__":
     main()

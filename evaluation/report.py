@@ -1,0 +1,112 @@
+"""Results to files: a JSON document (non-finite numbers become null) and a Markdown summary table."""
+
+from __future__ import annotations
+
+import math
+import os
+from typing import Any
+
+import numpy as np
+
+from spotlessgs.io.atomic import write_json, write_text
+
+#: Image-metric keys in display order, with their column titles and number formats.
+IMAGE_COLUMNS: tuple[tuple[str, str, str], ...] = (
+    ("psnr", "PSNR ↑", "{:.2f}"),
+    ("ssim", "SSIM ↑", "{:.4f}"),
+    ("lpips", "LPIPS ↓", "{:.4f}"),
+    ("psnr_aligned", "PSNR al. ↑", "{:.2f}"),
+    ("ssim_aligned", "SSIM al. ↑", "{:.4f}"),
+    ("lpips_aligned", "LPIPS al. ↓", "{:.4f}"),
+    ("tmp_psnr", "tPSNR ↑", "{:.2f}"),
+    ("tmp_ssim", "tSSIM ↑", "{:.4f}"),
+    ("tmp_psnr_warped", "tPSNR warp ↑", "{:.2f}"),
+    ("tmp_ssim_warped", "tSSIM warp ↑", "{:.4f}"),
+)
+#: SfM keys in display order, with their column titles and formats.
+SFM_COLUMNS: tuple[tuple[str, str, str], ...] = (
+    ("reprojection_error_px", "Reproj. err. (px) ↓", "{:.3f}"),
+    ("observations_per_image", "Obs./image ↑", "{:.1f}"),
+    ("registered_images", "Registered", "{}"),
+    ("points3d", "3D points", "{}"),
+)
+
+
+def to_jsonable(obj: Any) -> Any:
+    """Recursively convert numpy scalars/arrays and tuples to JSON types; NaN and ±inf become None (JSON has none)."""
+    if isinstance(obj, dict):
+        return {str(k): to_jsonable(v) for k, v in obj.items()}
+    if isinstance(obj, (list, tuple)):
+        return [to_jsonable(v) for v in obj]
+    if isinstance(obj, np.ndarray):
+        return to_jsonable(obj.tolist())
+    if isinstance(obj, (np.floating, float)):
+        value = float(obj)
+        return value if math.isfinite(value) else None
+    if isinstance(obj, np.integer):
+        return int(obj)
+    if isinstance(obj, np.bool_):
+        return bool(obj)
+    return obj
+
+
+def write_results_json(path: str | os.PathLike, results: dict) -> None:
+    """Write ``results`` atomically as JSON (see :func:`to_jsonable`)."""
+    write_json(path, to_jsonable(results))
+
+
+def _fmt(value: Any, fmt: str) -> str:
+    """One table cell: '—' for missing or non-finite values (an identical image pair has PSNR = ∞: shown as '∞')."""
+    if value is None:
+        return "—"
+    if isinstance(value, float) and math.isinf(value):
+        return "∞" if value > 0 else "−∞"
+    if isinstance(value, float) and math.isnan(value):
+        return "—"
+    return fmt.format(value)
+
+
+def markdown_report(results: dict, title: str = "Evaluation") -> str:
+    """A Markdown summary: one image/temporal-metric row per sequence, then an SfM table when SfM was run.
+
+    Args:
+        results: the dict returned by :func:`evaluation.runner.evaluate_folders` or ``evaluate_run``: top-level metric
+            keys for the evaluated sequence, and optionally an ``input`` dict with the same keys for the original
+            inputs.
+        title: the heading.
+    """
+    rows = [({"run": "relit", "folders": "prediction"}.get(results.get("mode"), "evaluated"), results)]
+    if isinstance(results.get("input"), dict):
+        rows.append(("input (uneven)", results["input"]))
+    cols = [c for c in IMAGE_COLUMNS if any(r.get(c[0]) is not None for _, r in rows)]
+    lines = [f"# {title}", ""]
+    if "num_images" in results:
+        lines.append(f"{results['num_images']} scored image(s)"
+                     + (f"; exposure gain {results['exposure_gain']:.4f}" if results.get("exposure_gain") else "")
+                     + ".")
+        lines.append("")
+    if cols:
+        lines.append("| sequence | " + " | ".join(t for _, t, _ in cols) + " |")
+        lines.append("|---|" + "---|" * len(cols))
+        for label, r in rows:
+            lines.append(f"| {label} | " + " | ".join(_fmt(r.get(k), f) for k, _, f in cols) + " |")
+        lines.append("")
+    sfm_rows = [(label, r["sfm"]) for label, r in rows if isinstance(r.get("sfm"), dict)]
+    if sfm_rows:
+        has_traj = any(isinstance(s.get("trajectory"), dict) for _, s in sfm_rows)
+        head = [t for _, t, _ in SFM_COLUMNS] + (["ATE RMSE ↓", "RRE (deg) ↓"] if has_traj else [])
+        lines += ["## Structure from motion", "", "| sequence | " + " | ".join(head) + " |", "|---|" + "---|" * len(head)]
+        for label, s in sfm_rows:
+            cells = [_fmt(s.get(k), f) for k, _, f in SFM_COLUMNS]
+            cells[2] = f"{s.get('registered_images', 0)}/{s.get('total_images', 0)}"
+            if has_traj:
+                t = s.get("trajectory") or {}
+                cells += [_fmt(t.get("ate_rmse"), "{:.4f}"), _fmt(t.get("rre_mean_deg"), "{:.3f}")]
+            lines.append(f"| {label} | " + " | ".join(cells) + " |")
+        lines.append("")
+    return "\n".join(lines)
+
+
+def write_markdown(path: str | os.PathLike, results: dict, title: str = "Evaluation") -> None:
+    """Write :func:`markdown_report` atomically."""
+    write_text(path, markdown_report(results, title))

@@ -1,0 +1,352 @@
+"""Evaluation entry points: score two folders of images, or a training run against its dataset.
+
+Both return the results dict that is also written as JSON (keys ``psnr ssim lpips psnr_aligned ssim_aligned
+lpips_aligned tmp_psnr tmp_ssim sfm`` at the top level where they apply) and, with an output folder, a Markdown table
+and PNG figures.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import os
+import tempfile
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+from typing import Iterator, Sequence
+
+import numpy as np
+import torch
+
+from evaluation.alignment import GainAccumulator, apply_gain
+from evaluation.dataset import DatasetFrame, DatasetViews, read_dataset, read_depth_exr, read_run_data_dir
+from evaluation.folders import ImagePair, list_images, match_folders
+from evaluation.images import load_image
+from evaluation.lpips import lpips
+from evaluation.metrics import psnr, ssim
+from evaluation.plots import save_image_grid, save_trajectory_plot
+from evaluation.report import write_markdown, write_results_json
+from evaluation.sfm import PinholeIntrinsics, SfmConfig, SfmResult, run_sfm
+from evaluation.temporal import PosedFrame, temporal_scores, warped_temporal_scores
+from evaluation.trajectory import opengl_to_opencv_c2w
+from spotlessgs.io.provenance import provenance
+
+
+@dataclass(frozen=True)
+class EvalConfig:
+    """What to compute and how."""
+
+    lpips: bool = True  # compute LPIPS (AlexNet v0.1) besides PSNR and SSIM
+    aligned: bool = True  # also score after the sequence-wide least-squares exposure gain (the *_aligned keys)
+    temporal: bool = True  # temporal PSNR/SSIM between consecutive frames (and the warped variant when possible)
+    sfm: bool = False  # run downstream SfM (pycolmap, CPU)
+    sfm_config: SfmConfig = field(default_factory=SfmConfig)  # SfM settings (matcher, features, threads, seed)
+    grid_frames: int = 4  # frames shown in the side-by-side figure
+    num_threads: int | None = None  # torch CPU threads while evaluating (None: leave torch's setting)
+    progress: bool = True  # show progress bars on stderr
+
+    def __post_init__(self) -> None:
+        if self.grid_frames < 1:
+            raise ValueError(f"grid_frames must be at least 1, got {self.grid_frames}")
+        if self.num_threads is not None and self.num_threads < 1:
+            raise ValueError(f"num_threads must be at least 1, got {self.num_threads}")
+
+
+def _bar(iterable, config: EvalConfig, desc: str, total: int | None = None):
+    """A tqdm progress bar on stderr (disabled by ``config.progress``)."""
+    from tqdm.auto import tqdm
+
+    return tqdm(iterable, desc=desc, total=total, disable=not config.progress, leave=False, dynamic_ncols=True)
+
+
+@contextlib.contextmanager
+def _torch_threads(n: int | None) -> Iterator[None]:
+    """Temporarily set torch's intra-op thread count."""
+    if n is None:
+        yield
+        return
+    old = torch.get_num_threads()
+    torch.set_num_threads(n)
+    try:
+        yield
+    finally:
+        torch.set_num_threads(old)
+
+
+def _chw(img: np.ndarray) -> torch.Tensor:
+    """(H, W, 3) float array → (3, H, W) float32 tensor."""
+    return torch.from_numpy(np.ascontiguousarray(img)).permute(2, 0, 1).float()
+
+
+def _load_pair(pair: ImagePair) -> tuple[torch.Tensor, torch.Tensor]:
+    """Load both images of a pair as (3, H, W); ValueError naming both files when their sizes differ."""
+    pred, gt = load_image(pair.pred), load_image(pair.gt)
+    if pred.shape != gt.shape:
+        raise ValueError(
+            f"{pair.name}: size mismatch: prediction {pair.pred} is {pred.shape[1]}x{pred.shape[0]}, "
+            f"reference {pair.gt} is {gt.shape[1]}x{gt.shape[0]}"
+        )
+    return _chw(pred), _chw(gt)
+
+
+def score_pairs(pairs: Sequence[ImagePair], config: EvalConfig = EvalConfig(), label: str = "metrics") -> dict:
+    """Per-image and mean PSNR, SSIM, LPIPS and their exposure-aligned variants.
+
+    Images are streamed (two passes when ``config.aligned``: the gain needs the whole sequence first), so memory
+    does not grow with the number of images.
+
+    Returns:
+        dict with the mean metrics (``psnr``, ``ssim``, ``lpips``, ``*_aligned``), ``exposure_gain``,
+        ``num_images`` and ``per_image`` (a list of per-image dicts with ``name`` and the same metric keys).
+
+    Raises:
+        ValueError: no pairs, or a pair whose images differ in size.
+    """
+    if not pairs:
+        raise ValueError("no image pairs to score")
+    per_image: list[dict] = [{"name": p.name} for p in pairs]
+    acc = GainAccumulator()
+
+    def score(pred: torch.Tensor, gt: torch.Tensor, row: dict, suffix: str) -> None:
+        row["psnr" + suffix] = float(psnr(pred, gt)[0])
+        row["ssim" + suffix] = float(ssim(pred, gt)[0])
+        if config.lpips:
+            row["lpips" + suffix] = float(lpips(pred, gt)[0])
+
+    with _torch_threads(config.num_threads), torch.no_grad():
+        for pair, row in _bar(list(zip(pairs, per_image)), config, f"{label}", total=len(pairs)):
+            pred, gt = _load_pair(pair)
+            score(pred, gt, row, "")
+            acc.add(pred, gt)
+        gain = None
+        if config.aligned:
+            gain = acc.gain()
+            for pair, row in _bar(list(zip(pairs, per_image)), config, f"{label} (aligned)", total=len(pairs)):
+                pred, gt = _load_pair(pair)
+                score(apply_gain(pred, gain), gt, row, "_aligned")
+    keys = [k for k in per_image[0] if k != "name"]
+    out: dict = {k: float(np.mean([row[k] for row in per_image])) for k in keys}
+    out["exposure_gain"] = gain
+    out["num_images"] = len(pairs)
+    out["per_image"] = per_image
+    return out
+
+
+def temporal_block(
+    paths: Sequence[Path], config: EvalConfig, label: str, posed: DatasetViews | None = None
+) -> dict:
+    """Temporal metrics of one ordered sequence of image files: ``tmp_psnr``, ``tmp_ssim`` and, when ``posed`` gives
+    depth and poses for every frame (same order as ``paths``), ``tmp_psnr_warped`` and ``tmp_ssim_warped``."""
+    if len(paths) < 2:
+        return {}
+    if posed is not None and len(posed.frames) != len(paths):
+        raise ValueError(f"temporal {label}: {len(paths)} images but {len(posed.frames)} posed frames")
+    with _torch_threads(config.num_threads), torch.no_grad():
+        frames = (_chw(load_image(p)) for p in _bar(paths, config, f"temporal {label}", total=len(paths)))
+        plain = temporal_scores(frames)
+        out = {"tmp_psnr": plain.mean_psnr, "tmp_ssim": plain.mean_ssim}
+        if posed is not None and all(f.depth_path is not None for f in posed.frames):
+            K = torch.from_numpy(posed.intrinsics.matrix())
+
+            def gen():
+                for p, f in zip(paths, posed.frames):
+                    yield PosedFrame(
+                        image=_chw(load_image(p)),
+                        depth=torch.from_numpy(read_depth_exr(f.depth_path)),
+                        c2w=torch.from_numpy(opengl_to_opencv_c2w(f.c2w_opengl)),
+                    )
+
+            warped = warped_temporal_scores(_bar(gen(), config, f"warped temporal {label}", total=len(paths)), K)
+            out.update(tmp_psnr_warped=warped.mean_psnr, tmp_ssim_warped=warped.mean_ssim,
+                       tmp_warped_pairs=len(warped.psnr))
+    return out
+
+
+def _sfm_block(
+    image_dir: Path, names: Sequence[str], work: Path, config: EvalConfig, label: str,
+    intrinsics: PinholeIntrinsics | None = None, true_c2w: dict[str, np.ndarray] | None = None,
+) -> tuple[dict, SfmResult]:
+    """Run SfM on one sequence with a progress bar over its steps; returns (JSON summary, result)."""
+    with _bar(None, config, f"SfM {label}", total=3) as bar:  # three steps: features, matching, mapping
+        started: list[str] = []
+
+        def on_step(name: str) -> None:
+            if started:
+                bar.update(1)  # the previous step has finished
+            started.append(name)
+            bar.set_postfix_str(name)
+
+        result = run_sfm(image_dir, names, work, config.sfm_config, intrinsics, progress=on_step)
+        bar.update(1)
+    return result.summary(true_c2w, names), result
+
+
+def _trajectory_panel(result: SfmResult, names: Sequence[str], true_c2w: dict | None) -> dict:
+    """Plot data for one SfM result: centres in time order, points, true centres (estimate aligned to them)."""
+    order = [n for n in names if n in result.poses_c2w]
+    centres = np.array([result.poses_c2w[n][:3, 3] for n in order]).reshape(-1, 3)
+    points = result.points_xyz
+    if true_c2w is None:
+        return {"centres": centres, "points": points}
+    errs = result.trajectory_errors(true_c2w, names)
+    if errs is None:
+        return {"centres": np.zeros((0, 3)), "points": np.zeros((0, 3)),
+                "true_centres": np.array([true_c2w[n][:3, 3] for n in names])}
+    sim = errs.alignment
+    return {
+        "centres": sim.apply(centres),
+        "points": sim.apply(points) if len(points) else points,
+        "true_centres": np.array([true_c2w[n][:3, 3] for n in names]),
+    }
+
+
+def _grid_indices(n: int, k: int) -> list[int]:
+    """``k`` evenly spread indices in range(n) (all of them when n ≤ k)."""
+    if n <= k:
+        return list(range(n))
+    return sorted(set(int(round(i)) for i in np.linspace(0, n - 1, k)))
+
+
+def _write_outputs(out_dir: Path | None, json_path: Path | None, results: dict, title: str) -> None:
+    """Write results.json and results.md into ``out_dir`` and/or the JSON to ``json_path``."""
+    if out_dir is not None:
+        write_results_json(out_dir / "results.json", results)
+        write_markdown(out_dir / "results.md", results, title)
+    if json_path is not None:
+        write_results_json(json_path, results)
+
+
+def evaluate_folders(
+    pred_dir: str | os.PathLike,
+    gt_dir: str | os.PathLike,
+    config: EvalConfig = EvalConfig(),
+    json_path: str | os.PathLike | None = None,
+    out_dir: str | os.PathLike | None = None,
+) -> dict:
+    """Score the images of ``pred_dir`` against those of ``gt_dir``, matched by file name.
+
+    Temporal metrics (and SfM, when ``config.sfm``; COLMAP estimates the intrinsics) run on the prediction folder in
+    file-name order. Writes the JSON to ``json_path`` and, with ``out_dir``, also results.json, results.md and
+    figures/grid.png (and figures/sfm_trajectories.png) there.
+
+    Raises:
+        ValueError / FileNotFoundError: see :func:`evaluation.folders.match_folders` and :func:`score_pairs`.
+    """
+    pairs = match_folders(pred_dir, gt_dir)
+    results: dict = {"mode": "folders", "pred_dir": str(pred_dir), "gt_dir": str(gt_dir)}
+    scores = score_pairs(pairs, config, "image metrics")
+    results.update(scores)
+    if config.temporal:
+        results.update(temporal_block([p.pred for p in pairs], config, "pred"))
+    out = Path(out_dir) if out_dir is not None else None
+    sfm_result = None
+    if config.sfm:
+        with _work_dir(out) as work:
+            results["sfm"], sfm_result = _sfm_block(Path(pred_dir), [p.name for p in pairs], work / "pred",
+                                                    config, "pred")
+    results["config"] = asdict(config)
+    results["provenance"] = provenance(extra_packages=("pycolmap", "kornia"))
+    if out is not None:
+        idx = _grid_indices(len(pairs), config.grid_frames)
+        save_image_grid(out / "figures" / "grid.png",
+                        [[load_image(pairs[i].pred), load_image(pairs[i].gt)] for i in idx],
+                        ["prediction", "reference"], [pairs[i].name for i in idx])
+        if sfm_result is not None:
+            save_trajectory_plot(out / "figures" / "sfm_trajectories.png",
+                                 {"prediction": _trajectory_panel(sfm_result, [p.name for p in pairs], None)})
+    _write_outputs(out, Path(json_path) if json_path is not None else None, results, "Evaluation (folders)")
+    return results
+
+
+@contextlib.contextmanager
+def _work_dir(out: Path | None) -> Iterator[Path]:
+    """SfM scratch folder: ``out/sfm`` when there is an output folder (kept for inspection), else a temporary one."""
+    if out is not None:
+        (out / "sfm").mkdir(parents=True, exist_ok=True)
+        yield out / "sfm"
+    else:
+        with tempfile.TemporaryDirectory(prefix="spotless-sfm-") as tmp:
+            yield Path(tmp)
+
+
+def _common_folder(frames: Sequence[DatasetFrame]) -> Path:
+    """The single folder holding every input image (SfM reads images from one folder)."""
+    folders = {f.input_path.parent for f in frames}
+    if len(folders) != 1:
+        raise ValueError(f"input images are spread over {len(folders)} folders; SfM needs them in one")
+    return folders.pop()
+
+
+def evaluate_run(
+    run_dir: str | os.PathLike,
+    config: EvalConfig = EvalConfig(),
+    out_dir: str | os.PathLike | None = None,
+    json_path: str | os.PathLike | None = None,
+) -> dict:
+    """Evaluate a training run: its relit test views against ground truth, temporal metrics on the whole relit and
+    input sequences, and (``config.sfm``) SfM on inputs vs relit with the dataset's intrinsics and true poses.
+
+    Args:
+        run_dir: the run folder (``run.json`` with ``data_dir``, and ``relit/``).
+        config: what to compute.
+        out_dir: where results.json, results.md and figures/ go (default ``RUN/eval``).
+        json_path: optional extra path for the JSON.
+
+    Returns:
+        the results dict: top-level keys for the relit sequence, ``input`` with the same keys for the original
+        (uneven) inputs, ``test_views``, ``config`` and ``provenance``.
+
+    Raises:
+        FileNotFoundError: run.json, relit images, inputs or ground truth missing (named).
+        ValueError: malformed run or dataset files, or no test view with ground truth.
+    """
+    run = Path(run_dir)
+    data = read_dataset(read_run_data_dir(run))
+    relit_dir = run / "relit"
+    out = Path(out_dir) if out_dir is not None else run / "eval"
+    relit_names = set(list_images(relit_dir))
+    missing = [f.name for f in data.frames if f.name not in relit_names]
+    if missing:
+        raise FileNotFoundError(f"{relit_dir}: missing relit images for {len(missing)} view(s), e.g. {missing[:3]}")
+    test = [f for f in data.test_frames if f.gt_path is not None]
+    if not test:
+        raise ValueError(f"{data.root}: no test view has a ground-truth image (gt_file_path)")
+    for f in test:
+        for p in (f.gt_path, f.input_path):
+            if not p.is_file():
+                raise FileNotFoundError(f"{p}: image listed in transforms.json does not exist")
+    relit_pairs = [ImagePair(f.name, relit_dir / f.name, f.gt_path) for f in test]
+    input_pairs = [ImagePair(f.name, f.input_path, f.gt_path) for f in test]
+
+    results: dict = {"mode": "run", "run_dir": str(run), "data_dir": str(data.root),
+                     "test_views": [f.name for f in test]}
+    results.update(score_pairs(relit_pairs, config, "relit vs gt"))
+    results["input"] = score_pairs(input_pairs, config, "input vs gt")
+    if config.temporal:
+        results.update(temporal_block([relit_dir / f.name for f in data.frames], config, "relit", data))
+        results["input"].update(temporal_block([f.input_path for f in data.frames], config, "input", data))
+    panels = {}
+    if config.sfm:
+        names = [f.name for f in data.frames]
+        true = {f.name: opengl_to_opencv_c2w(f.c2w_opengl) for f in data.frames}
+        for key, folder, label in (("input", _common_folder(data.frames), "input"), ("relit", relit_dir, "relit")):
+            summary, res = _sfm_block(folder, names, out / "sfm" / key, config, label, data.intrinsics, true)
+            if key == "input":
+                results["input"]["sfm"] = summary
+            else:
+                results["sfm"] = summary
+            panels[f"{label} ({res.registered_images}/{res.total_images} registered)"] = _trajectory_panel(
+                res, names, true)
+    results["config"] = asdict(config)
+    results["provenance"] = provenance(extra_packages=("pycolmap", "kornia"))
+
+    idx = _grid_indices(len(test), config.grid_frames)
+    save_image_grid(
+        out / "figures" / "grid.png",
+        [[load_image(test[i].input_path), load_image(relit_dir / test[i].name), load_image(test[i].gt_path)]
+         for i in idx],
+        ["input", "relit", "ground truth"], [test[i].name for i in idx],
+    )
+    if panels:
+        save_trajectory_plot(out / "figures" / "sfm_trajectories.png", panels)
+    _write_outputs(out, Path(json_path) if json_path is not None else None, results, f"Evaluation of {run.name}")
+    return results

@@ -1,0 +1,214 @@
+"""Temporal consistency: PSNR and SSIM between consecutive frames of a sequence.
+
+Plain variant: frame t against frame t+1 (views assumed close). Warped variant, when depth and poses are known:
+frame t+1 is reprojected into frame t through frame t's depth and both poses, and only valid pixels (finite depth,
+in front of both cameras, inside frame t+1, not occluded when frame t+1's depth is known) are scored. Camera motion then
+no longer counts as inconsistency, so the warped figures separate flicker from motion.
+
+Camera convention here: OpenCV axes (x right, y down, z forward), camera-to-world 4×4 matrices, pinhole intrinsics
+K = [[fx, 0, cx], [0, fy, cy], [0, 0, 1]] with pixel (i, j) centred at (i + 0.5, j + 0.5).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Iterable, Iterator
+
+import torch
+import torch.nn.functional as F
+from torch import Tensor
+
+from evaluation.metrics import check_image_pair, psnr, ssim, ssim_map
+
+
+@dataclass(frozen=True)
+class TemporalScores:
+    """Per-pair temporal scores of one sequence (pair k compares frames k and k+1)."""
+
+    psnr: list[float]  # PSNR (dB) per consecutive pair
+    ssim: list[float]  # SSIM per consecutive pair
+
+    @property
+    def mean_psnr(self) -> float:
+        """Mean PSNR over pairs (+inf if some pair is identical)."""
+        return float(sum(self.psnr) / len(self.psnr))
+
+    @property
+    def mean_ssim(self) -> float:
+        """Mean SSIM over pairs."""
+        return float(sum(self.ssim) / len(self.ssim))
+
+
+def consecutive_pairs(frames: Iterable[Tensor]) -> Iterator[tuple[Tensor, Tensor]]:
+    """Yield (frame t, frame t+1) from an iterable of (3, H, W) frames, holding only two in memory."""
+    prev = None
+    for frame in frames:
+        if prev is not None:
+            yield prev, frame
+        prev = frame
+
+
+def temporal_scores(frames: Iterable[Tensor]) -> TemporalScores:
+    """PSNR and SSIM between consecutive frames.
+
+    Args:
+        frames: ordered (3, H, W) frames in [0, 1], all the same size; at least two.
+
+    Raises:
+        ValueError: fewer than two frames, or frames of different sizes (the pair index is named).
+    """
+    ps, ss = [], []
+    for k, (a, b) in enumerate(consecutive_pairs(frames)):
+        if a.shape != b.shape:
+            raise ValueError(f"frames {k} and {k + 1} differ in shape: {tuple(a.shape)} vs {tuple(b.shape)}")
+        ps.append(float(psnr(b, a)[0]))
+        ss.append(float(ssim(b, a)[0]))
+    if not ps:
+        raise ValueError("temporal metrics need at least two frames")
+    return TemporalScores(ps, ss)
+
+
+def warp_into(
+    src: Tensor,
+    depth: Tensor,
+    K: Tensor,
+    c2w_dst: Tensor,
+    c2w_src: Tensor,
+    src_depth: Tensor | None = None,
+    occlusion_tolerance: float = 0.05,
+) -> tuple[Tensor, Tensor]:
+    """Reproject image ``src`` (seen from camera src) into the pixel grid of camera dst using dst's depth.
+
+    Args:
+        src: (C, H, W) image of the source camera (e.g. frame t+1).
+        depth: (H, W) planar depth of the destination camera (frame t), metres; inf/NaN/≤0 where there is no surface.
+        K: (3, 3) pinhole intrinsics shared by both cameras.
+        c2w_dst: (4, 4) camera-to-world of the destination camera (OpenCV axes).
+        c2w_src: (4, 4) camera-to-world of the source camera (OpenCV axes).
+        src_depth: optional (H, W) planar depth of the source camera, for an occlusion test.
+        occlusion_tolerance: relative depth difference above which a reprojected point counts as occluded.
+
+    Returns:
+        warped (C, H, W) — ``src`` resampled bilinearly at the reprojected positions (0 where invalid) — and
+        valid (H, W) bool.
+    """
+    c, h, w = src.shape
+    if depth.shape != (h, w):
+        raise ValueError(f"depth shape {tuple(depth.shape)} does not match image size {h}x{w}")
+    if K.shape != (3, 3) or c2w_dst.shape != (4, 4) or c2w_src.shape != (4, 4):
+        raise ValueError("K must be (3, 3) and camera poses (4, 4)")
+    dt = torch.float64
+    K, c2w_dst, c2w_src = K.to(dt), c2w_dst.to(dt), c2w_src.to(dt)
+    z = depth.to(dt)
+    finite = torch.isfinite(z) & (z > 0)
+    z = torch.where(finite, z, torch.ones_like(z))
+    jj, ii = torch.meshgrid(torch.arange(h, dtype=dt) + 0.5, torch.arange(w, dtype=dt) + 0.5, indexing="ij")
+    x = (ii - K[0, 2]) / K[0, 0] * z
+    y = (jj - K[1, 2]) / K[1, 1] * z
+    pts = torch.stack([x, y, z, torch.ones_like(z)], dim=-1).reshape(-1, 4)  # (H*W, 4) in dst camera
+    src_from_dst = torch.linalg.inv(c2w_src) @ c2w_dst
+    p = pts @ src_from_dst.T
+    zs = p[:, 2]
+    in_front = zs > 1e-9
+    zs_safe = torch.where(in_front, zs, torch.ones_like(zs))
+    u = K[0, 0] * p[:, 0] / zs_safe + K[0, 2]
+    v = K[1, 1] * p[:, 1] / zs_safe + K[1, 2]
+    tol = 1e-6  # pixels: round-off at the border must not drop the outermost pixel centres
+    inside = (u >= 0.5 - tol) & (u <= w - 0.5 + tol) & (v >= 0.5 - tol) & (v <= h - 0.5 + tol)  # bilinear support
+    valid = finite.reshape(-1) & in_front & inside
+    grid = torch.stack([2 * u / w - 1, 2 * v / h - 1], dim=-1).reshape(1, h, w, 2)
+    warped = F.grid_sample(src[None].to(dt), grid, mode="bilinear", padding_mode="border", align_corners=False)[0]
+    if src_depth is not None:
+        if src_depth.shape != (h, w):
+            raise ValueError(f"src_depth shape {tuple(src_depth.shape)} does not match image size {h}x{w}")
+        sd = src_depth.to(dt)
+        sd = torch.where(torch.isfinite(sd), sd, torch.full_like(sd, 1e30))
+        seen = F.grid_sample(sd[None, None], grid, mode="nearest", padding_mode="border", align_corners=False)
+        seen = seen.reshape(-1)
+        valid &= (zs - seen).abs() <= occlusion_tolerance * zs.abs()
+    valid = valid.reshape(h, w)
+    warped = torch.where(valid[None], warped, torch.zeros_like(warped))
+    return warped.to(src.dtype), valid
+
+
+def masked_psnr(pred: Tensor, gt: Tensor, mask: Tensor, data_range: float = 1.0) -> float:
+    """PSNR over the pixels where ``mask`` is true.
+
+    Args:
+        pred: (C, H, W); gt: (C, H, W); mask: (H, W) bool.
+
+    Raises:
+        ValueError: the mask is empty or its shape does not match.
+    """
+    pred, gt = check_image_pair(pred, gt)
+    if mask.shape != pred.shape[-2:]:
+        raise ValueError(f"mask shape {tuple(mask.shape)} does not match image size {tuple(pred.shape[-2:])}")
+    n = int(mask.sum())
+    if n == 0:
+        raise ValueError("no valid pixels to score")
+    diff = (pred[0].double() - gt[0].double())[:, mask]
+    mse = float(diff.pow(2).mean())
+    return math.inf if mse == 0 else 10.0 * math.log10(data_range**2 / mse)
+
+
+def masked_ssim(pred: Tensor, gt: Tensor, mask: Tensor, window_size: int = 11, sigma: float = 1.5) -> float:
+    """Mean SSIM over the pixels whose whole window lies in ``mask``.
+
+    Args:
+        pred: (C, H, W); gt: (C, H, W); mask: (H, W) bool.
+
+    Raises:
+        ValueError: no window fits entirely inside the mask, or the mask shape does not match.
+    """
+    if mask.shape != pred.shape[-2:]:
+        raise ValueError(f"mask shape {tuple(mask.shape)} does not match image size {tuple(pred.shape[-2:])}")
+    smap = ssim_map(pred, gt, window_size=window_size, sigma=sigma)[0]  # (C, H', W')
+    box = torch.ones(window_size, dtype=torch.float64)
+    m = mask.to(torch.float64)[None, None]
+    inside = F.conv2d(F.conv2d(m, box.view(1, 1, 1, -1)), box.view(1, 1, -1, 1))[0, 0] >= window_size**2 - 0.5
+    n = int(inside.sum())
+    if n == 0:
+        raise ValueError(f"no {window_size}x{window_size} window lies entirely inside the valid pixels")
+    return float(smap[:, inside].double().mean())
+
+
+@dataclass(frozen=True)
+class PosedFrame:
+    """One frame of a sequence with its geometry, for the warped temporal metrics."""
+
+    image: Tensor  # (3, H, W) sRGB in [0, 1]
+    depth: Tensor  # (H, W) planar depth in metres, inf where there is no surface
+    c2w: Tensor  # (4, 4) camera-to-world, OpenCV axes
+
+
+def warped_temporal_scores(frames: Iterable[PosedFrame], K: Tensor, min_valid_fraction: float = 0.05) -> TemporalScores:
+    """PSNR and SSIM between frame t and frame t+1 warped into frame t, on valid pixels only.
+
+    Args:
+        frames: ordered frames with depth and pose; at least two.
+        K: (3, 3) intrinsics shared by all frames.
+        min_valid_fraction: a pair whose valid pixels cover less than this fraction of the image is skipped (too little
+            overlap to say anything); NaN is never reported.
+
+    Raises:
+        ValueError: fewer than two frames, or no pair has enough valid pixels.
+    """
+    ps, ss = [], []
+    n_pairs = 0
+    for a, b in consecutive_pairs(frames):
+        n_pairs += 1
+        warped, valid = warp_into(b.image, a.depth, K, a.c2w, b.c2w, src_depth=b.depth)
+        if float(valid.double().mean()) < min_valid_fraction:
+            continue
+        try:
+            s = masked_ssim(warped, a.image, valid)
+        except ValueError:
+            continue
+        ps.append(masked_psnr(warped, a.image, valid))
+        ss.append(s)
+    if n_pairs == 0:
+        raise ValueError("temporal metrics need at least two frames")
+    if not ps:
+        raise ValueError(f"none of the {n_pairs} consecutive pairs overlaps enough to score after warping")
+    return TemporalScores(ps, ss)

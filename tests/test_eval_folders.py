@@ -1,0 +1,123 @@
+"""Image reading (8/16-bit, greyscale, alpha, palette) and folder matching, with every error path."""
+
+from __future__ import annotations
+
+import struct
+import zlib
+from pathlib import Path
+
+import numpy as np
+import pytest
+from PIL import Image
+
+from evaluation.folders import ImagePair, list_images, match_folders
+from evaluation.images import is_image_name, load_image
+
+
+def _png16_rgb(path: Path, a: np.ndarray) -> None:
+    """Write a 16-bit RGB PNG by hand (Pillow cannot write them)."""
+    h, w, _ = a.shape
+    raw = b"".join(b"\x00" + a[y].astype(">u2").tobytes() for y in range(h))
+
+    def chunk(kind: bytes, data: bytes) -> bytes:
+        return struct.pack(">I", len(data)) + kind + data + struct.pack(">I", zlib.crc32(kind + data) & 0xFFFFFFFF)
+
+    path.write_bytes(b"\x89PNG\r\n\x1a\n" + chunk(b"IHDR", struct.pack(">IIBBBBB", w, h, 16, 2, 0, 0, 0))
+                     + chunk(b"IDAT", zlib.compress(raw)) + chunk(b"IEND", b""))
+
+
+def test_8bit_rgb_exact(tmp_path):
+    a = np.arange(4 * 5 * 3, dtype=np.uint8).reshape(4, 5, 3) * 4
+    Image.fromarray(a).save(tmp_path / "x.png")
+    got = load_image(tmp_path / "x.png")
+    assert got.dtype == np.float32 and got.shape == (4, 5, 3)
+    np.testing.assert_allclose(got, a / 255.0, atol=1e-7)
+
+
+def test_16bit_grey_exact_and_replicated(tmp_path):
+    g = (np.arange(20).reshape(4, 5) * 3000).astype(np.uint16)
+    Image.fromarray(g).save(tmp_path / "g.png")
+    got = load_image(tmp_path / "g.png")
+    assert got.shape == (4, 5, 3)
+    np.testing.assert_allclose(got[..., 1], g / 65535.0, atol=1e-7)
+    np.testing.assert_array_equal(got[..., 0], got[..., 2])
+
+
+def test_16bit_rgb_read_at_8bit_precision(tmp_path):
+    a = (np.arange(4 * 4 * 3).reshape(4, 4, 3) * 1357 % 65536).astype(np.uint16)
+    _png16_rgb(tmp_path / "c.png", a)
+    got = load_image(tmp_path / "c.png")
+    assert np.abs(got - a / 65535.0).max() < 1.0 / 255.0 + 1e-6
+
+
+def test_alpha_composited_over_black(tmp_path):
+    rgba = np.zeros((2, 2, 4), np.uint8)
+    rgba[..., :3] = 200
+    rgba[..., 3] = [[255, 0], [51, 255]]
+    Image.fromarray(rgba, "RGBA").save(tmp_path / "a.png")
+    got = load_image(tmp_path / "a.png")
+    np.testing.assert_allclose(got[..., 0], [[200 / 255, 0.0], [200 / 255 * 0.2, 200 / 255]], atol=1e-6)
+
+
+def test_greyscale_and_palette(tmp_path):
+    Image.fromarray(np.full((3, 3), 128, np.uint8), "L").save(tmp_path / "l.png")
+    np.testing.assert_allclose(load_image(tmp_path / "l.png"), 128 / 255.0, atol=1e-7)
+    p = Image.fromarray(np.full((3, 3, 3), [10, 20, 30], np.uint8)).convert("P", palette=Image.ADAPTIVE)
+    p.save(tmp_path / "p.png")
+    np.testing.assert_allclose(load_image(tmp_path / "p.png")[0, 0], np.array([10, 20, 30]) / 255.0, atol=1e-7)
+
+
+def test_image_errors(tmp_path):
+    with pytest.raises(FileNotFoundError, match="no such image file"):
+        load_image(tmp_path / "none.png")
+    (tmp_path / "bad.png").write_bytes(b"not a png at all")
+    with pytest.raises(ValueError, match="bad.png: not an image file that Pillow can decode"):
+        load_image(tmp_path / "bad.png")
+    Image.fromarray(np.zeros((2, 2), np.float32), "F").save(tmp_path / "f.tiff")
+    with pytest.raises(ValueError, match="pixel format 'F' is not supported"):
+        load_image(tmp_path / "f.tiff")
+    noise = np.random.default_rng(0).integers(0, 255, (64, 64, 3)).astype(np.uint8)
+    Image.fromarray(noise).save(tmp_path / "t.png")
+    data = (tmp_path / "t.png").read_bytes()
+    (tmp_path / "trunc.png").write_bytes(data[: len(data) // 2])
+    with pytest.raises(ValueError, match="trunc.png: cannot decode image"):
+        load_image(tmp_path / "trunc.png")
+
+
+def _folder(root: Path, names: list[str]) -> Path:
+    root.mkdir(parents=True, exist_ok=True)
+    for n in names:
+        Image.fromarray(np.zeros((12, 12, 3), np.uint8)).save(root / n)
+    return root
+
+
+def test_match_by_name(tmp_path):
+    p = _folder(tmp_path / "p", ["b.png", "a.png"])
+    g = _folder(tmp_path / "g", ["a.png", "b.png"])
+    (p / ".hidden").write_text("x")
+    (p / "sub").mkdir()
+    pairs = match_folders(p, g)
+    assert [x.name for x in pairs] == ["a.png", "b.png"]
+    assert pairs[0] == ImagePair("a.png", p / "a.png", g / "a.png")
+    assert [x.name for x in match_folders(p, g, names=["b.png"])] == ["b.png"]
+    assert is_image_name("X.JPG") and not is_image_name("x.exr")
+
+
+def test_folder_errors(tmp_path):
+    p = _folder(tmp_path / "p", ["a.png", "b.png", "c.png"])
+    g = _folder(tmp_path / "g", ["a.png", "b.png", "d.png", "e.png"])
+    with pytest.raises(ValueError, match=r"holds 3 images and .* holds 4; missing from predictions: d.png, e.png; "
+                                         r"extra in predictions: c.png"):
+        match_folders(p, g)
+    with pytest.raises(ValueError, match=r"missing requested images: c.png"):
+        match_folders(p, g, names=["a.png", "c.png"])
+    with pytest.raises(ValueError, match="requested image names contain duplicates"):
+        match_folders(p, g, names=["a.png", "a.png"])
+    (g / "notes.txt").write_text("x")
+    with pytest.raises(ValueError, match="non-image files found: notes.txt"):
+        list_images(g)
+    with pytest.raises(FileNotFoundError, match="not a directory"):
+        list_images(tmp_path / "nope")
+    (tmp_path / "empty").mkdir()
+    with pytest.raises(ValueError, match="empty: no image files"):
+        list_images(tmp_path / "empty")

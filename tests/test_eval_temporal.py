@@ -1,0 +1,127 @@
+"""Temporal consistency: plain consecutive-frame metrics, depth-based warping, masked metrics, error paths."""
+
+from __future__ import annotations
+
+import math
+
+import pytest
+import torch
+
+from evaluation.metrics import ssim
+from evaluation.synthetic import render_room_sequence
+from evaluation.temporal import (
+    PosedFrame,
+    masked_psnr,
+    masked_ssim,
+    temporal_scores,
+    warp_into,
+    warped_temporal_scores,
+)
+from evaluation.trajectory import opengl_to_opencv_c2w
+
+@pytest.fixture(autouse=True, scope="module")
+def _one_torch_thread():
+    """One torch thread: the test machines are shared, and contended OpenMP threads slow small ops 100×."""
+    old = torch.get_num_threads()
+    torch.set_num_threads(1)
+    yield
+    torch.set_num_threads(old)
+
+
+
+@pytest.fixture(scope="module")
+def room():
+    seq = render_room_sequence(num_frames=6, width=120, height=90, seed=5)
+    K = torch.from_numpy(seq.intrinsics.matrix())
+    frames = [
+        PosedFrame(torch.from_numpy(seq.even[k]).permute(2, 0, 1), torch.from_numpy(seq.depth[k]),
+                   torch.from_numpy(opengl_to_opencv_c2w(seq.c2w_opengl[k])))
+        for k in range(len(seq.even))
+    ]
+    return K, frames
+
+
+def test_plain_scores_by_hand():
+    a = torch.zeros(3, 16, 16)
+    frames = [a, a + 0.1, a + 0.1]  # pair 0: MSE 0.01 → 20 dB; pair 1: identical
+    s = temporal_scores(iter(frames))
+    assert s.psnr[0] == pytest.approx(20.0, abs=1e-4)
+    assert math.isinf(s.psnr[1]) and s.ssim[1] == pytest.approx(1.0)
+    assert math.isinf(s.mean_psnr)
+    assert s.ssim[0] == pytest.approx(float(ssim(frames[1], frames[0])[0]))
+
+
+def test_warp_with_identical_pose_is_the_identity(room):
+    K, frames = room
+    f = frames[0]
+    warped, valid = warp_into(f.image, f.depth, K, f.c2w, f.c2w, src_depth=f.depth)
+    assert bool(valid.all())
+    assert torch.allclose(warped, f.image, atol=1e-6)
+    assert math.isinf(masked_psnr(warped, f.image, valid))
+
+
+def test_warping_removes_camera_motion(room):
+    K, frames = room
+    warped = warped_temporal_scores(frames, K)
+    plain = temporal_scores(f.image for f in frames)
+    assert len(warped.psnr) == len(frames) - 1
+    # an evenly lit static scene: after reprojection consecutive frames agree up to resampling blur
+    assert min(warped.psnr) > 28.0 and max(plain.psnr) < 23.0
+    assert warped.mean_ssim > plain.mean_ssim + 0.4
+
+
+def test_occlusion_test_rejects_inconsistent_depth(room):
+    K, frames = room
+    a, b = frames[0], frames[1]
+    _, valid = warp_into(b.image, a.depth, K, a.c2w, b.c2w, src_depth=b.depth)
+    _, valid_bad = warp_into(b.image, a.depth, K, a.c2w, b.c2w, src_depth=b.depth * 2.0)
+    assert valid.float().mean() > 0.3 and not bool(valid_bad.any())
+    wrong = [PosedFrame(f.image, f.depth * 2.0 if k % 2 else f.depth, f.c2w) for k, f in enumerate(frames)]
+    with pytest.raises(ValueError, match="none of the 5 consecutive pairs overlaps enough"):
+        warped_temporal_scores(wrong, K)
+
+
+def test_background_depth_is_invalid(room):
+    K, frames = room
+    f = frames[0]
+    depth = f.depth.clone()
+    depth[:, :40] = float("inf")
+    _, valid = warp_into(f.image, depth, K, f.c2w, f.c2w)
+    assert not bool(valid[:, :40].any()) and bool(valid[:, 40:].all())
+
+
+def test_masked_metrics():
+    g = torch.Generator().manual_seed(0)
+    a, b = torch.rand(3, 30, 30, generator=g), torch.rand(3, 30, 30, generator=g)
+    full = torch.ones(30, 30, dtype=torch.bool)
+    assert masked_ssim(a, b, full) == pytest.approx(float(ssim(a, b)[0]), abs=1e-6)
+    c = b.clone()
+    c[:, :, 15:] = a[:, :, 15:]  # right half identical
+    right = torch.zeros(30, 30, dtype=torch.bool)
+    right[:, 15:] = True
+    assert math.isinf(masked_psnr(c, a, right))
+    assert masked_ssim(c, a, right) == pytest.approx(1.0, abs=1e-6)
+
+
+def test_errors(room):
+    K, frames = room
+    f = frames[0]
+    with pytest.raises(ValueError, match="at least two frames"):
+        temporal_scores([torch.rand(3, 16, 16)])
+    with pytest.raises(ValueError, match=r"frames 1 and 2 differ in shape"):
+        temporal_scores([torch.rand(3, 16, 16)] * 2 + [torch.rand(3, 16, 17)])
+    with pytest.raises(ValueError, match="at least two frames"):
+        warped_temporal_scores(frames[:1], K)
+    with pytest.raises(ValueError, match=r"depth shape \(90, 119\) does not match image size 90x120"):
+        warp_into(f.image, f.depth[:, :119], K, f.c2w, f.c2w)
+    with pytest.raises(ValueError, match=r"src_depth shape"):
+        warp_into(f.image, f.depth, K, f.c2w, f.c2w, src_depth=f.depth[:10])
+    with pytest.raises(ValueError, match=r"K must be \(3, 3\)"):
+        warp_into(f.image, f.depth, K[:2], f.c2w, f.c2w)
+    empty = torch.zeros(90, 120, dtype=torch.bool)
+    with pytest.raises(ValueError, match="no valid pixels to score"):
+        masked_psnr(f.image, f.image, empty)
+    with pytest.raises(ValueError, match="no 11x11 window lies entirely inside"):
+        masked_ssim(f.image, f.image, empty)
+    with pytest.raises(ValueError, match="mask shape"):
+        masked_psnr(f.image, f.image, empty[:5])
