@@ -53,7 +53,9 @@ CAM = _look_at_c2w([0.3, -2.0, 2.5], [0.0, 0.0, 0.0])
 @pytest.mark.parametrize("variant", sorted(MODEL_VARIANTS))
 def test_each_variant_shape_finite_and_differentiable(variant):
     g = _scene()
-    m = build_appearance_models(variant, seed=1)
+    calibrated = MODEL_VARIANTS[variant].calibrated
+    extra = {"light_translation": [0.05, -0.03, 0.0], "cone": (0.5, 0.3)} if calibrated else {}
+    m = build_appearance_models(variant, seed=1, **extra)
     colours = shade(variant, g, m.light, m.lf_light, m.brdf, CAM)
     assert colours.shape == (40, 3) and torch.isfinite(colours).all() and _scalar(colours.min()) >= 0.0
     colours.sum().backward()
@@ -63,6 +65,8 @@ def test_each_variant_shape_finite_and_differentiable(variant):
     assert grads and all(torch.isfinite(t).all() for t in grads)
     if variant == "3dgs":
         assert g.params["sh0"].grad.abs().sum() > 0 and g.params["albedo_raw"].grad is None
+    elif calibrated:  # the pose is frozen: no gradient reaches it
+        assert g.params["albedo_raw"].grad.abs().sum() > 0 and m.light.translation.grad is None
     else:
         assert g.params["albedo_raw"].grad.abs().sum() > 0 and m.light.translation.grad.abs().sum() > 0
 
