@@ -1,0 +1,1 @@
+"""Single-view 2D baselines."""
