@@ -10,8 +10,8 @@ then each channel is clipped at its ``low_percent`` / ``high_percent`` percentil
 "simplest colour balance" of Limare et al. 2011), which also replaces the gain/offset of the original paper. The
 Retinex runs on sRGB-encoded values, as in the literature on 8-bit images.
 
-The Gaussian surround ``G_sigma * I`` is computed, for sigma > 8 px, with three successive box filters (Wells 1986; widths from Kovesi
-2010), whose cost does not depend on sigma; boundaries are mirrored. Sigmas scale with the image: they are given as
+The Gaussian surround ``G_sigma * I`` is computed, for sigma > 8 px, with three successive box filters (Wells 1986;
+widths from Kovesi 2010), whose cost does not depend on sigma; boundaries are mirrored. Sigmas scale with the image: they are given as
 fractions of the longer image side (defaults 15, 80 and 250 pixels at a 512-pixel side).
 
 A channel whose percentile range is empty (a flat channel: black or saturated frames) has no contrast to stretch and is

@@ -81,19 +81,38 @@ class PatchDiscriminator(nn.Module):
 
 
 def init_weights(module: nn.Module, std: float, generator: torch.Generator) -> None:
-    """Convolution weights ~ N(0, std), biases 0, drawn from ``generator`` in module order (deterministic)."""
-    for sub in module.modules():
-        if isinstance(sub, (nn.Conv2d, nn.ConvTranspose2d)):
-            nn.init.normal_(sub.weight, 0.0, std, generator=generator)
-            if sub.bias is not None:
-                nn.init.zeros_(sub.bias)
+    """Convolution weights ~ N(0, std), biases 0, drawn from ``generator`` in module order (deterministic).
+
+    Every parameter of the networks here is a convolution weight or bias (instance norm has no affine part), so
+    after this call no parameter is left uninitialised.
+    """
+    initialised = set()
+    with torch.no_grad():
+        for sub in module.modules():
+            if isinstance(sub, (nn.Conv2d, nn.ConvTranspose2d)):
+                nn.init.normal_(sub.weight, 0.0, std, generator=generator)
+                initialised.add(id(sub.weight))
+                if sub.bias is not None:
+                    nn.init.zeros_(sub.bias)
+                    initialised.add(id(sub.bias))
+    left = [name for name, p in module.named_parameters() if id(p) not in initialised]
+    if left:
+        raise RuntimeError(f"init_weights: parameters {left} of {type(module).__name__} were not initialised")
+
+
+def _allocate(factory) -> nn.Module:
+    """Build a module on the meta device and allocate (uninitialised) CPU storage: torch's default initialisers,
+    which draw from the global random generator, never run."""
+    with torch.device("meta"):
+        module = factory()
+    return module.to_empty(device="cpu")
 
 
 def build_generator(config: CycleGANConfig) -> ResnetGenerator:
-    """An uninitialised generator with the configured size."""
-    return ResnetGenerator(config.ngf, config.n_down, config.n_res_blocks)
+    """A generator with the configured size and UNINITIALISED weights (call init_weights or load a state dict)."""
+    return _allocate(lambda: ResnetGenerator(config.ngf, config.n_down, config.n_res_blocks))
 
 
 def build_discriminator(config: CycleGANConfig) -> PatchDiscriminator:
-    """An uninitialised discriminator with the configured size."""
-    return PatchDiscriminator(config.ndf, config.disc_layers)
+    """A discriminator with the configured size and UNINITIALISED weights (call init_weights or load a state dict)."""
+    return _allocate(lambda: PatchDiscriminator(config.ndf, config.disc_layers))

@@ -139,12 +139,13 @@ class CycleGANTrainer:
         self.step += 1
 
         record = {name: float(value.detach()) for name, value in terms.items()}
-        record.update(loss_G=float(loss_g.detach()), loss_D_a=float(loss_d_a.detach()), loss_D_b=float(loss_d_b.detach()), lr=lr)
+        record.update(loss_G=float(loss_g.detach()), loss_D_a=float(loss_d_a.detach()), lr=lr)
+        record["loss_D_b"] = float(loss_d_b.detach())
         return record
 
     def _check_finite(self, name: str, value: torch.Tensor) -> None:
         if not torch.isfinite(value).all():
-            raise NonFiniteLossError(f"{name} = {float(value)} at step {self.step}")
+            raise NonFiniteLossError(f"{name} = {float(value.detach())} at step {self.step}")
 
     def non_finite_parameters(self) -> list[str]:
         """Names ('net.param') of parameters holding NaN or inf."""
@@ -309,14 +310,14 @@ def _run_steps(
                 record["lr"] = step_losses["lr"]
                 record["seconds"] = round(time.perf_counter() - started, 3)
                 records.append(record)
-                bar.set_postfix(loss_G=f"{record['loss_G']:.3f}", loss_D=f"{record['loss_D_a'] + record['loss_D_b']:.3f}")
+                loss_d = record["loss_D_a"] + record["loss_D_b"]
+                bar.set_postfix(loss_G=f"{record['loss_G']:.3f}", loss_D=f"{loss_d:.3f}")
                 sums, window = {}, 0
             if trainer.step % cfg.checkpoint_every == 0 or trainer.step == cfg.steps:
                 bad = trainer.non_finite_parameters()
                 if bad:
-                    raise FloatingPointError(
-                        _divergence_message(f"non-finite weights {bad[:5]} after step {trainer.step}", ckpt_path, last_saved)
-                    )
+                    problem = f"non-finite weights {bad[:5]} after step {trainer.step}"
+                    raise FloatingPointError(_divergence_message(problem, ckpt_path, last_saved))
                 save_checkpoint(ckpt_path, trainer.state(fingerprints))
                 _write_metrics(metrics_path, records)
                 last_saved = trainer.step
