@@ -99,6 +99,7 @@ def test_deterministic(method, scene):
         (np.zeros((0, 4, 3)), r"expected an \(H, W, 3\) image"),
         (np.full((2, 2, 3), np.nan), "NaN or inf"),
         (np.full((2, 2, 3), "a"), "expected float values"),
+        (np.full((2, 2, 3), 255, dtype=np.uint8), r"got dtype uint8 \(divide 8-bit data by 255\)"),
     ],
 )
 def test_bad_inputs_are_refused(method, bad, match):

@@ -110,9 +110,11 @@ PRESETS: dict[str, CycleGANConfig] = {
         ngf=8, n_res_blocks=2, ndf=8, disc_layers=2, crop_height=32, crop_width=32, batch_size=2, steps=60,
         pool_size=10, checkpoint_every=20, log_every=5, num_threads=1,
     ),  # fmt: skip
-    # CPU reproduction: about 5-10 minutes on 2 cores (0.4-1 s per step measured on a busy 2-core machine).
+    # CPU reproduction: about 5-10 minutes (0.2-0.4 s per step measured with 1 thread on a busy 2-core machine;
+    # 2 threads took 4-6 s per step there because the OpenMP threads fought other processes for the cores).
     "quick": CycleGANConfig(
-        ngf=16, n_res_blocks=3, ndf=16, crop_height=72, crop_width=96, steps=800, checkpoint_every=100, log_every=20,
+        ngf=16, n_res_blocks=3, ndf=16, crop_height=72, crop_width=96, steps=1500, checkpoint_every=100, log_every=20,
+        num_threads=1,
     ),  # fmt: skip
     # The paper's scale (GPU): ngf 64, 9 residual blocks, 256x256 crops, ~200 epochs of 300 images.
     "paper": CycleGANConfig(

@@ -21,10 +21,14 @@ DIRECTIONS = {"uneven_to_even": "G_ab", "even_to_uneven": "G_ba"}
 
 
 def load_generator(checkpoint: str | os.PathLike, direction: str = "uneven_to_even") -> ResnetGenerator:
-    """The generator of ``direction`` from a checkpoint, in eval mode."""
+    """The generator of ``direction`` from a checkpoint file, in eval mode."""
+    return generator_from_state(load_checkpoint(checkpoint), direction)
+
+
+def generator_from_state(state: dict, direction: str = "uneven_to_even") -> ResnetGenerator:
+    """The generator of ``direction`` from a loaded checkpoint (``load_checkpoint``), in eval mode."""
     if direction not in DIRECTIONS:
         raise ValueError(f"unknown direction {direction!r}; choose one of {sorted(DIRECTIONS)}")
-    state = load_checkpoint(checkpoint)
     generator = build_generator(state["config"])
     generator.load_state_dict(state["networks"][DIRECTIONS[direction]])
     return generator.eval()
@@ -76,10 +80,11 @@ def translate_folder(
     Returns:
         the written paths, in input order.
     """
-    generator = load_generator(checkpoint, direction)
+    state = load_checkpoint(checkpoint)
+    generator = generator_from_state(state, direction)
     files = list_images(in_dir)
     refuse_name_clashes(files)
-    threads = num_threads if num_threads is not None else load_checkpoint(checkpoint)["config"].num_threads
+    threads = num_threads if num_threads is not None else state["config"].num_threads
     out_dir = Path(out_dir)
     written = []
     with torch_threads(threads):
