@@ -1,0 +1,230 @@
+"""The C++/OpenMP compositing kernel: lazy build, cache, ctypes binding and the autograd Function around it.
+
+The kernel (``csrc/composite.cpp``) has a plain C ABI and includes no torch or Python headers, so building it is one
+compiler call of about a second (``$CXX`` or ``g++``, ``-O3 -fopenmp``). The shared library is cached under the torch
+extensions directory (``$TORCH_EXTENSIONS_DIR`` or torch's default, e.g. ``~/.cache/torch_extensions/py311_cpu``) in
+``spotlessgs_raster/``, named by a hash of the source, the compiler and its flags; it is written atomically, so
+concurrent first uses are safe. Any build or load failure is logged once as a warning and the caller falls back to
+the pure-torch backend (:func:`load_kernel` returns None).
+"""
+
+from __future__ import annotations
+
+import ctypes
+import hashlib
+import logging
+import os
+import shutil
+import subprocess
+import threading
+from dataclasses import dataclass
+from pathlib import Path
+
+import torch
+from torch import Tensor
+
+from spotlessgs.io.atomic import atomic_path
+
+from .binning import TileBins
+
+log = logging.getLogger(__name__)
+
+SOURCE = Path(__file__).with_name("csrc") / "composite.cpp"
+ABI_VERSION = 1  # must equal spotless_raster_abi_version() in the C++ source
+CXX_FLAGS = ("-O3", "-std=c++17", "-fopenmp", "-fPIC", "-shared")
+_BUILD_TIMEOUT_S = 300
+
+_lock = threading.Lock()
+_cached: dict[str, object] = {}  # "kernel" → CompositeKernel, "error" → str
+
+
+class KernelBuildError(RuntimeError):
+    """The C++ kernel could not be compiled or loaded (the message says why)."""
+
+
+@dataclass(frozen=True)
+class CompositeKernel:
+    """The loaded shared library and where it came from."""
+
+    lib: ctypes.CDLL  # the loaded library
+    path: Path  # the cached .so file
+
+
+def cache_dir() -> Path:
+    """Directory holding the compiled kernels (under the torch extensions directory)."""
+    root = os.environ.get("TORCH_EXTENSIONS_DIR")
+    if not root:
+        from torch.utils.cpp_extension import get_default_build_root
+
+        root = get_default_build_root()
+    return Path(root) / "spotlessgs_raster"
+
+
+def _compiler() -> str:
+    cxx = os.environ.get("CXX") or shutil.which("g++") or shutil.which("c++")
+    if not cxx:
+        raise KernelBuildError("no C++ compiler found (set $CXX or install g++)")
+    return cxx
+
+
+def _library_path(cxx: str) -> Path:
+    try:
+        version = subprocess.run([cxx, "--version"], capture_output=True, text=True, timeout=30).stdout
+    except (OSError, subprocess.SubprocessError) as exc:
+        raise KernelBuildError(f"cannot run the C++ compiler {cxx!r}: {exc}") from exc
+    digest = hashlib.sha256()
+    for part in (SOURCE.read_bytes(), cxx.encode(), version.encode(), " ".join(CXX_FLAGS).encode()):
+        digest.update(part)
+        digest.update(b"\0")
+    return cache_dir() / f"composite_{digest.hexdigest()[:16]}.so"
+
+
+def build_kernel() -> Path:
+    """Compile the kernel into the cache if it is not there yet; returns the library path.
+
+    Raises:
+        KernelBuildError: no compiler, or the compiler failed (its output is in the message).
+    """
+    cxx = _compiler()
+    target = _library_path(cxx)
+    if target.is_file():
+        return target
+    with atomic_path(target) as tmp:
+        cmd = [cxx, *CXX_FLAGS, str(SOURCE), "-o", str(tmp)]
+        try:
+            proc = subprocess.run(cmd, capture_output=True, text=True, timeout=_BUILD_TIMEOUT_S)
+        except (OSError, subprocess.SubprocessError) as exc:
+            raise KernelBuildError(f"running {' '.join(cmd)} failed: {exc}") from exc
+        if proc.returncode != 0:
+            raise KernelBuildError(f"{' '.join(cmd)} exited with {proc.returncode}:\n{proc.stderr.strip()}")
+    return target
+
+
+def _bind(path: Path) -> CompositeKernel:
+    lib = ctypes.CDLL(str(path))
+    lib.spotless_raster_abi_version.restype = ctypes.c_int
+    found = lib.spotless_raster_abi_version()
+    if found != ABI_VERSION:
+        raise KernelBuildError(f"{path}: kernel ABI version {found}, expected {ABI_VERSION}")
+    ptr, i64, cint = ctypes.c_void_p, ctypes.c_int64, ctypes.c_int
+    for suffix in ("f32", "f64"):
+        fwd = getattr(lib, f"spotless_composite_forward_{suffix}")
+        fwd.argtypes = [ptr] * 6 + [i64] * 6 + [ptr] * 3 + [cint]
+        fwd.restype = None
+        bwd = getattr(lib, f"spotless_composite_backward_{suffix}")
+        bwd.argtypes = [ptr] * 6 + [i64] * 6 + [ptr] * 5 + [cint]
+        bwd.restype = None
+        red = getattr(lib, f"spotless_reduce_pairs_{suffix}")
+        red.argtypes = [ptr, ptr, i64, i64, ptr]
+        red.restype = None
+    return CompositeKernel(lib=lib, path=path)
+
+
+def load_kernel(*, raise_errors: bool = False) -> CompositeKernel | None:
+    """The compiled kernel, building it on first use; None (after one logged warning) if that fails.
+
+    Args:
+        raise_errors: raise :class:`KernelBuildError` instead of returning None.
+    """
+    with _lock:
+        if "kernel" in _cached:
+            return _cached["kernel"]  # type: ignore[return-value]
+        if "error" not in _cached:
+            try:
+                _cached["kernel"] = _bind(build_kernel())
+                return _cached["kernel"]  # type: ignore[return-value]
+            except (KernelBuildError, OSError, AttributeError) as exc:
+                _cached["error"] = str(exc)
+                log.warning("C++ rasterizer kernel unavailable, using the pure-torch backend: %s", exc)
+        if raise_errors:
+            raise KernelBuildError(str(_cached["error"]))
+        return None
+
+
+def kernel_error() -> str | None:
+    """Why the last :func:`load_kernel` failed, or None."""
+    return _cached.get("error")  # type: ignore[return-value]
+
+
+def _p(t: Tensor) -> ctypes.c_void_p:
+    return ctypes.c_void_p(t.data_ptr())
+
+
+class _CompositeFunction(torch.autograd.Function):
+    @staticmethod
+    def forward(ctx, means2d, conics, opacities, features, bins: TileBins, width: int, height: int, num_threads: int):
+        kernel = load_kernel(raise_errors=True)
+        dtype = features.dtype
+        suffix = {torch.float32: "f32", torch.float64: "f64"}[dtype]
+        means2d, conics, opacities, features = (
+            t.detach().to(dtype).contiguous() for t in (means2d, conics, opacities, features)
+        )
+        channels = features.shape[1]
+        color = torch.empty(height, width, channels, dtype=dtype)
+        trans = torch.empty(height, width, dtype=dtype)
+        counts = torch.empty(height, width, dtype=torch.int32)
+        getattr(kernel.lib, f"spotless_composite_forward_{suffix}")(
+            _p(means2d), _p(conics), _p(opacities), _p(features), _p(bins.tile_offsets), _p(bins.gauss_ids),
+            channels, width, height, bins.tile_size, bins.tiles_x, bins.tiles_y,
+            _p(color), _p(trans), _p(counts), num_threads,
+        )
+        ctx.save_for_backward(means2d, conics, opacities, features, trans, counts)
+        ctx.bins, ctx.width, ctx.height, ctx.num_threads, ctx.suffix = bins, width, height, num_threads, suffix
+        alpha = 1.0 - trans
+        ctx.mark_non_differentiable(counts)
+        return color, alpha
+
+    @staticmethod
+    def backward(ctx, grad_color, grad_alpha):
+        means2d, conics, opacities, features, trans, counts = ctx.saved_tensors
+        bins: TileBins = ctx.bins
+        kernel = load_kernel(raise_errors=True)
+        dtype = features.dtype
+        n, channels = features.shape
+        stride = 6 + channels
+        grad_color = (torch.zeros_like(trans)[..., None].expand(-1, -1, channels) if grad_color is None
+                      else grad_color).to(dtype).contiguous()
+        grad_alpha = (torch.zeros_like(trans) if grad_alpha is None else grad_alpha).to(dtype).contiguous()
+        pair_grads = torch.zeros(bins.num_pairs, stride, dtype=dtype)
+        getattr(kernel.lib, f"spotless_composite_backward_{ctx.suffix}")(
+            _p(means2d), _p(conics), _p(opacities), _p(features), _p(bins.tile_offsets), _p(bins.gauss_ids),
+            channels, ctx.width, ctx.height, bins.tile_size, bins.tiles_x, bins.tiles_y,
+            _p(trans), _p(counts), _p(grad_color), _p(grad_alpha), _p(pair_grads), ctx.num_threads,
+        )
+        grads = torch.zeros(n, stride, dtype=dtype)
+        getattr(kernel.lib, f"spotless_reduce_pairs_{ctx.suffix}")(
+            _p(pair_grads), _p(bins.gauss_ids), bins.num_pairs, stride, _p(grads)
+        )
+        return grads[:, 0:2], grads[:, 2:5], grads[:, 5], grads[:, 6:], None, None, None, None
+
+
+def composite_cpp(
+    means2d: Tensor,
+    conics: Tensor,
+    opacities: Tensor,
+    features: Tensor,
+    bins: TileBins,
+    width: int,
+    height: int,
+    num_threads: int,
+) -> tuple[Tensor, Tensor]:
+    """Alpha-composite screen-space Gaussians with the C++ kernel (CPU tensors, float32 or float64).
+
+    Args:
+        means2d: (N, 2) pixel-coordinate centres.
+        conics: (N, 3) inverse 2D covariances (a, b, c).
+        opacities: (N,) opacities in (0, 1).
+        features: (N, C) per-Gaussian features; its dtype is the compute dtype.
+        bins: tile lists from :func:`spotlessgs.rasterizer.binning.bin_gaussians`.
+        width, height: image size in pixels.
+        num_threads: OpenMP threads for this call.
+    Returns:
+        color (H, W, C) and alpha (H, W), without background; differentiable w.r.t. the first four inputs.
+    Raises:
+        KernelBuildError: the kernel is not available.
+    """
+    return _CompositeFunction.apply(means2d, conics, opacities, features, bins, width, height, num_threads)
+
+
+__all__ = ["CompositeKernel", "KernelBuildError", "build_kernel", "cache_dir", "composite_cpp", "kernel_error",
+           "load_kernel"]
