@@ -75,8 +75,10 @@ def composite_torch(
         start = stop
 
     n_tiles = bins.num_tiles
-    color_tiles = torch.zeros(n_tiles, npix, channels, dtype=dtype, device=device)
-    alpha_tiles = torch.zeros(n_tiles, npix, dtype=dtype, device=device)
+    # An empty slice keeps the outputs attached to every input, so an empty view still back-propagates zeros.
+    anchor = means2d[:0].sum() + conics[:0].sum() + opacities[:0].sum() + features[:0].sum()
+    color_tiles = torch.zeros(n_tiles, npix, channels, dtype=dtype, device=device) + anchor
+    alpha_tiles = torch.zeros(n_tiles, npix, dtype=dtype, device=device) + anchor
     if done:
         order = torch.cat(done)
         color_tiles = color_tiles.index_copy(0, order, torch.cat(colors))
