@@ -30,8 +30,9 @@ from .binning import TileBins
 log = logging.getLogger(__name__)
 
 SOURCE = Path(__file__).with_name("csrc") / "composite.cpp"
-ABI_VERSION = 1  # must equal spotless_raster_abi_version() in the C++ source
-CXX_FLAGS = ("-O3", "-std=c++17", "-fopenmp", "-fPIC", "-shared")
+ABI_VERSION = 3  # must equal spotless_raster_abi_version() in the C++ source
+CXX_FLAGS = ("-O3", "-std=c++17", "-fopenmp", "-fPIC", "-shared", "-fno-math-errno")
+NATIVE_FLAG = "-march=native"  # tried first (AVX2/AVX-512 lanes); the build is retried without it if refused
 _BUILD_TIMEOUT_S = 300
 
 _lock = threading.Lock()
@@ -67,13 +68,25 @@ def _compiler() -> str:
     return cxx
 
 
+def _cpu_signature() -> bytes:
+    """The CPU model and feature flags: a -march=native build is only reused on the same kind of CPU."""
+    try:
+        lines = Path("/proc/cpuinfo").read_text().splitlines()
+    except OSError:
+        import platform
+
+        return platform.processor().encode()
+    keep = [ln for ln in lines if ln.startswith(("model name", "flags", "Features", "CPU part"))]
+    return "\n".join(sorted(set(keep))).encode()
+
+
 def _library_path(cxx: str) -> Path:
     try:
         version = subprocess.run([cxx, "--version"], capture_output=True, text=True, timeout=30).stdout
     except (OSError, subprocess.SubprocessError) as exc:
         raise KernelBuildError(f"cannot run the C++ compiler {cxx!r}: {exc}") from exc
     digest = hashlib.sha256()
-    for part in (SOURCE.read_bytes(), cxx.encode(), version.encode(), " ".join(CXX_FLAGS).encode()):
+    for part in (SOURCE.read_bytes(), cxx.encode(), version.encode(), " ".join(CXX_FLAGS).encode(), _cpu_signature()):
         digest.update(part)
         digest.update(b"\0")
     return cache_dir() / f"composite_{digest.hexdigest()[:16]}.so"
@@ -90,13 +103,18 @@ def build_kernel() -> Path:
     if target.is_file():
         return target
     with atomic_path(target) as tmp:
-        cmd = [cxx, *CXX_FLAGS, str(SOURCE), "-o", str(tmp)]
-        try:
-            proc = subprocess.run(cmd, capture_output=True, text=True, timeout=_BUILD_TIMEOUT_S)
-        except (OSError, subprocess.SubprocessError) as exc:
-            raise KernelBuildError(f"running {' '.join(cmd)} failed: {exc}") from exc
-        if proc.returncode != 0:
-            raise KernelBuildError(f"{' '.join(cmd)} exited with {proc.returncode}:\n{proc.stderr.strip()}")
+        error = ""
+        for flags in ((*CXX_FLAGS, NATIVE_FLAG), CXX_FLAGS):
+            cmd = [cxx, *flags, str(SOURCE), "-o", str(tmp)]
+            try:
+                proc = subprocess.run(cmd, capture_output=True, text=True, timeout=_BUILD_TIMEOUT_S)
+            except (OSError, subprocess.SubprocessError) as exc:
+                raise KernelBuildError(f"running {' '.join(cmd)} failed: {exc}") from exc
+            if proc.returncode == 0:
+                break
+            error = f"{' '.join(cmd)} exited with {proc.returncode}:\n{proc.stderr.strip()}"
+        else:
+            raise KernelBuildError(error)
     return target
 
 

@@ -122,7 +122,9 @@ def project_gaussians(
     cx, cy = K[0, 2].to(work), K[1, 2].to(work)
 
     mean_c = mean_w @ rot_v.T + trans_v  # (N, 3)
-    cov_c = rot_v @ covariance_3d(quats.to(work), scales.to(work)) @ rot_v.T  # (N, 3, 3)
+    # Camera-frame square root of the covariance, M_c = V R S (Σ_c = M_c M_cᵀ), without batched tiny matmuls.
+    m_world = quat_to_rotmat(quats.to(work)) * scales.to(work)[:, None, :]  # (N, 3, 3), R S
+    m_c = (m_world.transpose(1, 2) @ rot_v.T).transpose(1, 2)  # V R S; a 2D right operand folds into one mm
     tz_raw = mean_c[:, 2]
     in_depth = (tz_raw > near) & (tz_raw < far)
     # Culled Gaussians get a harmless depth so that no inf/NaN reaches the (masked) gradient.
@@ -134,19 +136,20 @@ def project_gaussians(
     lim_x_neg = cx / fx + 0.3 * tan_x
     lim_y_pos = (height - cy) / fy + 0.3 * tan_y
     lim_y_neg = cy / fy + 0.3 * tan_y
-    tx_clamped = tz * torch.clamp(mean_c[:, 0] / tz, min=-lim_x_neg, max=lim_x_pos)
-    ty_clamped = tz * torch.clamp(mean_c[:, 1] / tz, min=-lim_y_neg, max=lim_y_pos)
+    u = torch.clamp(mean_c[:, 0] / tz, min=-lim_x_neg, max=lim_x_pos)  # x/z limited to 1.3× the field of view
+    v = torch.clamp(mean_c[:, 1] / tz, min=-lim_y_neg, max=lim_y_pos)
 
-    zeros = torch.zeros_like(tz)
-    jac = torch.stack(
-        [fx / tz, zeros, -fx * tx_clamped / (tz * tz), zeros, fy / tz, -fy * ty_clamped / (tz * tz)], dim=-1
-    ).reshape(-1, 2, 3)
-    cov2d = jac @ cov_c @ jac.transpose(-1, -2) + eps2d * torch.eye(2, dtype=work, device=means.device)
-    cov2d = 0.5 * (cov2d + cov2d.transpose(-1, -2))
-    det = cov2d[:, 0, 0] * cov2d[:, 1, 1] - cov2d[:, 0, 1] * cov2d[:, 1, 0]
+    # Rows of J M_c with J = [[fx/z, 0, -fx u/z], [0, fy/z, -fy v/z]]; Σ2d = (J M_c)(J M_c)ᵀ is PSD by construction.
+    row_x = (fx / tz)[:, None] * (m_c[:, 0, :] - u[:, None] * m_c[:, 2, :])  # (N, 3)
+    row_y = (fy / tz)[:, None] * (m_c[:, 1, :] - v[:, None] * m_c[:, 2, :])
+    cxx = (row_x * row_x).sum(-1) + eps2d
+    cyy = (row_y * row_y).sum(-1) + eps2d
+    cxy = (row_x * row_y).sum(-1)
+    cov2d = torch.stack([cxx, cxy, cxy, cyy], dim=-1).reshape(-1, 2, 2)
+    det = cxx * cyy - cxy * cxy
     det_ok = det > 0
     safe_det = torch.where(det_ok, det, torch.ones_like(det))
-    conics = torch.stack([cov2d[:, 1, 1], -cov2d[:, 0, 1], cov2d[:, 0, 0]], dim=-1) / safe_det[:, None]
+    conics = torch.stack([cyy, -cxy, cxx], dim=-1) / safe_det[:, None]
 
     means2d = torch.stack([fx * mean_c[:, 0] / tz + cx, fy * mean_c[:, 1] / tz + cy], dim=-1)
 
