@@ -12,7 +12,7 @@ import torch
 from rasterizer_reference import camera, random_scene
 
 from spotlessgs.rasterizer import KernelBuildError, load_kernel, rasterize, resolve_backend
-from spotlessgs.rasterizer import composite_cpp as cpp_module
+from spotlessgs.rasterizer import cpp_kernel as cpp_module
 
 ALL = ["cpp", "torch"]
 
@@ -205,7 +205,7 @@ def test_compiler_error_is_reported(monkeypatch, tmp_path):
     bad = tmp_path / "bad.cpp"
     bad.write_text("this is not C++;\n")
     monkeypatch.setenv("TORCH_EXTENSIONS_DIR", str(tmp_path / "cache"))
-    monkeypatch.setattr(cpp_module, "SOURCE", bad)
+    monkeypatch.setattr(cpp_module, "SOURCES", (bad,))
     with pytest.raises(KernelBuildError, match="exited with"):
         cpp_module.build_kernel()
     assert not list((tmp_path / "cache").rglob("*.so"))  # nothing half-written left in the cache

@@ -19,7 +19,7 @@ WIDTH, HEIGHT = 37, 29  # not multiples of the tile size on purpose
 
 def _needs_kernel():
     if load_kernel() is None:
-        from spotlessgs.rasterizer.composite_cpp import kernel_error
+        from spotlessgs.rasterizer.cpp_kernel import kernel_error
 
         pytest.skip(f"C++ kernel unavailable: {kernel_error()}")
 

@@ -6,7 +6,7 @@
 """
 
 from .api import BACKEND_ENV, BACKENDS, THREADS_ENV, RasterOutput, rasterize, resolve_backend
-from .composite_cpp import KernelBuildError, load_kernel
+from .cpp_kernel import KernelBuildError, load_kernel
 from .projection import ProjectedGaussians, covariance_3d, project_gaussians, quat_to_rotmat
 
 __all__ = [

@@ -2,7 +2,8 @@
 
 Backends (``backend=``):
   ``"gsplat"``  gsplat's CUDA kernels (CUDA tensors; optional dependency ``spotlessgs[gpu]``);
-  ``"cpp"``     our C++/OpenMP tile kernel with a hand-written backward (CPU; compiled on first use, ~1 s);
+  ``"cpp"``     our C++/OpenMP projection and tile compositing with hand-written backward passes (CPU; compiled
+                on first use in about 2 s; the torch projection is used when viewmat or K requires a gradient);
   ``"torch"``   the same maths in pure PyTorch (CPU or any device; slower, always available);
   ``"auto"``    gsplat for CUDA tensors; on the CPU ``$SPOTLESSGS_RASTER_BACKEND`` (``cpp`` or ``torch``) if set,
                 else ``cpp`` when the kernel builds and ``torch`` (with one logged warning) when it does not.
@@ -20,9 +21,11 @@ import torch
 from torch import Tensor
 
 from .binning import bin_gaussians
-from .composite_cpp import composite_cpp, load_kernel
+from .composite_cpp import composite_cpp
 from .composite_torch import composite_torch
+from .cpp_kernel import load_kernel
 from .projection import project_gaussians
+from .projection_cpp import project_gaussians_cpp
 
 BACKENDS = ("auto", "cpp", "torch", "gsplat")
 BACKEND_ENV = "SPOTLESSGS_RASTER_BACKEND"  # forces the CPU backend chosen by "auto": "cpp" or "torch"
@@ -117,8 +120,13 @@ def rasterize(
         )
         means2d = screen.detach().reshape(-1, 2)
     else:
-        proj = project_gaussians(means, quats, scales, opacities, viewmat, K, width, height,
-                                 near=near, far=far, eps2d=eps2d)
+        if chosen == "cpp" and not (viewmat.requires_grad or K.requires_grad):
+            proj = project_gaussians_cpp(means, quats, scales, opacities, viewmat, K, width, height,
+                                         near=near, far=far, eps2d=eps2d, num_threads=threads)
+        else:  # torch maths (also when the camera itself is being optimised)
+            with _torch_threads(threads):
+                proj = project_gaussians(means, quats, scales, opacities, viewmat, K, width, height,
+                                         near=near, far=far, eps2d=eps2d)
         screen = proj.means2d
         if screen.requires_grad:
             screen.retain_grad()

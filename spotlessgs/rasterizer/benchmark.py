@@ -19,7 +19,7 @@ import torch
 from spotlessgs.io.seeding import torch_generator
 
 from .api import rasterize
-from .composite_cpp import load_kernel
+from .cpp_kernel import load_kernel
 
 
 @dataclass(frozen=True)

@@ -34,11 +34,11 @@ RADIUS_LIMIT = 1 << 20  # screen radii are clamped to this (px) so huge Gaussian
 class ProjectedGaussians:
     """Screen-space Gaussians for one view; N is the number of input Gaussians (culled ones keep their slot)."""
 
-    means2d: Tensor  # (N, 2) pixel coordinates of the projected centres, differentiable
-    conics: Tensor  # (N, 3) inverse 2D covariance (a, b, c): sigma = ½(a dx² + c dy²) + b dx dy, differentiable
+    means2d: Tensor  # (N, 2) pixel coordinates of the projected centres, differentiable; 0 where culled
+    conics: Tensor  # (N, 3) inverse 2D covariance (a, b, c): sigma = ½(a dx² + c dy²) + b dx dy; 0 where culled
     depths: Tensor  # (N,) camera-frame z in metres (planar depth), differentiable
     radii: Tensor  # (N, 2) int32 half-extent of the screen bounding box in pixels (x, y); 0 = culled / not visible
-    cov2d: Tensor  # (N, 2, 2) dilated 2D covariance in px², differentiable (for inspection and tests)
+    cov2d: Tensor  # (N, 2, 2) dilated 2D covariance in px² (for inspection and tests; differentiable in torch only)
 
     @property
     def visible(self) -> Tensor:
@@ -152,9 +152,13 @@ def project_gaussians(
     conics = torch.stack([cyy, -cxy, cxx], dim=-1) / safe_det[:, None]
 
     means2d = torch.stack([fx * mean_c[:, 0] / tz + cx, fy * mean_c[:, 1] / tz + cy], dim=-1)
+    # Culled Gaussians report zeros (and pass no gradient), as the C++ projection does.
+    valid = in_depth & det_ok
+    means2d = torch.where(valid[:, None], means2d, torch.zeros_like(means2d))
+    conics = torch.where(valid[:, None], conics, torch.zeros_like(conics))
 
     with torch.no_grad():
-        radii = _screen_radii(means2d, cov2d, opacities.detach().to(work), in_depth & det_ok, width, height)
+        radii = _screen_radii(means2d, cov2d, opacities.detach().to(work), valid, width, height)
 
     return ProjectedGaussians(
         means2d=means2d.to(out_dtype),
