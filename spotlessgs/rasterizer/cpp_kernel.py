@@ -83,7 +83,8 @@ def _library_path(cxx: str) -> Path:
     except (OSError, subprocess.SubprocessError) as exc:
         raise KernelBuildError(f"cannot run the C++ compiler {cxx!r}: {exc}") from exc
     digest = hashlib.sha256()
-    for part in (*(src.read_bytes() for src in SOURCES), cxx.encode(), version.encode(), " ".join(CXX_FLAGS).encode(), _cpu_signature()):
+    sources = [src.read_bytes() for src in SOURCES]
+    for part in (*sources, cxx.encode(), version.encode(), " ".join(CXX_FLAGS).encode(), _cpu_signature()):
         digest.update(part)
         digest.update(b"\0")
     return cache_dir() / f"composite_{digest.hexdigest()[:16]}.so"

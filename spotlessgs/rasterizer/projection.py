@@ -4,9 +4,9 @@ Autograd provides the gradients. The maths follows 3DGS / gsplat's pinhole model
 
     R = rot(q / |q|),  Σ = R S Sᵀ Rᵀ                          (3D covariance, S = diag(scales))
     t = V[:3,:3] μ + V[:3,3],  Σ_c = V[:3,:3] Σ V[:3,:3]ᵀ       (camera frame, OpenCV axes: x right, y down, z forward)
-    μ2d = (fx tx / tz + cx, fy ty / tz + cy)                   (pixel coordinates; pixel (i, j) covers [i, i+1)×[j, j+1))
+    μ2d = (fx tx / tz + cx, fy ty / tz + cy)                   (pixels; pixel (i, j) covers [i, i+1)×[j, j+1))
     J = [[fx/tz, 0, -fx tx'/tz²], [0, fy/tz, -fy ty'/tz²]]     (tx', ty' clamped to 1.3× the field of view)
-    Σ2d = J Σ_c Jᵀ + eps2d I                                    (low-pass dilation, 0.3 px² like 3DGS)
+    Σ2d = J Σ_c Jᵀ + eps2d I = (J M_c)(J M_c)ᵀ + eps2d I       (M_c = V R S; low-pass dilation 0.3 px² like 3DGS)
     conic = Σ2d⁻¹ stored as (a, b, c) = (Σ2d⁻¹_xx, Σ2d⁻¹_xy, Σ2d⁻¹_yy)
 
 The screen-space extent is opacity-aware: outside the ellipse of Mahalanobis radius r = sqrt(2 ln(255 o)) the

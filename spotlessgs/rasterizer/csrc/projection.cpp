@@ -1,9 +1,12 @@
 // EWA projection of 3D Gaussians to screen space (forward and hand-written backward), one Gaussian per iteration,
 // OpenMP over Gaussians, evaluated in double precision whatever the storage type. Same maths as projection.py
 // (which is the reference in the tests):
-//   q̂ = q/|q| (identity when |q| <= 1e-12), M_c = V R(q̂) diag(s), p = V μ + t, z = p.z, culled unless near < z < far
-//   u = clamp(p.x/z, -lim_x_neg, lim_x_pos), v likewise; rows r_x = fx/z (M_c[0] - u M_c[2]), r_y = fy/z (M_c[1] - v M_c[2])
-//   Σ2d = [[|r_x|² + eps, r_x·r_y], [r_x·r_y, |r_y|² + eps]], conic = Σ2d⁻¹ as (a, b, c), means2d = (fx p.x/z + cx, ...)
+//   q̂ = q/|q| (identity when |q| <= 1e-12), M_c = V R(q̂) diag(s), p = V μ + t, z = p.z,
+//   culled unless near < z < far
+//   u = clamp(p.x/z, -lim_x_neg, lim_x_pos), v likewise;
+//   rows r_x = fx/z (M_c[0] - u M_c[2]), r_y = fy/z (M_c[1] - v M_c[2])
+//   Σ2d = [[|r_x|² + eps, r_x·r_y], [r_x·r_y, |r_y|² + eps]], conic = Σ2d⁻¹ as (a, b, c),
+//   means2d = (fx p.x/z + cx, fy p.y/z + cy)
 // Culled Gaussians (depth outside (near, far) or det <= 0) get means2d = conic = 0 and no gradient through them.
 #include <omp.h>
 
