@@ -273,3 +273,16 @@ def test_invalid_thread_env_is_rejected(monkeypatch):
     monkeypatch.setenv("SPOTLESSGS_NUM_THREADS", "0")
     with pytest.raises(ValueError, match="SPOTLESSGS_NUM_THREADS must be a positive integer, got '0'"):
         _call()
+
+
+def test_benchmark_runs_and_reports(monkeypatch, capsys):
+    from spotlessgs.rasterizer import benchmark
+
+    monkeypatch.setattr(benchmark, "CASES", (benchmark.BenchCase(32, 24, 300, 3),))
+    params, view, K = benchmark.make_scene(benchmark.CASES[0])
+    assert [tuple(p.shape) for p in params] == [(300, 3), (300, 4), (300, 3), (300,), (300, 3)]
+    out = rasterize(*params, view, K, 32, 24, backend="torch")
+    assert float(out.alpha.detach().mean()) > 0.9  # the room's walls close up in front of the camera
+    benchmark.main(["--repeats", "1", "--threads", "1", "--backends", "torch"])
+    lines = capsys.readouterr().out.splitlines()
+    assert "load average" in lines[0] and lines[-1].startswith("32x24 / 0k / 3ch") and "torch" in lines[-1]

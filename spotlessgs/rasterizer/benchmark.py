@@ -3,13 +3,15 @@
     python -m spotlessgs.rasterizer.benchmark [--threads 2] [--repeats 7] [--backends cpp,torch] [--quick]
 
 Cases: 160×120 with 20k Gaussians and 3 / 12 channels, 320×240 with 50k Gaussians and 3 channels (``--quick``: only
-the first). Reported per case and backend: the median and the minimum over the repeats, and (for the C++ backend)
-the share spent in projection + binning. On a shared machine the minimum is the better estimate of the cost.
+the first). Reported per case and backend: the median and the minimum wall-clock time over the repeats and the
+minimum CPU time (all threads of the process). The load average is printed first: on a busy machine the wall-clock
+figures grow with the load, and the minimum is the better estimate of the cost.
 """
 
 from __future__ import annotations
 
 import argparse
+import os
 import statistics
 import time
 from dataclasses import dataclass
@@ -69,20 +71,21 @@ def make_scene(case: BenchCase, seed: int = 0) -> tuple[list[torch.Tensor], torc
     return params, torch.eye(4), K
 
 
-def time_backend(case: BenchCase, backend: str, threads: int, repeats: int) -> list[float]:
-    """Wall-clock milliseconds of forward + L1 backward, one warm-up run excluded."""
+def time_backend(case: BenchCase, backend: str, threads: int, repeats: int) -> tuple[list[float], list[float]]:
+    """Wall-clock and process-CPU milliseconds of forward + L1 backward per run, one warm-up run excluded."""
     params, view, K = make_scene(case)
     target = torch.zeros(case.height, case.width, case.channels)
-    times = []
+    wall, cpu = [], []
     for i in range(repeats + 1):
         for p in params:
             p.grad = None
-        start = time.perf_counter()
+        start, start_cpu = time.perf_counter(), time.process_time()
         out = rasterize(*params, view, K, case.width, case.height, backend=backend, num_threads=threads)
         (out.image - target).abs().mean().backward()
         if i:
-            times.append((time.perf_counter() - start) * 1e3)
-    return times
+            wall.append((time.perf_counter() - start) * 1e3)
+            cpu.append((time.process_time() - start_cpu) * 1e3)
+    return wall, cpu
 
 
 def main(argv: list[str] | None = None) -> None:
@@ -97,13 +100,16 @@ def main(argv: list[str] | None = None) -> None:
     if "cpp" in backends and load_kernel() is None:
         print("C++ kernel unavailable; timing the torch backend only")
         backends = [b for b in backends if b != "cpp"]
-    print(f"torch {torch.__version__}, threads {args.threads}, repeats {args.repeats}")
-    print(f"{'case':<26}{'backend':<9}{'median ms':>10}{'min ms':>9}")
+    load = ", ".join(f"{x:.1f}" for x in os.getloadavg())
+    print(f"torch {torch.__version__}, threads {args.threads}, repeats {args.repeats}, "
+          f"{os.cpu_count()} CPUs, load average {load}")
+    print(f"{'case':<26}{'backend':<9}{'median ms':>10}{'min ms':>9}{'min cpu ms':>12}")
     for case in CASES[:1] if args.quick else CASES:
         label = f"{case.width}x{case.height} / {case.gaussians // 1000}k / {case.channels}ch"
         for backend in backends:
-            times = time_backend(case, backend, args.threads, args.repeats)
-            print(f"{label:<26}{backend:<9}{statistics.median(times):>10.1f}{min(times):>9.1f}", flush=True)
+            wall, cpu = time_backend(case, backend, args.threads, args.repeats)
+            print(f"{label:<26}{backend:<9}{statistics.median(wall):>10.1f}{min(wall):>9.1f}{min(cpu):>12.1f}",
+                  flush=True)
 
 
 if __name__ == "__main__":
