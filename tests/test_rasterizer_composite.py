@@ -170,3 +170,18 @@ def test_binning_lists_each_overlap_once_front_to_back():
     for t in range(bins.num_tiles):
         ids = bins.gauss_ids[bins.tile_offsets[t]:bins.tile_offsets[t + 1]].long()
         assert (proj.depths[ids][1:] >= proj.depths[ids][:-1]).all()
+
+
+def test_torch_checkpointed_chunks_give_the_same_result(monkeypatch):
+    import spotlessgs.rasterizer.composite_torch as composite_torch
+
+    scene = random_scene(80, 3, seed=13, log_scale=-1.5)
+    view, K = camera(WIDTH, HEIGHT)
+    runs = []
+    for limit in (1 << 40, 0):  # never / always recompute in backward
+        monkeypatch.setattr(composite_torch, "_CHECKPOINT_ABOVE", limit)
+        monkeypatch.setattr(composite_torch, "_CHUNK_ELEMENTS", 4096)  # many small chunks
+        out = rasterize(*scene, view, K, WIDTH, HEIGHT, backend="torch")
+        runs.append([out.image.detach(), *torch.autograd.grad(out.image.sum() + out.alpha.sum(), scene)])
+    for x, y in zip(*runs):
+        np.testing.assert_allclose(x.numpy(), y.numpy(), rtol=1e-12, atol=1e-12)
