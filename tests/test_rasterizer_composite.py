@@ -185,3 +185,19 @@ def test_torch_checkpointed_chunks_give_the_same_result(monkeypatch):
         runs.append([out.image.detach(), *torch.autograd.grad(out.image.sum() + out.alpha.sum(), scene)])
     for x, y in zip(*runs):
         np.testing.assert_allclose(x.numpy(), y.numpy(), rtol=1e-12, atol=1e-12)
+
+
+@pytest.mark.parametrize("tile_size", [4, 8, 16])
+def test_cpp_binning_equals_torch_binning(tile_size):
+    from spotlessgs.rasterizer.binning import bin_gaussians_cpp
+
+    _needs_kernel()
+    scene = [t.detach().float() for t in random_scene(400, 1, seed=14, log_scale=-2.0)]
+    scene[0][:20, 2] = 4.0  # equal depths: ties must keep index order in both
+    view, K = camera(WIDTH, HEIGHT, dtype=torch.float32)
+    proj = project_gaussians(*scene[:4], view, K, WIDTH, HEIGHT)
+    ref = bin_gaussians(proj.means2d, proj.radii, proj.depths, WIDTH, HEIGHT, tile_size)
+    got = bin_gaussians_cpp(proj.means2d, proj.radii, proj.depths, WIDTH, HEIGHT, tile_size)
+    assert (got.tiles_x, got.tiles_y) == (ref.tiles_x, ref.tiles_y) and ref.num_pairs > 400
+    assert torch.equal(got.tile_offsets, ref.tile_offsets)
+    assert torch.equal(got.gauss_ids, ref.gauss_ids)

@@ -20,7 +20,7 @@ from typing import Iterator
 import torch
 from torch import Tensor
 
-from .binning import bin_gaussians
+from .binning import bin_gaussians, bin_gaussians_cpp
 from .composite_cpp import composite_cpp
 from .composite_torch import composite_torch
 from .cpp_kernel import load_kernel
@@ -133,7 +133,8 @@ def rasterize(
         means2d = screen
         depths = proj.depths
         radii_xy = proj.radii
-        bins = bin_gaussians(screen, radii_xy, depths, width, height, tile_size)
+        binner = bin_gaussians_cpp if chosen == "cpp" else bin_gaussians
+        bins = binner(screen, radii_xy, depths, width, height, tile_size)
         stacked = torch.cat([features, depths[:, None]], dim=1)  # depth rides along as one more channel
         if chosen == "cpp":
             color_d, alpha = composite_cpp(screen, proj.conics, opacities, stacked, bins, width, height, threads)

@@ -36,6 +36,39 @@ class TileBins:
         return self.tile_offsets[1:] - self.tile_offsets[:-1]
 
 
+def bin_gaussians_cpp(
+    means2d: Tensor, radii: Tensor, depths: Tensor, width: int, height: int, tile_size: int
+) -> TileBins:
+    """The same binning as :func:`bin_gaussians` (identical output) done by the C++ kernel on CPU tensors.
+
+    Raises:
+        spotlessgs.rasterizer.cpp_kernel.KernelBuildError: the kernel is not available.
+    """
+    from .cpp_kernel import load_kernel
+    from .cpp_kernel import pointer as _p
+
+    kernel = load_kernel(raise_errors=True)
+    suffix = {torch.float32: "f32", torch.float64: "f64"}[means2d.dtype]
+    tiles_x = -(-width // tile_size)
+    tiles_y = -(-height // tile_size)
+    means2d = means2d.detach().contiguous()
+    depths = depths.detach().to(means2d.dtype).contiguous()
+    radii = radii.to(torch.int32).contiguous()
+    n = means2d.shape[0]
+    order = torch.empty(n, dtype=torch.int32)
+    counts = torch.empty(tiles_x * tiles_y, dtype=torch.int64)
+    visible = getattr(kernel.lib, f"spotless_bin_count_{suffix}")(
+        _p(means2d), _p(radii), _p(depths), n, tile_size, tiles_x, tiles_y, _p(order), _p(counts)
+    )
+    offsets = torch.zeros(tiles_x * tiles_y + 1, dtype=torch.int64)
+    torch.cumsum(counts, 0, out=offsets[1:])
+    gauss_ids = torch.empty(int(offsets[-1]), dtype=torch.int32)
+    getattr(kernel.lib, f"spotless_bin_fill_{suffix}")(
+        _p(means2d), _p(radii), _p(order), visible, tile_size, tiles_x, tiles_y, _p(offsets), _p(gauss_ids)
+    )
+    return TileBins(tile_size, tiles_x, tiles_y, gauss_ids, offsets)
+
+
 def bin_gaussians(
     means2d: Tensor, radii: Tensor, depths: Tensor, width: int, height: int, tile_size: int
 ) -> TileBins:
@@ -92,4 +125,4 @@ def bin_gaussians(
     return TileBins(tile_size, tiles_x, tiles_y, gauss_ids.contiguous(), offsets)
 
 
-__all__ = ["TileBins", "bin_gaussians"]
+__all__ = ["TileBins", "bin_gaussians", "bin_gaussians_cpp"]

@@ -26,8 +26,8 @@ from spotlessgs.io.atomic import atomic_path
 
 log = logging.getLogger(__name__)
 
-SOURCES = (Path(__file__).with_name("csrc") / "composite.cpp", Path(__file__).with_name("csrc") / "projection.cpp")
-ABI_VERSION = 5  # must equal spotless_raster_abi_version() in the C++ source
+SOURCES = tuple(Path(__file__).with_name("csrc") / name for name in ("composite.cpp", "projection.cpp", "binning.cpp"))
+ABI_VERSION = 6  # must equal spotless_raster_abi_version() in the C++ source
 CXX_FLAGS = ("-O3", "-std=c++17", "-fopenmp", "-fPIC", "-shared", "-fno-math-errno")
 NATIVE_FLAG = "-march=native"  # tried first (AVX2/AVX-512 lanes); the build is retried without it if refused
 _BUILD_TIMEOUT_S = 300
@@ -139,6 +139,12 @@ def _bind(path: Path) -> CppKernel:
         pb = getattr(lib, f"spotless_project_backward_{suffix}")
         pb.argtypes = [ptr] * 5 + [i64] * 3 + [dbl] * 3 + [ptr] * 6 + [cint]
         pb.restype = None
+        bc = getattr(lib, f"spotless_bin_count_{suffix}")
+        bc.argtypes = [ptr] * 3 + [i64] * 4 + [ptr] * 2
+        bc.restype = i64
+        bf = getattr(lib, f"spotless_bin_fill_{suffix}")
+        bf.argtypes = [ptr] * 3 + [i64] * 4 + [ptr] * 2
+        bf.restype = None
     return CppKernel(lib=lib, path=path)
 
 

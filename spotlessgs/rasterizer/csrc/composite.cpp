@@ -304,7 +304,7 @@ void reduce_impl(const T* pair_grads, const int32_t* gauss_ids, int64_t n_pairs,
 
 extern "C" {
 
-int spotless_raster_abi_version() { return 5; }
+int spotless_raster_abi_version() { return 6; }
 
 #define SPOTLESS_DEFINE(SUFFIX, T)                                                                                  \
   void spotless_composite_forward_##SUFFIX(const T* means2d, const T* conics, const T* opacities,                  \
