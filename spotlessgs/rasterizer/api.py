@@ -31,6 +31,9 @@ BACKENDS = ("auto", "cpp", "torch", "gsplat")
 BACKEND_ENV = "SPOTLESSGS_RASTER_BACKEND"  # forces the CPU backend chosen by "auto": "cpp" or "torch"
 THREADS_ENV = "SPOTLESSGS_NUM_THREADS"  # default thread count of the CPU backends
 _DEPTH_EPS = 1e-10  # alpha below which the expected depth is reported as 0
+# The C++ projection costs ~0.1 µs per Gaussian; below this many Gaussians it runs on one thread, because every
+# parallel region waits for its slowest thread and on a busy machine that wait costs more than the work.
+_PARALLEL_PROJECTION_MIN = 100_000
 
 
 @dataclass(frozen=True)
@@ -121,8 +124,9 @@ def rasterize(
         means2d = screen.detach().reshape(-1, 2)
     else:
         if chosen == "cpp" and not (viewmat.requires_grad or K.requires_grad):
+            proj_threads = threads if features.shape[0] >= _PARALLEL_PROJECTION_MIN else 1
             proj = project_gaussians_cpp(means, quats, scales, opacities, viewmat, K, width, height,
-                                         near=near, far=far, eps2d=eps2d, num_threads=threads)
+                                         near=near, far=far, eps2d=eps2d, num_threads=proj_threads)
         else:  # torch maths (also when the camera itself is being optimised)
             with _torch_threads(threads):
                 proj = project_gaussians(means, quats, scales, opacities, viewmat, K, width, height,
