@@ -286,3 +286,23 @@ def test_benchmark_runs_and_reports(monkeypatch, capsys):
     benchmark.main(["--repeats", "1", "--threads", "1", "--backends", "torch"])
     lines = capsys.readouterr().out.splitlines()
     assert "load average" in lines[0] and lines[-1].startswith("32x24 / 0k / 3ch") and "torch" in lines[-1]
+
+
+def test_cpp_backend_needs_cpu_tensors():
+    with pytest.raises(ValueError, match="backend 'cpp' needs CPU tensors, got tensors on meta"):
+        resolve_backend("cpp", "meta")
+
+
+def test_library_with_wrong_abi_version_is_rejected(tmp_path):
+    import shutil
+    import subprocess
+
+    cxx = shutil.which("g++") or shutil.which("c++")
+    if cxx is None:
+        pytest.skip("no C++ compiler")
+    src = tmp_path / "old.cpp"
+    src.write_text('extern "C" int spotless_raster_abi_version() { return 999; }\n')
+    lib = tmp_path / "old.so"
+    subprocess.run([cxx, "-shared", "-fPIC", str(src), "-o", str(lib)], check=True, capture_output=True)
+    with pytest.raises(KernelBuildError, match=r"old\.so: kernel ABI version 999, expected"):
+        cpp_module._bind(lib)
