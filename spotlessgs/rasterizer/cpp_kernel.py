@@ -1,11 +1,12 @@
-"""The C++/OpenMP kernels (projection and compositing): lazy build, cache and ctypes binding.
+"""The C++/OpenMP kernels (projection, binning, compositing): lazy build, cache and ctypes binding.
 
-The kernels (``csrc/*.cpp``) have a plain C ABI and includes no torch or Python headers, so building it is one
-compiler call of about a second (``$CXX`` or ``g++``, ``-O3 -fopenmp``). The shared library is cached under the torch
-extensions directory (``$TORCH_EXTENSIONS_DIR`` or torch's default, e.g. ``~/.cache/torch_extensions/py311_cpu``) in
-``spotlessgs_raster/``, named by a hash of the source, the compiler and its flags; it is written atomically, so
-concurrent first uses are safe. Any build or load failure is logged once as a warning and the caller falls back to
-the pure-torch backend (:func:`load_kernel` returns None).
+The kernels (``csrc/*.cpp``) have a plain C ABI and include no torch or Python headers, so building them is one
+compiler call of 1–3 s (``$CXX`` or ``g++``, ``-O3 -fopenmp -march=native``, retried without ``-march=native`` if the
+compiler refuses it). The shared library is cached under the torch extensions directory (``$TORCH_EXTENSIONS_DIR`` or
+torch's default, ``~/.cache/torch_extensions``) in ``spotlessgs_raster/``, named by a hash of the sources, the
+compiler, its flags and the CPU model/features; it is written atomically, so concurrent first uses are safe. Any
+build or load failure is logged once as a warning and ``backend="auto"`` falls back to the pure-torch backend
+(:func:`load_kernel` returns None).
 """
 
 from __future__ import annotations
