@@ -3,16 +3,111 @@ function."""
 
 from __future__ import annotations
 
+import json
+import logging
+from pathlib import Path
+
 import click
+
 from evaluation.cli import eval_command
+from spotlessgs.baselines2d.cli import baseline2d
+
+MODELS = ["3dgs", "darkgs", "darkgs-calibrated", "darkgs+sh", "darkgs+brdf", "spotless"]
 
 
 @click.group(context_settings={"help_option_names": ["-h", "--help"]})
 @click.version_option(package_name="spotlessgs")
-def main() -> None:
+@click.option("-v", "--verbose", is_flag=True, help="Log debug messages.")
+def main(verbose: bool) -> None:
     """SpotlessGS: relightable Gaussian Splatting for images lit by an onboard spotlight."""
+    logging.basicConfig(level=logging.DEBUG if verbose else logging.INFO, format="%(levelname)s %(name)s: %(message)s")
+
+
+@main.command()
+@click.option("--data", "data_dir", required=True, type=click.Path(exists=True, file_okay=False, path_type=Path),
+              help="Dataset folder: ours (transforms.json + spotless block), nerfstudio, or COLMAP (images/ + sparse/0).")
+@click.option("--out", "run_dir", required=True, type=click.Path(file_okay=False, path_type=Path), help="Run folder.")
+@click.option("--model", default="spotless", show_default=True, type=click.Choice(MODELS))
+@click.option("--preset", default="quick", show_default=True, type=click.Choice(["tiny", "quick", "paper"]))
+@click.option("--iterations", type=click.IntRange(1), default=None, help="Override the preset's iteration count.")
+@click.option("--width", "image_width", type=click.IntRange(8), default=None,
+              help="Override the training image width (pixels).")
+@click.option("--seed", default=0, show_default=True, type=int)
+@click.option("--resume", is_flag=True, help="Continue from the run's last checkpoint.")
+@click.option("--light-prior", nargs=3, type=float, default=None, metavar="X Y Z",
+              help="Prior light position in the camera frame (m, OpenCV axes): adds weight * |t - prior|.")
+@click.option("--light-prior-weight", type=click.FloatRange(0), default=None)
+@click.option("--linear", "linear_input", is_flag=True, help="The images are linear (RAW), not sRGB.")
+@click.option("--max-gaussians", type=click.IntRange(1), default=None)
+@click.option("--threads", type=click.IntRange(1), default=None, help="CPU threads.")
+@click.option("--device", default="auto", show_default=True, type=click.Choice(["auto", "cpu", "cuda"]))
+@click.option("-q", "--quiet", is_flag=True, help="No progress bar.")
+def train(data_dir, run_dir, model, preset, iterations, image_width, seed, resume, light_prior, light_prior_weight,
+          linear_input, max_gaussians, threads, device, quiet):
+    """Train a relightable model (or a baseline) on the uneven images of a dataset."""
+    from spotlessgs.training.config import preset as make_preset
+    from spotlessgs.training.trainer import train as run_training
+
+    overrides = {"device": device, "linear_input": linear_input}
+    for key, value in (("iterations", iterations), ("image_width", image_width), ("num_threads", threads),
+                       ("light_prior_weight", light_prior_weight), ("max_gaussians", max_gaussians)):
+        if value is not None:
+            overrides[key] = value
+    config = make_preset(preset, **overrides)
+    result = run_training(data_dir, run_dir, model, config, seed=seed, resume=resume,
+                          light_prior=list(light_prior) if light_prior else None, progress=not quiet)
+    psnr = "n/a" if result.test_psnr is None else f"{result.test_psnr:.2f} dB"
+    click.echo(f"{run_dir}: {result.steps} steps, {result.num_gaussians} Gaussians, {result.ms_per_step:.0f} ms/step, "
+               f"test reconstruction PSNR {psnr}")
+
+
+@main.command()
+@click.argument("run_dir", type=click.Path(exists=True, file_okay=False, path_type=Path))
+@click.option("--l0", nargs=3, type=click.FloatRange(0), default=(1.0, 1.0, 1.0), show_default=True,
+              metavar="R G B", help="Constant linear RGB radiance that replaces the spotlight.")
+@click.option("--views", "which", default="all", show_default=True, type=click.Choice(["test", "train", "all"]))
+@click.option("--out", "out_dir", type=click.Path(file_okay=False, path_type=Path), default=None,
+              help="Output folder (default RUN/relit).")
+@click.option("--exr", is_flag=True, help="Also write linear float EXR images (no clipping).")
+@click.option("--device", default="auto", show_default=True, type=click.Choice(["auto", "cpu", "cuda"]))
+@click.option("-q", "--quiet", is_flag=True)
+def relight(run_dir, l0, which, out_dir, exr, device, quiet):
+    """Relight a trained run under even light (paper eq. 8) and write PNGs named like the dataset's images."""
+    from spotlessgs.rendering import render_run
+
+    click.echo(json.dumps(render_run(run_dir, "relit", which, out_dir, l0=l0, exr=exr, progress=not quiet,
+                                     device=device), indent=2))
+
+
+@main.command()
+@click.argument("run_dir", type=click.Path(exists=True, file_okay=False, path_type=Path))
+@click.option("--views", "which", default="all", show_default=True, type=click.Choice(["test", "train", "all"]))
+@click.option("--out", "out_dir", type=click.Path(file_okay=False, path_type=Path), default=None,
+              help="Output folder (default RUN/render).")
+@click.option("--exr", is_flag=True, help="Also write linear float EXR images.")
+@click.option("--device", default="auto", show_default=True, type=click.Choice(["auto", "cpu", "cuda"]))
+@click.option("-q", "--quiet", is_flag=True)
+def render(run_dir, which, out_dir, exr, device, quiet):
+    """Render a trained run under its learned spotlight (to compare with the inputs)."""
+    from spotlessgs.rendering import render_run
+
+    click.echo(json.dumps(render_run(run_dir, "spot", which, out_dir, exr=exr, progress=not quiet, device=device),
+                          indent=2))
+
+
+@main.command()
+@click.argument("run_dir", type=click.Path(exists=True, file_okay=False, path_type=Path))
+@click.option("--out", "out_path", required=True, type=click.Path(dir_okay=False, path_type=Path))
+@click.option("--l0", nargs=3, type=click.FloatRange(0), default=(1.0, 1.0, 1.0), show_default=True, metavar="R G B")
+def export(run_dir, out_path, l0):
+    """Export the relit model as a standard 3DGS PLY (opens in common 3DGS viewers)."""
+    from spotlessgs.export import export_ply
+
+    click.echo(f"wrote {export_ply(run_dir, out_path, l0)}")
 
 
 main.add_command(eval_command, name="eval")
+main.add_command(baseline2d)
+
 if __name__ == "__main__":
     main()

@@ -8,7 +8,8 @@ import numpy as np
 import pytest
 import torch
 
-from spotlessgs.models.gaussians import PARAM_NAMES, GaussianParams, initial_scales, logit_roughness, srgb_to_linear
+from spotlessgs.io.colorspace import srgb_to_linear
+from spotlessgs.models.gaussians import PARAM_NAMES, GaussianParams, initial_scales, logit_roughness
 
 
 

@@ -28,6 +28,7 @@ import numpy as np
 import torch
 from torch import nn
 
+from spotlessgs.io.colorspace import srgb_to_linear
 from spotlessgs.models.geometry import safe_normalize
 from spotlessgs.models.sh import SH_C0
 
@@ -50,12 +51,6 @@ PARAM_NAMES = (
     "means", "quats", "log_scales", "opacity_logits", "albedo_raw", "normals_raw",
     "roughness_raw", "metalness_raw", "sh0", "shN",
 )
-
-
-def srgb_to_linear(c: np.ndarray) -> np.ndarray:
-    """Inverse sRGB transfer function (IEC 61966-2-1) on values in [0, 1]."""
-    c = np.clip(np.asarray(c, dtype=np.float64), 0.0, 1.0)
-    return np.where(c <= 0.04045, c / 12.92, ((c + 0.055) / 1.055) ** 2.4)
 
 
 def _logit(p: np.ndarray) -> np.ndarray:
@@ -89,6 +84,14 @@ class GaussianParams(nn.Module):
 
     def __len__(self) -> int:
         return self.params["means"].shape[0]
+
+    def subset(self, idx: torch.Tensor) -> "GaussianParams":
+        """A differentiable view of rows ``idx`` (M,): its tensors are indexed from these parameters, not copied into
+        new leaves, so gradients of anything computed from the view reach the full parameters."""
+        view = GaussianParams.__new__(GaussianParams)
+        nn.Module.__init__(view)
+        view.params = _RowView(self.params, idx)
+        return view
 
     # ---- construction ----------------------------------------------------------------------------------------------
     @classmethod
@@ -212,6 +215,20 @@ class GaussianParams(nn.Module):
         raw = self.params["normals_raw"]
         weight = NORMAL_FALLBACK_SCALE * torch.exp(-(raw * raw).sum(-1, keepdim=True) / NORMAL_FALLBACK_SCALE**2)
         return safe_normalize(raw + weight * towards, fallback=towards)
+
+
+class _RowView(dict):
+    """Rows ``idx`` of a parameter dict, indexed on first access (shading reads only some parameters; indexing the
+    others would cost a full-size scatter each in the backward pass)."""
+
+    def __init__(self, params: nn.ParameterDict, idx: torch.Tensor) -> None:
+        super().__init__()
+        self._params, self._idx = params, idx
+
+    def __missing__(self, name: str) -> torch.Tensor:
+        rows = self._params[name][self._idx]
+        self[name] = rows
+        return rows
 
 
 def initial_scales(xyz: np.ndarray) -> np.ndarray:

@@ -211,6 +211,13 @@ class SpotLight(nn.Module):
         def loss_fn() -> torch.Tensor:  # relative error, so the schedule does not depend on `intensity`
             return F.mse_loss(self.rid_of_angle(theta) / intensity, target)
 
+        with torch.enable_grad():  # callers may be inside no_grad (e.g. loading a calibrated run for export)
+            self._fit_rid(loss_fn, adam_steps, lbfgs_iters)
+        with torch.no_grad():
+            return float((self.rid_of_angle(theta) - intensity * target).abs().max())
+
+    def _fit_rid(self, loss_fn, adam_steps: int, lbfgs_iters: int) -> None:
+        """Adam then L-BFGS on ``loss_fn`` over the RID weights (see fit_rid_to_cone)."""
         adam = torch.optim.Adam(self.rid.parameters(), lr=1e-2)
         for _ in range(adam_steps):
             adam.zero_grad(set_to_none=True)
@@ -229,8 +236,6 @@ class SpotLight(nn.Module):
                 return loss
 
             lbfgs.step(closure)
-        with torch.no_grad():
-            return float((self.rid_of_angle(theta) - intensity * target).abs().max())
 
     # ---- prior ----------------------------------------------------------------------------------------------------
     def light_prior_loss(self, t_prior: torch.Tensor | Sequence[float], weight: float) -> torch.Tensor:

@@ -1,0 +1,1 @@
+"""Training: data loading, losses, densification strategy, checkpoints and the optimisation loop."""

@@ -1,0 +1,110 @@
+"""Training settings: a frozen dataclass with a comment per field, and named presets.
+
+``tiny`` runs in seconds (tests), ``quick`` in minutes on a 2-core CPU at ~160x120, ``paper`` is the paper's schedule
+(30k iterations, native resolution) for a GPU. METHOD.md §4 gives the research code's learning rates.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from dataclasses import dataclass
+from typing import Any
+
+
+@dataclass(frozen=True)
+class TrainConfig:
+    """Everything that determines a training run besides the data, the model variant and the seed."""
+
+    # Preset name this config started from (recorded in the run folder).
+    preset: str = "quick"
+    # Optimisation steps (one training view per step).
+    iterations: int = 3000
+    # Width the input images are area-downscaled to (height keeps the aspect ratio); None = native size.
+    image_width: int | None = 160
+    # Weight λ of the (1 - SSIM) term: loss = (1 - λ) L1 + λ (1 - SSIM).
+    ssim_lambda: float = 0.2
+    # sRGB value at or above which an input pixel counts as clipped: there the loss only penalises predictions darker
+    # than the observation (the true radiance is at least the clipped value), so clipping cannot drag the light down.
+    saturation_threshold: float = 250.0 / 255.0
+    # The input images are linear already (RAW); default: 8-bit sRGB, linearised on load.
+    linear_input: bool = False
+
+    # Learning rates (Adam). Positions decay exponentially from init to final, both times the scene extent.
+    lr_means_init: float = 1.6e-4
+    lr_means_final: float = 1.6e-6
+    lr_quats: float = 1e-3
+    lr_scales: float = 5e-3
+    lr_opacity: float = 5e-2
+    lr_albedo: float = 5e-2
+    lr_normals: float = 5e-2
+    lr_roughness: float = 5e-2
+    lr_metalness: float = 5e-2
+    # Vanilla 3DGS colour: DC band and higher bands (3DGS uses 1/20 of the DC rate for the higher bands).
+    lr_sh0: float = 2.5e-3
+    lr_shN: float = 1.25e-4
+    # Spotlight RID MLP, fall-off τ/γ, low-frequency SH light / ambient.
+    lr_light: float = 1e-3
+    # Light pose relative to the camera (so3 rotation and translation).
+    lr_light_pose: float = 1e-3
+    # Learned BRDF MLP.
+    lr_brdf: float = 1e-4
+
+    # Densification (strategy.DensifyStrategy): grow from densify_from until densify_until every densify_every steps.
+    densify_from: int = 300
+    densify_until: int = 2000
+    densify_every: int = 100
+    # Average screen-space gradient (NDC units, as in 3DGS) above which a Gaussian is cloned or split.
+    densify_grad_threshold: float = 2e-4
+    # Gaussians larger than this fraction of the scene extent are split, smaller ones cloned.
+    percent_dense: float = 0.01
+    # Opacity below which Gaussians are pruned at densification steps.
+    prune_opacity: float = 0.005
+    # Reset all opacities to at most reset_opacity_value every this many steps while densifying (0 = never).
+    opacity_reset_every: int = 1000
+    reset_opacity_value: float = 0.01
+    # Hard cap on the number of Gaussians (densification picks the highest-gradient candidates first).
+    max_gaussians: int = 60_000
+
+    # Hidden width of the learned BRDF MLP (paper 256; it dominates CPU shading time).
+    brdf_hidden: int = 64
+    # Weight of the light-translation prior ‖t - t_prior‖ (used only when a prior is given).
+    light_prior_weight: float = 1.0
+
+    # Write a checkpoint every this many steps (and at the end).
+    checkpoint_every: int = 500
+    # Log metrics every this many steps.
+    log_every: int = 25
+    # CPU threads for torch and the rasterizer (None = torch's default).
+    num_threads: int | None = None
+    # Rasterizer backend: auto, cpp, torch or gsplat.
+    raster_backend: str = "auto"
+    # Device: "auto" (CUDA when present), "cpu" or "cuda".
+    device: str = "auto"
+
+    def replace(self, **changes: Any) -> "TrainConfig":
+        """A copy with some fields changed (unknown names are an error)."""
+        unknown = set(changes) - {f.name for f in dataclasses.fields(self)}
+        if unknown:
+            raise ValueError(f"unknown TrainConfig field(s): {sorted(unknown)}")
+        return dataclasses.replace(self, **changes)
+
+
+PRESETS: dict[str, TrainConfig] = {
+    "tiny": TrainConfig(
+        preset="tiny", iterations=200, image_width=64, densify_from=60, densify_until=150, densify_every=30,
+        opacity_reset_every=0, checkpoint_every=100, log_every=10, max_gaussians=8000, brdf_hidden=32,
+    ),
+    "quick": TrainConfig(),
+    "paper": TrainConfig(
+        preset="paper", iterations=30_000, image_width=None, densify_from=2000, densify_until=15_000,
+        densify_every=300, opacity_reset_every=5000, checkpoint_every=5000, log_every=100, max_gaussians=1_000_000,
+        brdf_hidden=256,
+    ),
+}
+
+
+def preset(name: str, **overrides: Any) -> TrainConfig:
+    """The named preset with some fields changed."""
+    if name not in PRESETS:
+        raise ValueError(f"unknown preset {name!r}; choose one of {sorted(PRESETS)}")
+    return PRESETS[name].replace(**overrides)

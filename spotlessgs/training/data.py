@@ -1,0 +1,155 @@
+"""Training views as tensors: linear images at the training resolution, clipped-pixel masks, cameras, split.
+
+Reads any dataset folder that :func:`spotlessgs.io.dataset.read_dataset` reads (ours, nerfstudio, COLMAP).
+"""
+
+from __future__ import annotations
+
+import logging
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import torch
+import torch.nn.functional as F
+
+from spotlessgs.io.cameras import Intrinsics
+from spotlessgs.io.colorspace import srgb_to_linear
+from spotlessgs.io.dataset import load_initial_points, read_dataset
+from spotlessgs.io.images import read_image
+from spotlessgs.io.ply import PointCloud
+from spotlessgs.io.transforms import DatasetDescription, LightTruth
+
+log = logging.getLogger(__name__)
+
+
+@dataclass
+class TrainingViews:
+    """All views of a dataset at the training resolution (N views, H x W pixels).
+
+    Attributes:
+        dataset: the parsed dataset description.
+        names: N image file names (``frame_00000.png``), used to name rendered outputs.
+        images: (N, H, W, 3) float32 linear RGB inputs.
+        saturated: (N, H, W) bool, True where an input pixel was clipped (any channel >= the threshold).
+        c2w: (N, 4, 4) float32 camera-to-world, OpenCV axes.
+        viewmats: (N, 4, 4) float32 world-to-camera, OpenCV axes.
+        intrinsics: the camera at the training resolution.
+        train: indices of training views; test: indices of held-out views.
+        light: the true spotlight (simulated data) or None.
+    """
+
+    dataset: DatasetDescription
+    names: list[str]
+    images: torch.Tensor
+    saturated: torch.Tensor
+    c2w: torch.Tensor
+    viewmats: torch.Tensor
+    intrinsics: Intrinsics
+    train: list[int]
+    test: list[int]
+    light: LightTruth | None
+
+    @property
+    def K(self) -> torch.Tensor:
+        """(3, 3) float32 pinhole matrix at the training resolution."""
+        return torch.as_tensor(self.intrinsics.K(), dtype=torch.float32)
+
+    @property
+    def width(self) -> int:
+        return int(self.intrinsics.width)
+
+    @property
+    def height(self) -> int:
+        return int(self.intrinsics.height)
+
+    def scene_extent(self) -> float:
+        """Radius of the camera centres around their mean × 1.1 (3DGS's 'cameras extent'); at least 0.1 m."""
+        centres = self.c2w[:, :3, 3]
+        radius = torch.linalg.norm(centres - centres.mean(0), dim=1).max().item()
+        return max(1.1 * radius, 0.1)
+
+
+def _load_linear(path: Path, linear_input: bool, threshold: float) -> tuple[np.ndarray, np.ndarray]:
+    """(H, W, 3) linear image and (H, W) clipped mask of one file."""
+    img = read_image(path)
+    saturated = img.max(axis=2) >= threshold
+    linear = img if linear_input else srgb_to_linear(img).astype(np.float32)
+    return linear.astype(np.float32), saturated
+
+
+def _downscale(images: torch.Tensor, masks: torch.Tensor, size: tuple[int, int]) -> tuple[torch.Tensor, torch.Tensor]:
+    """Area-average linear images (N,H,W,3) to ``size`` (h, w); a pixel is clipped if any source pixel was."""
+    h, w = size
+    if images.shape[1:3] == (h, w):
+        return images, masks
+    scaled = F.interpolate(images.permute(0, 3, 1, 2), size=(h, w), mode="area").permute(0, 2, 3, 1)
+    clipped = F.adaptive_max_pool2d(masks[:, None].float(), (h, w))[:, 0] > 0
+    return scaled.contiguous(), clipped
+
+
+def load_training_views(
+    data_dir: str | Path, image_width: int | None = None, linear_input: bool = False,
+    saturation_threshold: float = 250.0 / 255.0,
+) -> TrainingViews:
+    """Read a dataset folder and prepare its views for training.
+
+    Args:
+        data_dir: our dataset folder, a nerfstudio folder or a COLMAP folder.
+        image_width: training width in pixels (height keeps the aspect ratio); None = native size.
+        linear_input: the files are linear already (default: sRGB, linearised here).
+        saturation_threshold: value (in the file's encoding, [0, 1]) at or above which a pixel counts as clipped.
+    """
+    dataset = read_dataset(data_dir, check_files=True)
+    intr = dataset.intrinsics
+    if image_width is not None and image_width < intr.width:
+        intr = intr.scaled(image_width / intr.width)
+    imgs, masks = [], []
+    for path in dataset.image_paths:
+        img, sat = _load_linear(path, linear_input, saturation_threshold)
+        if img.shape[:2] != (dataset.intrinsics.height, dataset.intrinsics.width):
+            raise ValueError(f"{path}: image is {img.shape[1]}x{img.shape[0]}, the camera says "
+                             f"{dataset.intrinsics.width}x{dataset.intrinsics.height}")
+        t_img, t_sat = _downscale(torch.from_numpy(img)[None], torch.from_numpy(sat)[None],
+                                  (int(intr.height), int(intr.width)))
+        imgs.append(t_img[0])
+        masks.append(t_sat[0])
+    c2w = torch.as_tensor(dataset.c2w_opencv, dtype=torch.float32)
+    return TrainingViews(
+        dataset=dataset,
+        names=[p.name for p in dataset.image_paths],
+        images=torch.stack(imgs),
+        saturated=torch.stack(masks),
+        c2w=c2w,
+        viewmats=torch.linalg.inv(c2w),
+        intrinsics=intr,
+        train=list(dataset.split.train),
+        test=list(dataset.split.test),
+        light=dataset.light,
+    )
+
+
+def initial_point_cloud(views: TrainingViews, rng: np.random.Generator, n_random: int = 20_000) -> PointCloud:
+    """The dataset's point cloud (PLY or COLMAP points3D), else random points in the camera frusta (with a warning).
+
+    Random points are drawn per training view at uniform pixels and depths in [0.3, 2 × scene extent] m, grey.
+    """
+    cloud = load_initial_points(views.dataset)
+    if cloud is not None and len(cloud.xyz) > 0:
+        return cloud
+    log.warning("%s has no point cloud: initialising %d Gaussians at random in the camera frusta",
+                views.dataset.root, n_random)
+    intr = views.intrinsics
+    per_view = max(n_random // max(len(views.train), 1), 1)
+    far = 2.0 * views.scene_extent()
+    pts = []
+    for k in views.train:
+        u = rng.uniform(0, intr.width, per_view)
+        v = rng.uniform(0, intr.height, per_view)
+        z = rng.uniform(0.3, max(far, 0.6), per_view)
+        cam = np.stack([(u - intr.cx) / intr.fx * z, (v - intr.cy) / intr.fy * z, z], axis=1)
+        c2w = views.c2w[k].double().numpy()
+        pts.append(cam @ c2w[:3, :3].T + c2w[:3, 3])
+    xyz = np.concatenate(pts).astype(np.float32)
+    rgb = np.full((len(xyz), 3), 128, dtype=np.uint8)
+    return PointCloud(xyz, rgb, None)

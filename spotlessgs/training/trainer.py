@@ -1,0 +1,352 @@
+"""The optimisation loop: one training view per step, all parameters optimised jointly.
+
+``train(data_dir, run_dir, variant, config, seed)`` creates (or, with ``resume=True``, continues) a run folder; see
+:mod:`spotlessgs.training.checkpoint` for its layout. Same seed, same result; a resumed run equals an uninterrupted one.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import logging
+import math
+import time
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, Sequence
+
+import numpy as np
+import torch
+
+from spotlessgs.io.atomic import write_json
+from spotlessgs.io.provenance import provenance
+from spotlessgs.io.seeding import numpy_rng, torch_generator
+from spotlessgs.models.gaussians import GaussianParams
+from spotlessgs.models.relightable import RelightableScene
+from spotlessgs.models.shading import MODEL_VARIANTS, ModelConfig
+from spotlessgs.training.checkpoint import (
+    checkpoint_path, load_checkpoint, read_run_info, save_checkpoint, truncate_metrics,
+)
+from spotlessgs.training.config import TrainConfig
+from spotlessgs.training.data import TrainingViews, initial_point_cloud, load_training_views
+from spotlessgs.training.losses import photometric_loss
+from spotlessgs.training.strategy import DensifyConfig, DensifyStrategy
+
+log = logging.getLogger(__name__)
+
+
+class TrainingDivergedError(RuntimeError):
+    """A step produced NaN/Inf; the last good checkpoint is left intact."""
+
+
+@dataclass
+class TrainResult:
+    """Summary of a finished training run."""
+
+    run_dir: Path
+    steps: int
+    seconds: float
+    ms_per_step: float
+    num_gaussians: int
+    final_loss: float
+    test_psnr: float | None
+
+
+def model_config(variant: str, config: TrainConfig) -> ModelConfig:
+    """The variant's ModelConfig with the CPU/GPU-dependent BRDF width of ``config``."""
+    if variant not in MODEL_VARIANTS:
+        raise ValueError(f"unknown model {variant!r}; choose one of {sorted(MODEL_VARIANTS)}")
+    return dataclasses.replace(MODEL_VARIANTS[variant], brdf_hidden=config.brdf_hidden)
+
+
+def resolve_device(name: str) -> torch.device:
+    """``auto`` → CUDA when available, else CPU."""
+    if name == "auto":
+        return torch.device("cuda" if torch.cuda.is_available() else "cpu")
+    if name == "cuda" and not torch.cuda.is_available():
+        raise RuntimeError("device 'cuda' was requested but no CUDA GPU is available")
+    return torch.device(name)
+
+
+# ---- model construction --------------------------------------------------------------------------------------------
+
+
+def build_scene(
+    views: TrainingViews, variant: str, config: TrainConfig, seed: int,
+    light_prior: Sequence[float] | None = None,
+) -> RelightableScene:
+    """Initial Gaussians from the dataset's points and the variant's light/BRDF modules."""
+    cfg = model_config(variant, config)
+    cloud = initial_point_cloud(views, numpy_rng(seed, "init_points"))
+    xyz, rgb, normals = cloud.xyz, cloud.rgb, cloud.normals
+    if len(xyz) > config.max_gaussians:
+        keep = np.sort(numpy_rng(seed, "init_subsample").choice(len(xyz), config.max_gaussians, replace=False))
+        xyz, rgb = xyz[keep], rgb[keep]
+        normals = None if normals is None else normals[keep]
+    gaussians = GaussianParams.from_point_cloud(xyz, rgb, normals, rgb_is_srgb=True)
+    light_init: dict[str, Any] = {}
+    if cfg.calibrated:
+        if views.light is None:
+            raise ValueError(f"{views.dataset.root}: model {variant!r} is calibrated but the dataset has no light truth")
+        light_init = {
+            "light_rotation": views.light.rotation_in_camera,
+            "light_translation": views.light.position_in_camera,
+            "cone": (math.radians(views.light.cone_angle_deg) / 2.0, views.light.blend),
+        }
+    elif light_prior is not None:
+        light_init = {"light_translation": np.asarray(light_prior, dtype=np.float64)}
+    return RelightableScene.create(cfg, gaussians, seed=seed, **light_init)
+
+
+def build_optimizers(scene: RelightableScene, config: TrainConfig, extent: float) -> dict[str, torch.optim.Optimizer]:
+    """One Adam per per-Gaussian parameter (so densification can edit its state) plus the appearance modules."""
+    lrs = {
+        "means": config.lr_means_init * extent, "quats": config.lr_quats, "log_scales": config.lr_scales,
+        "opacity_logits": config.lr_opacity, "albedo_raw": config.lr_albedo, "normals_raw": config.lr_normals,
+        "roughness_raw": config.lr_roughness, "metalness_raw": config.lr_metalness, "sh0": config.lr_sh0,
+        "shN": config.lr_shN,
+    }
+    opts: dict[str, torch.optim.Optimizer] = {
+        name: torch.optim.Adam([p], lr=lrs[name], eps=1e-15) for name, p in scene.gaussians.params.items()
+    }
+    app = scene.appearance
+    groups = []
+    if app.light is not None:
+        pose = [p for p in (app.light.rotvec, app.light.translation) if p.requires_grad]
+        if pose:
+            groups.append({"params": pose, "lr": config.lr_light_pose})
+        groups.append({"params": [app.light.log_gamma, app.light.log_tau, *app.light.rid.parameters()],
+                       "lr": config.lr_light})
+    if app.lf_light is not None:
+        groups.append({"params": list(app.lf_light.parameters()), "lr": config.lr_light})
+    brdf_params = [] if app.brdf is None else list(app.brdf.parameters())
+    if brdf_params:
+        groups.append({"params": brdf_params, "lr": config.lr_brdf})
+    if groups:
+        opts["appearance"] = torch.optim.Adam(groups, eps=1e-15)
+    return opts
+
+
+def means_lr(config: TrainConfig, step: int, extent: float) -> float:
+    """Exponential decay of the position learning rate from init to final over the run, times the scene extent."""
+    t = min(max(step / max(config.iterations, 1), 0.0), 1.0)
+    log_lr = (1 - t) * math.log(config.lr_means_init) + t * math.log(config.lr_means_final)
+    return math.exp(log_lr) * extent
+
+
+def view_order(seed: int, epoch: int, train: Sequence[int]) -> list[int]:
+    """The training views of one epoch in a seeded random order (stateless, so resuming needs no saved state)."""
+    perm = torch.randperm(len(train), generator=torch_generator(seed, f"views/{epoch}"))
+    return [train[i] for i in perm.tolist()]
+
+
+def densify_config(config: TrainConfig) -> DensifyConfig:
+    return DensifyConfig(
+        densify_from=config.densify_from, densify_until=config.densify_until, densify_every=config.densify_every,
+        grad_threshold=config.densify_grad_threshold, percent_dense=config.percent_dense,
+        prune_opacity=config.prune_opacity, opacity_reset_every=config.opacity_reset_every,
+        reset_opacity_value=config.reset_opacity_value, max_gaussians=config.max_gaussians,
+    )
+
+
+# ---- checkpoints ---------------------------------------------------------------------------------------------------
+
+
+def _payload(step: int, scene: RelightableScene, opts, strategy: DensifyStrategy) -> dict[str, Any]:
+    return {
+        "step": step,
+        "gaussians": {k: v.detach().clone() for k, v in scene.gaussians.params.items()},
+        "appearance": scene.modules_.state_dict(),
+        "optimizers": {k: o.state_dict() for k, o in opts.items()},
+        "strategy": strategy.state_dict(),
+    }
+
+
+def restore_scene(ckpt: dict[str, Any], run_info: dict[str, Any], config: TrainConfig) -> RelightableScene:
+    """Rebuild the model of a checkpoint (modules with the same structure, then their saved values)."""
+    cfg = model_config(run_info["model"], config)
+    gaussians = GaussianParams(ckpt["gaussians"])
+    light_init: dict[str, Any] = {}
+    if cfg.calibrated:  # the structure needs a cone; the fitted values are overwritten by the saved state
+        light_init = {"light_rotation": None, "light_translation": np.zeros(3), "cone": (0.5, 0.3)}
+    scene = RelightableScene.create(cfg, gaussians, seed=run_info["seed"], **light_init)
+    scene.modules_.load_state_dict(ckpt["appearance"])
+    if cfg.calibrated and scene.appearance.light is not None:
+        scene.appearance.light.set_pose_trainable(False)
+    return scene
+
+
+# ---- the loop ------------------------------------------------------------------------------------------------------
+
+
+def _psnr(pred: torch.Tensor, target: torch.Tensor) -> float:
+    mse = float(torch.mean((pred.detach().clamp(0, 1) - target) ** 2))
+    return float("inf") if mse <= 0 else -10.0 * math.log10(mse)
+
+
+def _check_finite(scene: RelightableScene, step: int, ckpt: Path) -> None:
+    for name, p in list(scene.gaussians.params.items()) + list(scene.modules_.named_parameters()):
+        if not torch.isfinite(p).all():
+            raise TrainingDivergedError(
+                f"step {step}: parameter {name!r} became NaN/Inf; the last good checkpoint {ckpt} is intact "
+                "(lower the learning rates or check the input images)"
+            )
+
+
+def train(
+    data_dir: str | Path,
+    run_dir: str | Path,
+    variant: str = "spotless",
+    config: TrainConfig = TrainConfig(),
+    seed: int = 0,
+    resume: bool = False,
+    light_prior: Sequence[float] | None = None,
+    progress: bool = True,
+    stop_after: int | None = None,
+) -> TrainResult:
+    """Train (or resume) a model of ``variant`` on the dataset in ``data_dir``; writes everything to ``run_dir``.
+
+    Args:
+        data_dir: dataset folder (ours, nerfstudio or COLMAP).
+        run_dir: the run folder.
+        variant: ``3dgs``, ``darkgs``, ``darkgs-calibrated``, ``darkgs+sh``, ``darkgs+brdf`` or ``spotless``.
+        config: training settings.
+        seed: the command seed.
+        resume: continue from the run's last checkpoint (settings must match).
+        light_prior: (3,) prior light translation in camera coordinates (m): adds weight · ‖t − prior‖.
+        progress: show a progress bar.
+        stop_after: stop (with a checkpoint) after this many total steps, as if interrupted (tests, time budgets).
+    """
+    data_dir, run_dir = Path(data_dir).resolve(), Path(run_dir)
+    if config.num_threads:
+        torch.set_num_threads(config.num_threads)
+    device = resolve_device(config.device)
+    ckpt_file = checkpoint_path(run_dir)
+    run_info = {"data_dir": str(data_dir), "model": variant, "seed": seed, "preset": config.preset,
+                "light_prior": None if light_prior is None else [float(v) for v in light_prior]}
+    resolved = {"train": dataclasses.asdict(config), "run": run_info}
+    if ckpt_file.is_file() and not resume:
+        raise FileExistsError(f"{run_dir} already holds a training run; pass --resume to continue it or use a new --out")
+    if resume and ckpt_file.is_file():
+        old = json.loads((run_dir / "config.json").read_text())
+        if {"train": old["train"], "run": old["run"]} != resolved:
+            raise ValueError(f"{run_dir}: --resume with other settings than the run was started with")
+
+    views = load_training_views(data_dir, config.image_width, config.linear_input, config.saturation_threshold)
+    if not views.train:
+        raise ValueError(f"{data_dir}: the split has no training views")
+    extent = views.scene_extent()
+    images, saturated = views.images.to(device), views.saturated.to(device)
+    c2ws, viewmats, K = views.c2w.to(device), views.viewmats.to(device), views.K.to(device)
+
+    start = 0
+    strategy = DensifyStrategy(densify_config(config), extent, torch_generator(seed, "densify", device=str(device)))
+    if resume and ckpt_file.is_file():
+        ckpt = load_checkpoint(run_dir)
+        scene = restore_scene(ckpt, run_info, config).to(device)
+        opts = build_optimizers(scene, config, extent)
+        for k, o in opts.items():
+            o.load_state_dict(ckpt["optimizers"][k])
+        strategy.load_state_dict(ckpt["strategy"])
+        start = int(ckpt["step"])
+        truncate_metrics(run_dir / "metrics.jsonl", start)
+        log.info("resuming %s at step %d", run_dir, start)
+    else:
+        run_dir.mkdir(parents=True, exist_ok=True)
+        scene = build_scene(views, variant, config, seed, light_prior).to(device)
+        opts = build_optimizers(scene, config, extent)
+        write_json(run_dir / "run.json", run_info)
+        write_json(run_dir / "config.json", {**resolved, "model_config": dataclasses.asdict(scene.config),
+                                             "provenance": provenance(seed=seed)})
+        (run_dir / "metrics.jsonl").unlink(missing_ok=True)
+    prior = None if light_prior is None else torch.as_tensor(light_prior, dtype=torch.float32, device=device)
+
+    from tqdm import tqdm
+
+    end = config.iterations if stop_after is None else min(stop_after, config.iterations)
+    bar = tqdm(range(start, end), initial=start, total=config.iterations, desc=f"train {variant}",
+               disable=not progress, unit="it")
+    metrics_file = open(run_dir / "metrics.jsonl", "a", encoding="utf-8")
+    t0 = time.perf_counter()
+    loss_value = float("nan")
+    try:
+        for step in bar:
+            epoch, pos = divmod(step, len(views.train))
+            k = view_order(seed, epoch, views.train)[pos]
+            opts["means"].param_groups[0]["lr"] = means_lr(config, step, extent)
+            out = scene.render(c2ws[k], viewmats[k], K, views.width, views.height,
+                               backend=config.raster_backend, num_threads=config.num_threads)
+            if not torch.isfinite(out.image).all():
+                raise TrainingDivergedError(f"step {step}: the render of view {views.names[k]} has NaN/Inf; "
+                                            f"the last good checkpoint {ckpt_file} is intact")
+            loss, parts = photometric_loss(out.image, images[k], saturated[k], config.ssim_lambda)
+            if prior is not None and scene.appearance.light is not None:
+                loss = loss + scene.appearance.light.light_prior_loss(prior, config.light_prior_weight)
+            loss_value = float(loss.detach())
+            if not math.isfinite(loss_value):
+                raise TrainingDivergedError(f"step {step}: loss is {loss_value} on view {views.names[k]}; "
+                                            f"the last good checkpoint {ckpt_file} is intact")
+            loss.backward()
+            for o in opts.values():
+                o.step()
+                o.zero_grad(set_to_none=True)
+            changes = strategy.step_post_backward(step, scene.gaussians, opts, out.means2d_grad(), out.radii,
+                                                  views.width, views.height)
+            _check_finite(scene, step, ckpt_file)
+            s = step + 1
+            if s % config.log_every == 0 or s == end:
+                elapsed = time.perf_counter() - t0
+                rec = {"step": s, "loss": loss_value, "l1": parts["l1"], "ssim": parts["ssim"],
+                       "psnr": _psnr(out.image, images[k]), "gaussians": len(scene.gaussians),
+                       "ms_per_step": 1000.0 * elapsed / (s - start), **{k2: v for k2, v in changes.items() if v}}
+                metrics_file.write(json.dumps(rec) + "\n")
+                metrics_file.flush()
+                bar.set_postfix(loss=f"{loss_value:.4f}", psnr=f"{rec['psnr']:.2f}", n=len(scene.gaussians),
+                                ms=f"{rec['ms_per_step']:.0f}")
+            if s % config.checkpoint_every == 0 or s == end:
+                save_checkpoint(run_dir, _payload(s, scene, opts, strategy))
+    finally:
+        metrics_file.close()
+        bar.close()
+    seconds = time.perf_counter() - t0
+    steps_done = max(end - start, 0)
+    test_psnr = evaluate_reconstruction(scene, views, config) if end == config.iterations else None
+    result = TrainResult(run_dir, end, seconds, 1000.0 * seconds / max(steps_done, 1), len(scene.gaussians),
+                         loss_value, test_psnr)
+    if end == config.iterations:
+        from spotlessgs.light_report import write_light_report
+
+        write_light_report(scene, views, run_dir)
+        write_json(run_dir / "train_summary.json", {
+            "steps": result.steps, "seconds_this_session": seconds, "ms_per_step": result.ms_per_step,
+            "num_gaussians": result.num_gaussians, "final_loss": loss_value,
+            "test_psnr_reconstruction": test_psnr, "device": str(device),
+        })
+    return result
+
+
+@torch.no_grad()
+def evaluate_reconstruction(scene: RelightableScene, views: TrainingViews, config: TrainConfig) -> float | None:
+    """Mean PSNR (linear, clamped to [0, 1]) of the spotlight-lit renders of the test views against the inputs."""
+    if not views.test:
+        return None
+    device = views.images.device
+    values = []
+    for k in views.test:
+        out = scene.render(views.c2w[k].to(device), views.viewmats[k].to(device), views.K.to(device), views.width,
+                           views.height, backend=config.raster_backend, num_threads=config.num_threads)
+        values.append(_psnr(out.image, views.images[k]))
+    return float(np.mean(values))
+
+
+def load_run(run_dir: str | Path, device: str = "auto") -> tuple[RelightableScene, TrainingViews, TrainConfig, dict]:
+    """Load a finished (or interrupted) run: its model, its views at the training resolution, config and info."""
+    run_dir = Path(run_dir)
+    info = read_run_info(run_dir)
+    saved = json.loads((run_dir / "config.json").read_text())
+    config = TrainConfig(**saved["train"])
+    views = load_training_views(info["data_dir"], config.image_width, config.linear_input,
+                                config.saturation_threshold)
+    scene = restore_scene(load_checkpoint(run_dir), info, config).to(resolve_device(device))
+    scene.eval()
+    return scene, views, config, info

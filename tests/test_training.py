@@ -1,0 +1,251 @@
+"""The trainer: losses on hard cases, the densification strategy, and (with Blender data) a tiny end-to-end run that
+must do real work, resume equality and the NaN guard."""
+
+from __future__ import annotations
+
+import json
+import math
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+
+from spotlessgs.models.gaussians import GaussianParams
+from spotlessgs.training.losses import clipped_l1, photometric_loss
+from spotlessgs.training.strategy import DensifyConfig, DensifyStrategy
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+# ---- losses ---------------------------------------------------------------------------------------------------------
+
+
+def test_clipped_pixels_only_penalise_darker_predictions():
+    target = torch.full((4, 4, 3), 1.0)
+    sat = torch.ones(4, 4, dtype=torch.bool)
+    brighter = torch.full((4, 4, 3), 3.0, requires_grad=True)
+    loss = clipped_l1(brighter, target, sat)
+    loss.backward()
+    assert float(loss.detach()) == 0.0 and float(brighter.grad.abs().sum()) == 0.0  # no pull towards the clipped value
+    darker = torch.full((4, 4, 3), 0.5, requires_grad=True)
+    loss = clipped_l1(darker, target, sat)
+    loss.backward()
+    assert float(loss.detach()) == pytest.approx(0.5)
+    assert torch.all(darker.grad < 0)  # pushed up towards at least the observation
+    # unclipped pixels: plain L1 both ways
+    assert float(clipped_l1(brighter.detach(), target, ~sat)) == pytest.approx(2.0)
+
+
+@pytest.mark.parametrize("frame", ["black", "saturated"])
+def test_photometric_loss_is_finite_on_black_and_saturated_frames(frame):
+    value = 0.0 if frame == "black" else 1.0
+    target = torch.full((16, 16, 3), value)
+    sat = torch.full((16, 16), frame == "saturated")
+    pred = torch.rand(16, 16, 3, generator=torch.Generator().manual_seed(0)).requires_grad_(True)
+    loss, parts = photometric_loss(pred, target, sat, 0.2)
+    loss.backward()
+    assert math.isfinite(float(loss.detach())) and torch.isfinite(pred.grad).all()
+    assert 0.0 <= parts["l1"] <= 1.0
+
+
+# ---- densification strategy -----------------------------------------------------------------------------------------
+
+
+def _gaussians(n=6, scale=0.001):
+    xyz = np.stack([np.linspace(0, 1, n), np.zeros(n), np.full(n, 2.0)], 1)
+    g = GaussianParams.from_point_cloud(xyz, np.full((n, 3), 128, np.uint8))
+    with torch.no_grad():
+        g.params["log_scales"].fill_(math.log(scale))
+    return g
+
+
+def _optimizers(g):
+    opts = {k: torch.optim.Adam([p], lr=1e-3) for k, p in g.params.items()}
+    loss = sum(p.sum() for p in g.params.values())
+    loss.backward()
+    for o in opts.values():
+        o.step()
+    return opts
+
+
+def test_strategy_clones_small_and_splits_large_gaussians_with_their_optimizer_state():
+    g = _gaussians(6)
+    with torch.no_grad():
+        g.params["log_scales"][3:] = math.log(0.5)  # large ones: split
+    opts = _optimizers(g)
+    cfg = DensifyConfig(densify_from=1, densify_until=100, densify_every=1, grad_threshold=1e-3, percent_dense=0.01,
+                        prune_opacity=0.0, opacity_reset_every=0)
+    strat = DensifyStrategy(cfg, scene_extent=1.0, generator=torch.Generator().manual_seed(0))
+    grad = torch.zeros(6, 2)
+    grad[[0, 4]] = 1.0  # high gradient for one small (0) and one large (4) Gaussian
+    parent_scale = g.scales.detach()[4].clone()
+    parent_mean = g.means.detach()[4].clone()
+    changes = strat.step_post_backward(0, g, opts, grad, torch.ones(6, dtype=torch.int32), 64, 48)
+    assert changes["cloned"] == 1 and changes["split"] == 1
+    assert len(g) == 6 + 1 + 1  # clone adds one; split replaces one by two
+    for name, p in g.params.items():
+        state = opts[name].state[p]
+        assert state["exp_avg"].shape == p.shape and state["exp_avg_sq"].shape == p.shape
+        assert opts[name].param_groups[0]["params"][0] is p
+    # split children (appended last) are 1.6 times smaller than the parent and sampled around it
+    torch.testing.assert_close(g.scales.detach()[-2:], (parent_scale / 1.6).expand(2, 3), rtol=1e-5, atol=0)
+    assert torch.all((g.means.detach()[-2:] - parent_mean).abs() < 5 * parent_scale)
+    assert not torch.any(torch.all(g.means.detach()[:-2] == parent_mean, dim=1))  # the parent itself is gone
+
+
+def test_strategy_respects_the_gaussian_cap_and_prunes_transparent_ones():
+    g = _gaussians(6)
+    with torch.no_grad():
+        g.params["opacity_logits"][5] = -10.0  # transparent: pruned
+    opts = _optimizers(g)
+    cfg = DensifyConfig(densify_from=1, densify_until=100, densify_every=1, grad_threshold=1e-3, prune_opacity=0.005,
+                        opacity_reset_every=0, max_gaussians=7)
+    strat = DensifyStrategy(cfg, scene_extent=1.0, generator=torch.Generator().manual_seed(0))
+    grad = torch.ones(6, 2)
+    changes = strat.step_post_backward(0, g, opts, grad, torch.ones(6, dtype=torch.int32), 64, 48)
+    assert changes["cloned"] + changes["split"] == 1  # only one slot under the cap
+    assert changes["pruned"] == 1
+    assert len(g) <= 7
+
+
+def test_opacity_reset_caps_opacities_and_clears_their_moments():
+    g = _gaussians(4)
+    opts = _optimizers(g)
+    cfg = DensifyConfig(densify_from=1000, densify_until=2000, opacity_reset_every=5, reset_opacity_value=0.01)
+    strat = DensifyStrategy(cfg, scene_extent=1.0, generator=torch.Generator().manual_seed(0))
+    for step in range(5):
+        strat.step_post_backward(step, g, opts, torch.zeros(4, 2), torch.ones(4, dtype=torch.int32), 64, 48)
+    assert float(g.opacities.detach().max()) <= 0.01 + 1e-6
+    p = g.params["opacity_logits"]
+    assert float(opts["opacity_logits"].state[p]["exp_avg"].abs().sum().detach()) == 0.0
+
+
+# ---- end to end with a Blender-rendered scene --------------------------------------------------------------------------
+
+
+@pytest.fixture(scope="module")
+def bedroom(tmp_path_factory):
+    pytest.importorskip("bpy")
+    from simulator.render_pipeline import ExecutionOptions, RenderConfig, render_dataset
+
+    out = tmp_path_factory.mktemp("train-data") / "bedroom"
+    config = RenderConfig.from_preset("uneven", frames=12, width=80, height=60, samples=8, seed=1)
+    render_dataset(ROOT / "scenes" / "bedroom" / "house.json", out, config,
+                   execution=ExecutionOptions(progress=False))
+    return out
+
+
+def _tiny(**overrides):
+    from spotlessgs.training.config import preset
+
+    base = dict(iterations=300, image_width=80, num_threads=2, densify_from=100, densify_until=250, densify_every=50,
+                log_every=25, checkpoint_every=100)
+    base.update(overrides)
+    return preset("tiny", **base)
+
+
+@pytest.mark.blender
+def test_tiny_training_does_real_work(bedroom, tmp_path):
+    from evaluation.alignment import apply_gain, exposure_gain
+    from evaluation.metrics import psnr
+    from spotlessgs.io.images import read_image
+    from spotlessgs.rendering import render_run
+    from spotlessgs.training.trainer import train
+
+    run = tmp_path / "run"
+    result = train(bedroom, run, "spotless", _tiny(), seed=0, progress=False)
+    log = [json.loads(line) for line in (run / "metrics.jsonl").read_text().splitlines()]
+    first, last = np.mean([r["loss"] for r in log[:2]]), np.mean([r["loss"] for r in log[-2:]])
+    assert last < 0.6 * first, (first, last)
+    assert np.mean([r["psnr"] for r in log[-4:]]) > 24.0  # training-view reconstruction (linear) PSNR
+    assert result.test_psnr is not None and math.isfinite(result.test_psnr)  # held-out views are reported
+
+    light = json.loads((run / "light.json").read_text())
+    assert light["errors"]["axis_error_deg"] < 5.0
+
+    render_run(run, "relit", "test", progress=False)
+    meta = json.loads((bedroom / "transforms.json").read_text())
+    test = meta["spotless"]["split"]["test"]
+    names = [Path(meta["frames"][k]["file_path"]).name for k in test]
+
+    def stack(folder):
+        return torch.stack([torch.from_numpy(read_image(folder / n)).permute(2, 0, 1) for n in names])
+
+    relit, inputs, gt = stack(run / "relit"), stack(bedroom / "images"), stack(bedroom / "gt")
+
+    def variation(x):
+        lum = x.mean(1)
+        return float((lum.std(dim=(1, 2)) / lum.mean(dim=(1, 2)).clamp(min=1e-6)).mean())
+
+    assert variation(relit) < variation(inputs)
+
+    def aligned_psnr(pred):
+        return float(psnr(apply_gain(pred, exposure_gain(pred, gt)).clamp(0, 1), gt).mean())
+
+    assert aligned_psnr(relit) > aligned_psnr(inputs) + 1.0
+
+
+@pytest.mark.blender
+def test_resume_equals_an_uninterrupted_run(bedroom, tmp_path):
+    from spotlessgs.training.checkpoint import load_checkpoint
+    from spotlessgs.training.trainer import train
+
+    cfg = _tiny(iterations=60, image_width=40, densify_from=20, densify_until=50, densify_every=10,
+                checkpoint_every=30)
+    train(bedroom, tmp_path / "full", "darkgs+sh", cfg, seed=3, progress=False)
+    train(bedroom, tmp_path / "split", "darkgs+sh", cfg, seed=3, progress=False, stop_after=30)
+    with pytest.raises(FileExistsError, match="--resume"):
+        train(bedroom, tmp_path / "split", "darkgs+sh", cfg, seed=3, progress=False)
+    with pytest.raises(ValueError, match="other settings"):
+        train(bedroom, tmp_path / "split", "darkgs+sh", cfg.replace(lr_albedo=0.01), seed=3, resume=True,
+              progress=False)
+    train(bedroom, tmp_path / "split", "darkgs+sh", cfg, seed=3, progress=False, resume=True)
+    a, b = load_checkpoint(tmp_path / "full"), load_checkpoint(tmp_path / "split")
+    assert a["step"] == b["step"] == 60
+    for name, tensor in a["gaussians"].items():
+        torch.testing.assert_close(b["gaussians"][name], tensor, rtol=1e-5, atol=1e-6, msg=name)
+    for name, tensor in a["appearance"].items():
+        torch.testing.assert_close(b["appearance"][name], tensor, rtol=1e-5, atol=1e-6, msg=name)
+
+
+@pytest.mark.blender
+def test_nan_stops_training_and_keeps_the_last_good_checkpoint(bedroom, tmp_path, monkeypatch):
+    import spotlessgs.training.trainer as trainer_mod
+    from spotlessgs.training.checkpoint import load_checkpoint
+
+    real = trainer_mod.photometric_loss
+    calls = {"n": 0}
+
+    def poisoned(pred, target, saturated, lam):
+        calls["n"] += 1
+        loss, parts = real(pred, target, saturated, lam)
+        return (loss * float("nan") if calls["n"] == 25 else loss), parts
+
+    monkeypatch.setattr(trainer_mod, "photometric_loss", poisoned)
+    cfg = _tiny(iterations=40, image_width=40, checkpoint_every=20, densify_from=1000)
+    with pytest.raises(trainer_mod.TrainingDivergedError, match=r"step 24: loss is nan.*last good checkpoint"):
+        trainer_mod.train(bedroom, tmp_path / "run", "darkgs", cfg, seed=0, progress=False)
+    ckpt = load_checkpoint(tmp_path / "run")
+    assert ckpt["step"] == 20
+    assert all(torch.isfinite(t).all() for t in ckpt["gaussians"].values())
+
+
+@pytest.mark.blender
+def test_calibrated_darkgs_uses_the_true_light_and_export_writes_a_3dgs_ply(bedroom, tmp_path):
+    from plyfile import PlyData
+
+    from spotlessgs.export import export_ply
+    from spotlessgs.training.trainer import train
+
+    run = tmp_path / "cal"
+    train(bedroom, run, "darkgs-calibrated", _tiny(iterations=20, image_width=40, densify_from=1000), seed=0,
+          progress=False)
+    light = json.loads((run / "light.json").read_text())
+    assert light["errors"]["axis_error_deg"] < 1e-3 and light["errors"]["translation_error_m"] < 1e-6
+    assert light["estimate"]["pose_trainable"] is False
+    ply = PlyData.read(str(export_ply(run, tmp_path / "model.ply")))
+    names = [p.name for p in ply["vertex"].properties]
+    assert names[:3] == ["x", "y", "z"] and "f_dc_0" in names and "f_rest_44" in names and "rot_3" in names
+    assert len(names) == 3 + 3 + 3 + 45 + 1 + 3 + 4
+    assert np.isfinite(np.stack([ply["vertex"][n] for n in names])).all()
