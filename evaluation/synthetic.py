@@ -12,6 +12,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from evaluation.sfm import PinholeIntrinsics
+from spotlessgs.io.colorspace import linear_to_srgb
 from spotlessgs.io.seeding import numpy_rng
 
 #: Room extent in metres: x in [-ROOM_X, ROOM_X], y in [-ROOM_Y, ROOM_Y], z in [0, ROOM_Z] (z up).
@@ -130,8 +131,8 @@ def render_room_sequence(
         spot_light = spot_power * cone * cos_cam / dist**2
         even_lin = np.clip(colour * 0.9, 0, 1)
         spot_lin = np.clip(colour * spot_light[:, None], 0, 1)
-        even.append(_encode_srgb(even_lin).reshape(height, width, 3))
-        spot.append(_encode_srgb(spot_lin).reshape(height, width, 3))
+        even.append(linear_to_srgb(even_lin).reshape(height, width, 3))
+        spot.append(linear_to_srgb(spot_lin).reshape(height, width, 3))
         depth.append(t.reshape(height, width))
         poses.append(c2w @ np.diag([1.0, -1.0, -1.0, 1.0]))  # OpenCV → OpenGL camera axes
     return SyntheticSequence(
@@ -141,11 +142,6 @@ def render_room_sequence(
         c2w_opengl=np.stack(poses),
         intrinsics=intr,
     )
-
-
-def _encode_srgb(x: np.ndarray) -> np.ndarray:
-    """sRGB transfer of linear values in [0, 1] (any shape)."""
-    return np.where(x <= 0.0031308, 12.92 * x, 1.055 * np.power(np.maximum(x, 0.0031308), 1 / 2.4) - 0.055)
 
 
 def save_png(path, img: np.ndarray) -> None:

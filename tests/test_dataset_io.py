@@ -151,6 +151,25 @@ def test_srgb_known_values():
     assert srgb_to_linear(np.array([0, 255], dtype=np.uint8) / 255.0)[1] == 1.0
 
 
+def test_srgb_on_torch_tensors_matches_numpy_and_has_finite_gradients():
+    import torch
+
+    x = np.linspace(-0.1, 1.1, 1201)
+    for fn in (srgb_to_linear, linear_to_srgb):
+        got = fn(torch.from_numpy(x))
+        assert isinstance(got, torch.Tensor) and got.dtype == torch.float64
+        np.testing.assert_allclose(got.numpy(), fn(x), rtol=0, atol=1e-15)  # one formula (pow may differ by 1 ulp)
+        assert fn(torch.from_numpy(x).float()).dtype == torch.float32
+    assert srgb_to_linear(torch.tensor([0, 255], dtype=torch.uint8))[1] == 1.0  # integers become float64, then clip
+    assert float(srgb_to_linear(torch.tensor(0.5, dtype=torch.float64))) == pytest.approx(0.214041, abs=5e-7)
+    y = torch.linspace(0, 1, 1001, dtype=torch.float64)
+    assert torch.allclose(linear_to_srgb(srgb_to_linear(y)), y, atol=1e-12)
+    for fn in (srgb_to_linear, linear_to_srgb):
+        t = torch.tensor([0.0, 0.002, 0.04045, 0.5, 1.0], dtype=torch.float64, requires_grad=True)
+        fn(t).sum().backward()
+        assert torch.isfinite(t.grad).all() and (t.grad[:4] > 0).all()
+
+
 def test_to_uint8_rounds_and_clips():
     np.testing.assert_array_equal(to_uint8(np.array([-0.2, 0.0, 0.5, 1 / 255, 0.9999, 1.3])), [0, 0, 128, 1, 255, 255])
     np.testing.assert_array_equal(to_uint8(np.array([0.4 / 255, 0.6 / 255])), [0, 1])

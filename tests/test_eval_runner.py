@@ -11,7 +11,6 @@ import torch
 from click.testing import CliRunner
 from PIL import Image
 
-from evaluation.alignment import linear_to_srgb, srgb_to_linear
 from evaluation.cli import eval_command
 from evaluation.images import load_image
 from evaluation.metrics import psnr, ssim
@@ -19,6 +18,7 @@ from evaluation.runner import EvalConfig, evaluate_folders, evaluate_run
 from evaluation.sfm import SfmConfig
 from evaluation.synthetic import save_png, render_room_sequence, write_dataset_folder
 from spotlessgs.io.atomic import write_json
+from spotlessgs.io.colorspace import linear_to_srgb, srgb_to_linear
 
 TOP_KEYS = {"psnr", "ssim", "lpips", "psnr_aligned", "ssim_aligned", "lpips_aligned", "tmp_psnr", "tmp_ssim", "sfm"}
 QUIET = EvalConfig(progress=False, num_threads=1)  # no progress bars, one torch thread
@@ -36,7 +36,7 @@ def _one_torch_thread():
 
 def _darker(img: np.ndarray, factor: float) -> np.ndarray:
     """The same image ``factor`` times as bright in linear light."""
-    return linear_to_srgb(srgb_to_linear(torch.from_numpy(img).double()) * factor).numpy()
+    return linear_to_srgb(srgb_to_linear(img.astype(np.float64)) * factor)
 
 
 @pytest.fixture(scope="module")
