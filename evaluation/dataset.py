@@ -19,7 +19,7 @@ from pathlib import Path
 
 import numpy as np
 
-from evaluation.sfm import PinholeIntrinsics
+from spotlessgs.io.cameras import Intrinsics
 
 #: Default test split: every TEST_EVERY-th frame (METHOD §7).
 TEST_EVERY = 11
@@ -41,7 +41,7 @@ class DatasetViews:
     """What the evaluation needs from a dataset folder."""
 
     root: Path  # the dataset folder
-    intrinsics: PinholeIntrinsics  # shared pinhole intrinsics
+    intrinsics: Intrinsics  # shared pinhole intrinsics
     frames: tuple[DatasetFrame, ...]  # all views in time order
     test_indices: tuple[int, ...]  # indices into ``frames`` of the test views
 
@@ -71,7 +71,7 @@ def _read_transforms(root: Path) -> DatasetViews:
     except json.JSONDecodeError as exc:
         raise ValueError(f"{path}: not valid JSON ({exc})") from exc
     try:
-        intr = PinholeIntrinsics(
+        intr = Intrinsics(
             float(meta["fl_x"]), float(meta["fl_y"]), float(meta["cx"]), float(meta["cy"]), int(meta["w"]), int(meta["h"])
         )
     except KeyError as exc:

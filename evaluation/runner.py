@@ -25,9 +25,9 @@ from evaluation.lpips import lpips
 from evaluation.metrics import psnr, ssim
 from evaluation.plots import save_image_grid, save_trajectory_plot
 from evaluation.report import write_markdown, write_results_json
-from evaluation.sfm import PinholeIntrinsics, SfmConfig, SfmResult, run_sfm
+from evaluation.sfm import SfmConfig, SfmResult, run_sfm
 from evaluation.temporal import PosedFrame, temporal_scores, warped_temporal_scores
-from evaluation.trajectory import opengl_to_opencv_c2w
+from spotlessgs.io.cameras import Intrinsics, opengl_to_opencv_c2w
 from spotlessgs.io.provenance import provenance
 
 
@@ -145,7 +145,7 @@ def temporal_block(
         plain = temporal_scores(frames)
         out = {"tmp_psnr": plain.mean_psnr, "tmp_ssim": plain.mean_ssim}
         if posed is not None and all(f.depth_path is not None for f in posed.frames):
-            K = torch.from_numpy(posed.intrinsics.matrix())
+            K = torch.from_numpy(posed.intrinsics.K())
 
             def gen():
                 for p, f in zip(paths, posed.frames):
@@ -163,7 +163,7 @@ def temporal_block(
 
 def _sfm_block(
     image_dir: Path, names: Sequence[str], work: Path, config: EvalConfig, label: str,
-    intrinsics: PinholeIntrinsics | None = None, true_c2w: dict[str, np.ndarray] | None = None,
+    intrinsics: Intrinsics | None = None, true_c2w: dict[str, np.ndarray] | None = None,
 ) -> tuple[dict, SfmResult]:
     """Run SfM on one sequence with a progress bar over its steps; returns (JSON summary, result)."""
     with _bar(None, config, f"SfM {label}", total=3) as bar:  # three steps: features, matching, mapping

@@ -11,7 +11,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from evaluation.sfm import PinholeIntrinsics
+from spotlessgs.io.cameras import Intrinsics, opencv_to_opengl_c2w
 from spotlessgs.io.colorspace import linear_to_srgb
 from spotlessgs.io.seeding import numpy_rng
 
@@ -27,7 +27,7 @@ class SyntheticSequence:
     spot: np.ndarray  # (N, H, W, 3) float32 sRGB in [0, 1], lit only by a camera-mounted spotlight
     depth: np.ndarray  # (N, H, W) float32 planar depth in metres (the room is closed: always finite)
     c2w_opengl: np.ndarray  # (N, 4, 4) camera-to-world, OpenGL axes (x right, y up, looking along −z)
-    intrinsics: PinholeIntrinsics  # shared pinhole intrinsics
+    intrinsics: Intrinsics  # shared pinhole intrinsics
 
 
 def _face_textures(seed: int, size: int = 1024) -> np.ndarray:
@@ -91,7 +91,7 @@ def render_room_sequence(
         raise ValueError("need at least 2 frames of at least 16x16 pixels")
     textures = _face_textures(seed)
     f = 0.9 * width
-    intr = PinholeIntrinsics(f, f, width / 2.0, height / 2.0, width, height)
+    intr = Intrinsics(f, f, width / 2.0, height / 2.0, width, height)
     lo, hi = np.array([-ROOM_X, -ROOM_Y, 0.0]), np.array([ROOM_X, ROOM_Y, ROOM_Z])
     jj, ii = np.meshgrid(np.arange(height) + 0.5, np.arange(width) + 0.5, indexing="ij")
     rays_cam = np.stack([(ii - intr.cx) / f, (jj - intr.cy) / f, np.ones_like(ii)], -1).reshape(-1, 3)
@@ -134,7 +134,7 @@ def render_room_sequence(
         even.append(linear_to_srgb(even_lin).reshape(height, width, 3))
         spot.append(linear_to_srgb(spot_lin).reshape(height, width, 3))
         depth.append(t.reshape(height, width))
-        poses.append(c2w @ np.diag([1.0, -1.0, -1.0, 1.0]))  # OpenCV → OpenGL camera axes
+        poses.append(opencv_to_opengl_c2w(c2w))
     return SyntheticSequence(
         even=np.stack(even).astype(np.float32),
         spot=np.stack(spot).astype(np.float32),
