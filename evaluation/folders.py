@@ -7,7 +7,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Sequence
 
-from evaluation.images import IMAGE_SUFFIXES, is_image_name
+from spotlessgs.io.images import IMAGE_SUFFIXES, is_image_name
 
 
 @dataclass(frozen=True)

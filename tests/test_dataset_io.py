@@ -250,6 +250,45 @@ def test_read_grey_alpha_and_jpeg(tmp_path):
     assert np.abs(read_image(tmp_path / "j.jpg") - smooth[:, :, None] / 255.0).max() < 0.03
 
 
+@pytest.mark.parametrize("channels", [4, 2])
+def test_alpha_over_black_on_16bit_png(tmp_path, channels):
+    data = np.random.default_rng(10 + channels).integers(0, 65536, (4, 5, channels)).astype(np.uint16)
+    _png16(tmp_path / "x.png", data, filters=[0, 4])
+    img = read_image(tmp_path / "x.png", alpha="over_black")
+    colour = data[:, :, :3] if channels == 4 else np.repeat(data[:, :, :1], 3, axis=2)
+    expected = (colour.astype(np.float64) / 65535.0) * (data[:, :, -1:].astype(np.float64) / 65535.0)
+    np.testing.assert_allclose(img, expected, atol=1e-7)
+
+
+def test_alpha_over_black_on_8bit_rgba_grey_alpha_and_palette(tmp_path):
+    rgba = np.zeros((2, 2, 4), np.uint8)
+    rgba[..., :3] = 200
+    rgba[..., 3] = [[255, 0], [51, 255]]  # alpha 1, 0, 0.2, 1
+    Image.fromarray(rgba, "RGBA").save(tmp_path / "a.png")
+    by_hand = np.array([[200 / 255, 0.0], [200 / 255 * 0.2, 200 / 255]])
+    np.testing.assert_allclose(read_image(tmp_path / "a.png", alpha="over_black")[..., 0], by_hand, atol=1e-6)
+    np.testing.assert_allclose(read_image(tmp_path / "a.png")[..., 0], 200 / 255, atol=1e-7)  # default: dropped
+    Image.fromarray(rgba[..., [0, 3]], "LA").save(tmp_path / "la.png")
+    got = read_image(tmp_path / "la.png", alpha="over_black")
+    np.testing.assert_allclose(got, np.repeat(by_hand[..., None], 3, axis=2), atol=1e-6)
+    pal = Image.fromarray(np.full((2, 2, 3), [10, 20, 30], np.uint8)).convert("P", palette=Image.ADAPTIVE)
+    pal.save(tmp_path / "p.png")
+    np.testing.assert_allclose(read_image(tmp_path / "p.png", alpha="over_black")[1, 1], np.array([10, 20, 30]) / 255)
+    with pytest.raises(ValueError, match=r"alpha must be one of \('drop', 'over_black'\), got 'white'"):
+        read_image(tmp_path / "a.png", alpha="white")
+
+
+def test_32bit_integer_image_outside_16bit_range_is_refused(tmp_path):
+    Image.fromarray(np.array([[0, 70000]], np.int32), "I").save(tmp_path / "i.tiff")
+    with pytest.raises(ValueError, match=r"i.tiff: 32-bit integer image with values outside \[0, 65535\]"):
+        read_image(tmp_path / "i.tiff")
+    Image.fromarray(np.array([[0, 65535]], np.int32), "I").save(tmp_path / "ok.tiff")
+    np.testing.assert_array_equal(read_image(tmp_path / "ok.tiff")[0, :, 0], [0.0, 1.0])
+    Image.fromarray(np.zeros((2, 2), np.float32), "F").save(tmp_path / "f.tiff")
+    with pytest.raises(ValueError, match="f.tiff: unsupported image mode 'F'"):
+        read_image(tmp_path / "f.tiff")
+
+
 def test_image_errors(tmp_path):
     with pytest.raises(FileNotFoundError, match="missing.png: image file not found"):
         read_image(tmp_path / "missing.png")

@@ -12,13 +12,13 @@ from click.testing import CliRunner
 from PIL import Image
 
 from evaluation.cli import eval_command
-from evaluation.images import load_image
 from evaluation.metrics import psnr, ssim
 from evaluation.runner import EvalConfig, evaluate_folders, evaluate_run
 from evaluation.sfm import SfmConfig
 from evaluation.synthetic import save_png, render_room_sequence, write_dataset_folder
 from spotlessgs.io.atomic import write_json
 from spotlessgs.io.colorspace import linear_to_srgb, srgb_to_linear
+from spotlessgs.io.images import read_image
 
 TOP_KEYS = {"psnr", "ssim", "lpips", "psnr_aligned", "ssim_aligned", "lpips_aligned", "tmp_psnr", "tmp_ssim", "sfm"}
 QUIET = EvalConfig(progress=False, num_threads=1)  # no progress bars, one torch thread
@@ -69,8 +69,8 @@ def test_run_results_keys_and_values(run_results, run_dir):
     inp = r["input"]
     assert inp["psnr_aligned"] < r["psnr_aligned"] - 10 and inp["lpips"] > r["lpips"]
     # the per-image numbers are the library functions' numbers on the files
-    pred = torch.from_numpy(load_image(run_dir / "relit" / "frame_00004.png")).permute(2, 0, 1)
-    gt = torch.from_numpy(load_image(run_dir.parent / "data" / "gt" / "frame_00004.png")).permute(2, 0, 1)
+    pred = torch.from_numpy(read_image(run_dir / "relit" / "frame_00004.png")).permute(2, 0, 1)
+    gt = torch.from_numpy(read_image(run_dir.parent / "data" / "gt" / "frame_00004.png")).permute(2, 0, 1)
     row = r["per_image"][1]
     assert row["name"] == "frame_00004.png"
     assert row["psnr"] == pytest.approx(float(psnr(pred, gt)[0]), abs=1e-5)
