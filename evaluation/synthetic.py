@@ -13,7 +13,10 @@ import numpy as np
 
 from spotlessgs.io.cameras import Intrinsics, opencv_to_opengl_c2w
 from spotlessgs.io.colorspace import linear_to_srgb
+from spotlessgs.io.exr import DEPTH_CHANNEL, write_exr
+from spotlessgs.io.images import write_png
 from spotlessgs.io.seeding import numpy_rng
+from spotlessgs.io.transforms import DatasetMeta, FrameRecord, write_transforms
 
 #: Room extent in metres: x in [-ROOM_X, ROOM_X], y in [-ROOM_Y, ROOM_Y], z in [0, ROOM_Z] (z up).
 ROOM_X, ROOM_Y, ROOM_Z = 2.5, 2.0, 2.6
@@ -144,48 +147,27 @@ def render_room_sequence(
     )
 
 
-def save_png(path, img: np.ndarray) -> None:
-    """Write (H, W, 3) floats in [0, 1] as an 8-bit RGB PNG, atomically."""
-    from PIL import Image
-
-    from spotlessgs.io.atomic import atomic_path
-
-    with atomic_path(path) as tmp:
-        Image.fromarray(np.round(np.clip(img, 0, 1) * 255.0).astype(np.uint8)).save(tmp, format="PNG")
-
-
 def write_dataset_folder(seq: SyntheticSequence, root, with_depth: bool = True, test_every: int = 11) -> list[str]:
-    """Write ``seq`` as a minimal dataset folder (transforms.json, images/ = spotlight, gt/ = even, depth/*.exr).
+    """Write ``seq`` as a dataset folder with the shared writers: ``transforms.json`` (our contract, split every
+    ``test_every``-th frame, no light truth), images/ = spotlight, gt/ = even, depth/*.exr (channel ``depth.Z``).
 
-    Only the fields the evaluation reads are written (see :mod:`evaluation.dataset`). Returns the image names.
+    Returns the image names.
     """
     from pathlib import Path
-
-    import OpenEXR
-
-    from spotlessgs.io.atomic import atomic_path, write_json
 
     root = Path(root)
     frames, names = [], []
     for k in range(len(seq.even)):
         name = f"frame_{k:05d}.png"
         names.append(name)
-        save_png(root / "images" / name, seq.spot[k])
-        save_png(root / "gt" / name, seq.even[k])
-        frame = {"file_path": f"images/{name}", "gt_file_path": f"gt/{name}",
-                 "transform_matrix": seq.c2w_opengl[k].tolist()}
+        write_png(root / "images" / name, seq.spot[k])
+        write_png(root / "gt" / name, seq.even[k])
+        exr = None
         if with_depth:
-            exr = root / "depth" / f"frame_{k:05d}.exr"
-            exr.parent.mkdir(parents=True, exist_ok=True)
-            header = {"compression": OpenEXR.ZIP_COMPRESSION, "type": OpenEXR.scanlineimage}
-            with atomic_path(exr) as tmp:
-                OpenEXR.File(header, {"depth.Z": seq.depth[k].astype(np.float32)}).write(str(tmp))
-            frame["exr_file_path"] = f"depth/frame_{k:05d}.exr"
-        frames.append(frame)
-    intr = seq.intrinsics
-    write_json(root / "transforms.json", {
-        "fl_x": intr.fx, "fl_y": intr.fy, "cx": intr.cx, "cy": intr.cy, "w": intr.width, "h": intr.height,
-        "camera_model": "PINHOLE", "frames": frames,
-        "spotless": {"split": {"test": [i for i in range(len(frames)) if i % test_every == 0]}},
-    })
+            exr = f"depth/frame_{k:05d}.exr"
+            write_exr(root / exr, {DEPTH_CHANNEL: seq.depth[k]})
+        frames.append(FrameRecord(f"images/{name}", seq.c2w_opengl[k], gt_file_path=f"gt/{name}", exr_file_path=exr))
+    meta = DatasetMeta(scene_id="synthetic-box-room", renderer={"engine": "evaluation.synthetic ray casting"},
+                       test_every=test_every)
+    write_transforms(root / "transforms.json", seq.intrinsics, frames, meta)
     return names

@@ -7,8 +7,9 @@ import pytest
 from PIL import Image
 
 from evaluation.sfm import SfmConfig, run_sfm
-from evaluation.synthetic import save_png, render_room_sequence
+from evaluation.synthetic import render_room_sequence
 from spotlessgs.io.cameras import Intrinsics, opengl_to_opencv_c2w
+from spotlessgs.io.images import write_png
 
 
 @pytest.fixture(scope="module")
@@ -18,7 +19,7 @@ def room_images(tmp_path_factory):
     names = []
     for k, img in enumerate(seq.even):
         names.append(f"frame_{k:05d}.png")
-        save_png(root / "even" / names[-1], img)
+        write_png(root / "even" / names[-1], img)
     true = {n: opengl_to_opencv_c2w(c) for n, c in zip(names, seq.c2w_opengl)}
     return root, names, seq.intrinsics, true
 
