@@ -5,18 +5,19 @@ from __future__ import annotations
 import os
 from pathlib import Path
 
-IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg")
+from spotlessgs.io.images import IMAGE_SUFFIXES, is_image_name
 
 
 def list_images(folder: str | os.PathLike) -> list[Path]:
-    """Image files (PNG/JPEG, case-insensitive suffix) directly inside ``folder``, sorted by name.
+    """Image files (:data:`spotlessgs.io.images.IMAGE_SUFFIXES`, case-insensitive) directly inside ``folder``, sorted
+    by name; other files are skipped.
 
     Raises FileNotFoundError when the folder is missing and ValueError when it holds no image.
     """
     folder = Path(folder)
     if not folder.is_dir():
         raise FileNotFoundError(f"{folder}: image folder not found")
-    files = sorted(p for p in folder.iterdir() if p.is_file() and p.suffix.lower() in IMAGE_SUFFIXES)
+    files = sorted(p for p in folder.iterdir() if p.is_file() and is_image_name(p.name))
     if not files:
         raise ValueError(f"{folder}: no image files ({', '.join(IMAGE_SUFFIXES)}) in this folder")
     return files
