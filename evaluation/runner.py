@@ -19,7 +19,7 @@ import torch
 
 from evaluation.alignment import GainAccumulator, apply_gain
 from evaluation.dataset import DatasetFrame, DatasetViews, read_dataset, read_depth_exr, read_run_data_dir
-from evaluation.folders import ImagePair, list_images, match_folders
+from evaluation.folders import ImagePair, image_names, match_folders
 from evaluation.lpips import lpips
 from evaluation.metrics import psnr, ssim
 from evaluation.plots import save_image_grid, save_trajectory_plot
@@ -308,7 +308,7 @@ def evaluate_run(
     data = read_dataset(read_run_data_dir(run))
     relit_dir = run / "relit"
     out = Path(out_dir) if out_dir is not None else run / "eval"
-    relit_names = set(list_images(relit_dir))
+    relit_names = set(image_names(relit_dir))
     missing = [f.name for f in data.frames if f.name not in relit_names]
     if missing:
         raise FileNotFoundError(f"{relit_dir}: missing relit images for {len(missing)} view(s), e.g. {missing[:3]}")

@@ -38,7 +38,7 @@ from spotlessgs.io.colmap_text import (
 from spotlessgs.io.colorspace import linear_to_srgb, srgb_to_linear, to_uint8
 from spotlessgs.io.dataset import load_initial_points, read_colmap_dataset, read_dataset
 from spotlessgs.io.exr import FrameEXR, blender_depth_to_planar, read_exr, read_frame_exr, write_exr, write_frame_exr
-from spotlessgs.io.images import read_image, write_png
+from spotlessgs.io.images import IMAGE_SUFFIXES, is_image_name, list_image_files, read_image, write_png
 from spotlessgs.io.ply import read_point_cloud, write_point_cloud
 from spotlessgs.io.transforms import (
     DatasetError,
@@ -287,6 +287,27 @@ def test_32bit_integer_image_outside_16bit_range_is_refused(tmp_path):
     Image.fromarray(np.zeros((2, 2), np.float32), "F").save(tmp_path / "f.tiff")
     with pytest.raises(ValueError, match="f.tiff: unsupported image mode 'F'"):
         read_image(tmp_path / "f.tiff")
+
+
+def test_list_image_files_skips_or_refuses_other_files(tmp_path):
+    folder = tmp_path / "imgs"
+    for name in ("b.PNG", "a.jpg", "c.webp", ".hidden.png", "notes.txt"):
+        (folder / name).parent.mkdir(exist_ok=True)
+        (folder / name).write_bytes(b"")  # only names matter when listing
+    (folder / "sub.png").mkdir()
+    assert [p.name for p in list_image_files(folder)] == ["a.jpg", "b.PNG", "c.webp"]
+    assert list_image_files(folder)[0] == folder / "a.jpg"
+    assert is_image_name("X.JPEG") and not is_image_name("x.exr") and ".tiff" in IMAGE_SUFFIXES
+    with pytest.raises(ValueError, match=r"imgs: non-image files found: notes.txt; expected only .png, .jpg"):
+        list_image_files(folder, non_images="error")
+    with pytest.raises(FileNotFoundError, match="nope: image folder not found"):
+        list_image_files(tmp_path / "nope")
+    (tmp_path / "empty").mkdir()
+    (tmp_path / "empty" / "readme.md").write_text("x")
+    with pytest.raises(ValueError, match=r"empty: no image files \(.png, .jpg, .jpeg, .tif"):
+        list_image_files(tmp_path / "empty")
+    with pytest.raises(ValueError, match="non_images must be 'skip' or 'error', got 'keep'"):
+        list_image_files(folder, non_images="keep")
 
 
 def test_image_errors(tmp_path):

@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 from PIL import Image
 
-from evaluation.folders import ImagePair, list_images, match_folders
+from evaluation.folders import ImagePair, image_names, match_folders
 from spotlessgs.io.images import is_image_name, read_image
 
 
@@ -120,9 +120,9 @@ def test_folder_errors(tmp_path):
         match_folders(p, g, names=["a.png", "a.png"])
     (g / "notes.txt").write_text("x")
     with pytest.raises(ValueError, match="non-image files found: notes.txt"):
-        list_images(g)
-    with pytest.raises(FileNotFoundError, match="not a directory"):
-        list_images(tmp_path / "nope")
+        image_names(g)
+    with pytest.raises(FileNotFoundError, match="nope: image folder not found"):
+        image_names(tmp_path / "nope")
     (tmp_path / "empty").mkdir()
     with pytest.raises(ValueError, match="empty: no image files"):
-        list_images(tmp_path / "empty")
+        image_names(tmp_path / "empty")

@@ -38,6 +38,37 @@ def is_image_name(name: str | os.PathLike) -> bool:
     return Path(name).suffix.lower() in IMAGE_SUFFIXES
 
 
+def list_image_files(folder: str | os.PathLike, non_images: str = "skip") -> list[Path]:
+    """The image files (:data:`IMAGE_SUFFIXES`) directly inside ``folder``, sorted by name.
+
+    Hidden files (names starting with ".") and sub-folders are always passed over.
+
+    Args:
+        folder: the folder to list (not recursive).
+        non_images: ``"skip"`` passes over other files; ``"error"`` refuses a folder that holds any (they are named).
+
+    Raises:
+        FileNotFoundError: ``folder`` does not exist or is not a folder.
+        ValueError: no image file in the folder, or (``non_images="error"``) other files in it.
+    """
+    if non_images not in ("skip", "error"):
+        raise ValueError(f"list_image_files: non_images must be 'skip' or 'error', got {non_images!r}")
+    folder = Path(folder)
+    if not folder.is_dir():
+        raise FileNotFoundError(f"{folder}: image folder not found")
+    images, others = [], []
+    for entry in sorted(folder.iterdir()):
+        if entry.name.startswith(".") or entry.is_dir():
+            continue
+        (images if is_image_name(entry.name) else others).append(entry)
+    if others and non_images == "error":
+        shown = ", ".join(p.name for p in others[:5]) + (f" (and {len(others) - 5} more)" if len(others) > 5 else "")
+        raise ValueError(f"{folder}: non-image files found: {shown}; expected only {', '.join(IMAGE_SUFFIXES)}")
+    if not images:
+        raise ValueError(f"{folder}: no image files ({', '.join(IMAGE_SUFFIXES)}) in this folder")
+    return images
+
+
 def read_image(path: str | os.PathLike, alpha: str = "drop") -> np.ndarray:
     """Read an image file as float32 (H, W, 3) sRGB values in [0, 1].
 

@@ -14,9 +14,8 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from spotlessgs.baselines2d.folders import list_images
 from spotlessgs.io.colorspace import to_uint8
-from spotlessgs.io.images import read_image
+from spotlessgs.io.images import list_image_files, read_image
 
 
 @dataclass(frozen=True)
@@ -37,7 +36,7 @@ def load_domain(name: str, folders: list[str | os.PathLike], min_height: int, mi
         raise ValueError(f"no {name} image folders were given")
     files: list[Path] = []
     for folder in folders:
-        files.extend(list_images(folder))
+        files.extend(list_image_files(folder))
     images = []
     for path in files:
         img = read_image(path)
