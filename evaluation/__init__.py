@@ -7,7 +7,8 @@ Independent of the trainer: it scores folders of images, so it can score any met
 - :mod:`evaluation.alignment` — sequence-wide least-squares exposure gain in linear light
 - :mod:`evaluation.temporal` — consecutive-frame PSNR/SSIM, plain and depth-warped
 - :mod:`evaluation.sfm`, :mod:`evaluation.trajectory` — pycolmap SfM, Sim3 alignment, ATE and RRE
-- :mod:`evaluation.images`, :mod:`evaluation.folders`, :mod:`evaluation.dataset` — reading inputs
+- :mod:`evaluation.folders`, :mod:`evaluation.dataset` — reading inputs, through the shared :mod:`spotlessgs.io`
+  (images: ``read_image(path, alpha="over_black")``; datasets: ``spotlessgs.io.dataset.read_dataset``)
 - :mod:`evaluation.report`, :mod:`evaluation.plots` — JSON, Markdown and PNG outputs
 - :mod:`evaluation.runner` — ``evaluate_folders`` and ``evaluate_run`` (what ``spotless eval`` calls)
 - :mod:`evaluation.synthetic` — a ray-cast posed sequence for self-tests; :mod:`evaluation.benchmark` — throughput

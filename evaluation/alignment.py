@@ -9,18 +9,9 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 
-import torch
 from torch import Tensor
 
-
-def srgb_to_linear(x: Tensor) -> Tensor:
-    """Inverse sRGB transfer (IEC 61966-2-1), elementwise; any shape, values in [0, 1]."""
-    return torch.where(x <= 0.04045, x / 12.92, ((x.clamp(min=0.04045) + 0.055) / 1.055) ** 2.4)
-
-
-def linear_to_srgb(x: Tensor) -> Tensor:
-    """sRGB transfer (IEC 61966-2-1), elementwise; any shape, values in [0, 1]."""
-    return torch.where(x <= 0.0031308, x * 12.92, 1.055 * x.clamp(min=0.0031308) ** (1 / 2.4) - 0.055)
+from spotlessgs.io.colorspace import linear_to_srgb, srgb_to_linear
 
 
 @dataclass

@@ -1,13 +1,11 @@
-"""The few dataset-folder and run-folder fields the evaluation needs, read in one place.
+"""The dataset fields the evaluation needs, taken from the shared reader, and the run-folder fields.
 
-A dataset folder holds ``transforms.json`` (nerfstudio style, extended by the simulator): intrinsics ``fl_x fl_y cx cy
-w h``; ``frames[i]`` with ``file_path`` (uneven input), optional ``gt_file_path`` (ground truth), ``transform_matrix``
-(4×4 camera-to-world, OpenGL axes) and optional ``exr_file_path`` (channel ``depth.Z``: planar depth, metres, inf for
-background); and ``spotless.split.test`` (test frame indices; default every 11th frame, i % 11 == 0).
+A dataset folder is read by :func:`spotlessgs.io.dataset.read_dataset`, the project's only reader of dataset folders:
+our ``transforms.json`` (see ``docs/dataset.md``), a plain nerfstudio ``transforms.json`` or a COLMAP folder. The
+evaluation uses its intrinsics, per-frame input / ground-truth / EXR paths, camera-to-world poses (OpenGL axes) and the
+test split (``split.test``; every 11th frame when the file has no split). Relit images are matched to views by the input
+image's file name, so those names must be unique.
 A run folder holds ``run.json`` (key ``data_dir``) and ``relit/`` with one relit PNG per view, named like the inputs.
-
-:func:`_read_transforms` is the only code that parses ``transforms.json``; it can be swapped for the shared reader
-(``spotlessgs.io.transforms``) without touching the rest of the package.
 """
 
 from __future__ import annotations
@@ -19,10 +17,10 @@ from pathlib import Path
 
 import numpy as np
 
-from evaluation.sfm import PinholeIntrinsics
-
-#: Default test split: every TEST_EVERY-th frame (METHOD §7).
-TEST_EVERY = 11
+from spotlessgs.io.cameras import Intrinsics
+from spotlessgs.io.dataset import read_dataset as read_dataset_description
+from spotlessgs.io.exr import DEPTH_CHANNEL, read_exr
+from spotlessgs.io.transforms import DatasetDescription, DatasetError
 
 
 @dataclass(frozen=True)
@@ -38,10 +36,10 @@ class DatasetFrame:
 
 @dataclass(frozen=True)
 class DatasetViews:
-    """What the evaluation needs from a dataset folder."""
+    """What the evaluation needs from a dataset folder (a view of the shared :class:`DatasetDescription`)."""
 
     root: Path  # the dataset folder
-    intrinsics: PinholeIntrinsics  # shared pinhole intrinsics
+    intrinsics: Intrinsics  # shared pinhole intrinsics
     frames: tuple[DatasetFrame, ...]  # all views in time order
     test_indices: tuple[int, ...]  # indices into ``frames`` of the test views
 
@@ -52,61 +50,37 @@ class DatasetViews:
 
 
 def read_dataset(data_dir: str | os.PathLike) -> DatasetViews:
-    """Read a dataset folder's ``transforms.json`` (see the module docstring).
+    """Read a dataset folder with the shared reader (see the module docstring) and keep what the evaluation needs.
 
     Raises:
-        FileNotFoundError: the folder or its transforms.json is missing.
-        ValueError: a required field is missing or malformed (the field and frame are named).
+        FileNotFoundError: the folder has neither ``transforms.json`` nor a COLMAP ``sparse/`` model.
+        spotlessgs.io.transforms.DatasetError: malformed content (a ValueError naming the file, frame and field).
+        ValueError: two views share an input image file name.
     """
-    return _read_transforms(Path(data_dir))
+    return dataset_views(read_dataset_description(data_dir))
 
 
-def _read_transforms(root: Path) -> DatasetViews:
-    """Parse ``root/transforms.json`` into :class:`DatasetViews` (the single place that knows its layout)."""
-    path = root / "transforms.json"
-    if not path.is_file():
-        raise FileNotFoundError(f"{path}: dataset transforms.json not found")
-    try:
-        meta = json.loads(path.read_text(encoding="utf-8"))
-    except json.JSONDecodeError as exc:
-        raise ValueError(f"{path}: not valid JSON ({exc})") from exc
-    try:
-        intr = PinholeIntrinsics(
-            float(meta["fl_x"]), float(meta["fl_y"]), float(meta["cx"]), float(meta["cy"]), int(meta["w"]), int(meta["h"])
+def dataset_views(desc: DatasetDescription) -> DatasetViews:
+    """The evaluation's view of a shared dataset description: one :class:`DatasetFrame` per frame, the test split."""
+    frames = tuple(
+        DatasetFrame(
+            name=desc.image_paths[i].name,
+            input_path=desc.image_paths[i],
+            gt_path=desc.gt_paths[i],
+            depth_path=desc.exr_paths[i],
+            c2w_opengl=desc.c2w_opengl[i],
         )
-    except KeyError as exc:
-        raise ValueError(f"{path}: missing intrinsics field {exc.args[0]!r} (need fl_x, fl_y, cx, cy, w, h)") from exc
-    raw_frames = meta.get("frames")
-    if not isinstance(raw_frames, list) or not raw_frames:
-        raise ValueError(f"{path}: 'frames' must be a non-empty list")
-    frames = []
-    for i, fr in enumerate(raw_frames):
-        if "file_path" not in fr or "transform_matrix" not in fr:
-            raise ValueError(f"{path}: frames[{i}] needs 'file_path' and 'transform_matrix'")
-        c2w = np.asarray(fr["transform_matrix"], dtype=np.float64)
-        if c2w.shape != (4, 4) or not np.isfinite(c2w).all():
-            raise ValueError(f"{path}: frames[{i}].transform_matrix must be a finite 4x4 matrix")
-        gt = fr.get("gt_file_path")
-        exr = fr.get("exr_file_path")
-        frames.append(DatasetFrame(
-            name=Path(fr["file_path"]).name,
-            input_path=root / fr["file_path"],
-            gt_path=None if gt is None else root / gt,
-            depth_path=None if exr is None else root / exr,
-            c2w_opengl=c2w,
-        ))
-    names = [f.name for f in frames]
-    if len(set(names)) != len(names):
-        raise ValueError(f"{path}: input image file names are not unique")
-    split = (meta.get("spotless") or {}).get("split") or {}
-    test = split.get("test")
-    if test is None:
-        test = [i for i in range(len(frames)) if i % TEST_EVERY == 0]
-    test = [int(i) for i in test]
-    bad = [i for i in test if not 0 <= i < len(frames)]
-    if bad:
-        raise ValueError(f"{path}: spotless.split.test has indices outside 0..{len(frames) - 1}: {bad[:5]}")
-    return DatasetViews(root, intr, tuple(frames), tuple(test))
+        for i in range(desc.n_frames)
+    )
+    seen: dict[str, int] = {}
+    for i, frame in enumerate(frames):
+        if frame.name in seen:
+            raise DatasetError(
+                f"{desc.source}: input image file names are not unique: frames[{seen[frame.name]}] and frames[{i}] "
+                f"are both {frame.name!r} (relit images are matched to views by this name)"
+            )
+        seen[frame.name] = i
+    return DatasetViews(desc.root, desc.intrinsics, frames, tuple(desc.split.test))
 
 
 def read_run_data_dir(run_dir: str | os.PathLike) -> Path:
@@ -136,31 +110,19 @@ def read_run_data_dir(run_dir: str | os.PathLike) -> Path:
 
 
 def read_depth_exr(path: str | os.PathLike) -> np.ndarray:
-    """Planar depth from an EXR file: the channel ``depth.Z`` (any part), else one ending in ``depth.z``, else ``Z``.
+    """Planar depth from an EXR file read with :func:`spotlessgs.io.exr.read_exr`: the dataset's channel ``depth.Z``,
+    else a channel ending in ``depth.z`` (any case, e.g. Blender's ``ViewLayer.Depth.Z``), else ``Z``.
 
     Returns:
         (H, W) float32 depth in metres (inf where there is no surface).
 
     Raises:
         FileNotFoundError: the file is missing.
-        ValueError: no depth channel (the channels present are listed).
+        ValueError: not an EXR file, or no depth channel (the channels present are listed).
     """
-    import OpenEXR
-
-    path = Path(path)
-    if not path.is_file():
-        raise FileNotFoundError(f"{path}: depth EXR not found")
-    found: dict[str, np.ndarray] = {}
-    with OpenEXR.File(str(path)) as fh:
-        for part in fh.parts:
-            for name, ch in part.channels.items():
-                if name.lower().endswith("depth.z") or name == "Z":
-                    found[name] = np.array(ch.pixels, dtype=np.float32, copy=True)
-            all_names = [n for p in fh.parts for n in p.channels]
-    for key in ("depth.Z", *sorted(k for k in found if k != "Z"), "Z"):
-        if key in found:
-            depth = found[key]
-            if depth.ndim != 2:
-                raise ValueError(f"{path}: depth channel {key!r} has shape {depth.shape}, expected (H, W)")
-            return depth
-    raise ValueError(f"{path}: no depth channel ('depth.Z' or 'Z'); channels are {all_names}")
+    channels = read_exr(path)
+    candidates = (DEPTH_CHANNEL, *sorted(k for k in channels if k.lower().endswith("depth.z")), "Z")
+    for key in candidates:
+        if key in channels:
+            return channels[key]
+    raise ValueError(f"{path}: no depth channel ('depth.Z' or 'Z'); channels are {sorted(channels)}")

@@ -7,7 +7,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Sequence
 
-from evaluation.images import IMAGE_SUFFIXES, is_image_name
+from spotlessgs.io.images import list_image_files
 
 
 @dataclass(frozen=True)
@@ -19,27 +19,11 @@ class ImagePair:
     gt: Path  # path of the reference (ground-truth) image
 
 
-def list_images(folder: str | os.PathLike) -> list[str]:
-    """Sorted image file names in ``folder`` (not recursive; hidden files and sub-folders are skipped).
-
-    Raises:
-        FileNotFoundError: ``folder`` does not exist or is not a directory.
-        ValueError: the folder holds non-image files (their names are listed) or no image at all.
-    """
-    folder = Path(folder)
-    if not folder.is_dir():
-        raise FileNotFoundError(f"{folder}: not a directory")
-    names, others = [], []
-    for entry in sorted(folder.iterdir()):
-        if entry.name.startswith(".") or entry.is_dir():
-            continue
-        (names if is_image_name(entry.name) else others).append(entry.name)
-    if others:
-        shown = ", ".join(others[:5]) + (f" (and {len(others) - 5} more)" if len(others) > 5 else "")
-        raise ValueError(f"{folder}: non-image files found: {shown}; expected only {', '.join(IMAGE_SUFFIXES)}")
-    if not names:
-        raise ValueError(f"{folder}: no image files")
-    return names
+def image_names(folder: str | os.PathLike) -> list[str]:
+    """Sorted image file names in ``folder``; a folder holding other files is refused (see
+    :func:`spotlessgs.io.images.list_image_files` with ``non_images="error"``, which raises FileNotFoundError /
+    ValueError naming the folder and the files)."""
+    return [p.name for p in list_image_files(folder, non_images="error")]
 
 
 def match_folders(
@@ -60,7 +44,7 @@ def match_folders(
         ValueError: the folders hold different image counts or names (missing and extra names are listed), or a
             requested name is absent from a folder.
     """
-    pred_names, gt_names = list_images(pred_dir), list_images(gt_dir)
+    pred_names, gt_names = image_names(pred_dir), image_names(gt_dir)
     pred_set, gt_set = set(pred_names), set(gt_names)
     if names is None:
         if pred_set != gt_set:

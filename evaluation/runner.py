@@ -19,15 +19,15 @@ import torch
 
 from evaluation.alignment import GainAccumulator, apply_gain
 from evaluation.dataset import DatasetFrame, DatasetViews, read_dataset, read_depth_exr, read_run_data_dir
-from evaluation.folders import ImagePair, list_images, match_folders
-from evaluation.images import load_image
+from evaluation.folders import ImagePair, image_names, match_folders
 from evaluation.lpips import lpips
 from evaluation.metrics import psnr, ssim
 from evaluation.plots import save_image_grid, save_trajectory_plot
 from evaluation.report import write_markdown, write_results_json
-from evaluation.sfm import PinholeIntrinsics, SfmConfig, SfmResult, run_sfm
+from evaluation.sfm import SfmConfig, SfmResult, run_sfm
 from evaluation.temporal import PosedFrame, temporal_scores, warped_temporal_scores
-from evaluation.trajectory import opengl_to_opencv_c2w
+from spotlessgs.io.cameras import Intrinsics, opengl_to_opencv_c2w
+from spotlessgs.io.images import read_image
 from spotlessgs.io.provenance import provenance
 
 
@@ -49,6 +49,11 @@ class EvalConfig:
             raise ValueError(f"grid_frames must be at least 1, got {self.grid_frames}")
         if self.num_threads is not None and self.num_threads < 1:
             raise ValueError(f"num_threads must be at least 1, got {self.num_threads}")
+
+
+def _load(path: str | os.PathLike) -> np.ndarray:
+    """An image for scoring: (H, W, 3) float32 sRGB in [0, 1], alpha composited over black (every method alike)."""
+    return read_image(path, alpha="over_black")
 
 
 def _bar(iterable, config: EvalConfig, desc: str, total: int | None = None):
@@ -79,7 +84,7 @@ def _chw(img: np.ndarray) -> torch.Tensor:
 
 def _load_pair(pair: ImagePair) -> tuple[torch.Tensor, torch.Tensor]:
     """Load both images of a pair as (3, H, W); ValueError naming both files when their sizes differ."""
-    pred, gt = load_image(pair.pred), load_image(pair.gt)
+    pred, gt = _load(pair.pred), _load(pair.gt)
     if pred.shape != gt.shape:
         raise ValueError(
             f"{pair.name}: size mismatch: prediction {pair.pred} is {pred.shape[1]}x{pred.shape[0]}, "
@@ -141,16 +146,16 @@ def temporal_block(
     if posed is not None and len(posed.frames) != len(paths):
         raise ValueError(f"temporal {label}: {len(paths)} images but {len(posed.frames)} posed frames")
     with _torch_threads(config.num_threads), torch.no_grad():
-        frames = (_chw(load_image(p)) for p in _bar(paths, config, f"temporal {label}", total=len(paths)))
+        frames = (_chw(_load(p)) for p in _bar(paths, config, f"temporal {label}", total=len(paths)))
         plain = temporal_scores(frames)
         out = {"tmp_psnr": plain.mean_psnr, "tmp_ssim": plain.mean_ssim}
         if posed is not None and all(f.depth_path is not None for f in posed.frames):
-            K = torch.from_numpy(posed.intrinsics.matrix())
+            K = torch.from_numpy(posed.intrinsics.K())
 
             def gen():
                 for p, f in zip(paths, posed.frames):
                     yield PosedFrame(
-                        image=_chw(load_image(p)),
+                        image=_chw(_load(p)),
                         depth=torch.from_numpy(read_depth_exr(f.depth_path)),
                         c2w=torch.from_numpy(opengl_to_opencv_c2w(f.c2w_opengl)),
                     )
@@ -163,7 +168,7 @@ def temporal_block(
 
 def _sfm_block(
     image_dir: Path, names: Sequence[str], work: Path, config: EvalConfig, label: str,
-    intrinsics: PinholeIntrinsics | None = None, true_c2w: dict[str, np.ndarray] | None = None,
+    intrinsics: Intrinsics | None = None, true_c2w: dict[str, np.ndarray] | None = None,
 ) -> tuple[dict, SfmResult]:
     """Run SfM on one sequence with a progress bar over its steps; returns (JSON summary, result)."""
     with _bar(None, config, f"SfM {label}", total=3) as bar:  # three steps: features, matching, mapping
@@ -248,7 +253,7 @@ def evaluate_folders(
     if out is not None:
         idx = _grid_indices(len(pairs), config.grid_frames)
         save_image_grid(out / "figures" / "grid.png",
-                        [[load_image(pairs[i].pred), load_image(pairs[i].gt)] for i in idx],
+                        [[_load(pairs[i].pred), _load(pairs[i].gt)] for i in idx],
                         ["prediction", "reference"], [pairs[i].name for i in idx])
         if sfm_result is not None:
             save_trajectory_plot(out / "figures" / "sfm_trajectories.png",
@@ -303,7 +308,7 @@ def evaluate_run(
     data = read_dataset(read_run_data_dir(run))
     relit_dir = run / "relit"
     out = Path(out_dir) if out_dir is not None else run / "eval"
-    relit_names = set(list_images(relit_dir))
+    relit_names = set(image_names(relit_dir))
     missing = [f.name for f in data.frames if f.name not in relit_names]
     if missing:
         raise FileNotFoundError(f"{relit_dir}: missing relit images for {len(missing)} view(s), e.g. {missing[:3]}")
@@ -342,7 +347,7 @@ def evaluate_run(
     idx = _grid_indices(len(test), config.grid_frames)
     save_image_grid(
         out / "figures" / "grid.png",
-        [[load_image(test[i].input_path), load_image(relit_dir / test[i].name), load_image(test[i].gt_path)]
+        [[_load(test[i].input_path), _load(relit_dir / test[i].name), _load(test[i].gt_path)]
          for i in idx],
         ["input", "relit", "ground truth"], [test[i].name for i in idx],
     )

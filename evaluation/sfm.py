@@ -16,22 +16,7 @@ from typing import Callable, Literal, Mapping, Sequence
 import numpy as np
 
 from evaluation.trajectory import TrajectoryErrors, trajectory_errors
-
-
-@dataclass(frozen=True)
-class PinholeIntrinsics:
-    """Pinhole camera intrinsics in pixels (pixel centres at +0.5, COLMAP/nerfstudio convention)."""
-
-    fx: float  # focal length along x, pixels
-    fy: float  # focal length along y, pixels
-    cx: float  # principal point x, pixels
-    cy: float  # principal point y, pixels
-    width: int  # image width, pixels
-    height: int  # image height, pixels
-
-    def matrix(self) -> np.ndarray:
-        """(3, 3) calibration matrix K."""
-        return np.array([[self.fx, 0.0, self.cx], [0.0, self.fy, self.cy], [0.0, 0.0, 1.0]])
+from spotlessgs.io.cameras import Intrinsics
 
 
 @dataclass(frozen=True)
@@ -110,7 +95,7 @@ def run_sfm(
     image_names: Sequence[str],
     work_dir: str | os.PathLike,
     config: SfmConfig = SfmConfig(),
-    intrinsics: PinholeIntrinsics | None = None,
+    intrinsics: Intrinsics | None = None,
     progress: Callable[[str], None] | None = None,
 ) -> SfmResult:
     """Run feature extraction, matching and incremental mapping on ``image_names`` in ``image_dir``.
@@ -156,7 +141,7 @@ def run_sfm(
 
 def _pipeline(
     pycolmap, image_dir: Path, names: list[str], work: Path, database: Path, config: SfmConfig,
-    intrinsics: PinholeIntrinsics | None, step: Callable[[str], None],
+    intrinsics: Intrinsics | None, step: Callable[[str], None],
 ) -> SfmResult:
     """The COLMAP steps of :func:`run_sfm` (arguments as there; ``step`` reports progress)."""
     reader = pycolmap.ImageReaderOptions()
@@ -200,7 +185,7 @@ def _pipeline(
     return _result_from_models(models, total=len(names))
 
 
-def _check_sizes(image_dir: Path, names: Sequence[str], intr: PinholeIntrinsics) -> None:
+def _check_sizes(image_dir: Path, names: Sequence[str], intr: Intrinsics) -> None:
     """Raise ValueError naming the first image whose size differs from the intrinsics' width × height."""
     from PIL import Image
 

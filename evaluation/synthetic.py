@@ -11,8 +11,12 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from evaluation.sfm import PinholeIntrinsics
+from spotlessgs.io.cameras import Intrinsics, opencv_to_opengl_c2w
+from spotlessgs.io.colorspace import linear_to_srgb
+from spotlessgs.io.exr import DEPTH_CHANNEL, write_exr
+from spotlessgs.io.images import write_png
 from spotlessgs.io.seeding import numpy_rng
+from spotlessgs.io.transforms import DatasetMeta, FrameRecord, write_transforms
 
 #: Room extent in metres: x in [-ROOM_X, ROOM_X], y in [-ROOM_Y, ROOM_Y], z in [0, ROOM_Z] (z up).
 ROOM_X, ROOM_Y, ROOM_Z = 2.5, 2.0, 2.6
@@ -26,7 +30,7 @@ class SyntheticSequence:
     spot: np.ndarray  # (N, H, W, 3) float32 sRGB in [0, 1], lit only by a camera-mounted spotlight
     depth: np.ndarray  # (N, H, W) float32 planar depth in metres (the room is closed: always finite)
     c2w_opengl: np.ndarray  # (N, 4, 4) camera-to-world, OpenGL axes (x right, y up, looking along −z)
-    intrinsics: PinholeIntrinsics  # shared pinhole intrinsics
+    intrinsics: Intrinsics  # shared pinhole intrinsics
 
 
 def _face_textures(seed: int, size: int = 1024) -> np.ndarray:
@@ -90,7 +94,7 @@ def render_room_sequence(
         raise ValueError("need at least 2 frames of at least 16x16 pixels")
     textures = _face_textures(seed)
     f = 0.9 * width
-    intr = PinholeIntrinsics(f, f, width / 2.0, height / 2.0, width, height)
+    intr = Intrinsics(f, f, width / 2.0, height / 2.0, width, height)
     lo, hi = np.array([-ROOM_X, -ROOM_Y, 0.0]), np.array([ROOM_X, ROOM_Y, ROOM_Z])
     jj, ii = np.meshgrid(np.arange(height) + 0.5, np.arange(width) + 0.5, indexing="ij")
     rays_cam = np.stack([(ii - intr.cx) / f, (jj - intr.cy) / f, np.ones_like(ii)], -1).reshape(-1, 3)
@@ -130,10 +134,10 @@ def render_room_sequence(
         spot_light = spot_power * cone * cos_cam / dist**2
         even_lin = np.clip(colour * 0.9, 0, 1)
         spot_lin = np.clip(colour * spot_light[:, None], 0, 1)
-        even.append(_encode_srgb(even_lin).reshape(height, width, 3))
-        spot.append(_encode_srgb(spot_lin).reshape(height, width, 3))
+        even.append(linear_to_srgb(even_lin).reshape(height, width, 3))
+        spot.append(linear_to_srgb(spot_lin).reshape(height, width, 3))
         depth.append(t.reshape(height, width))
-        poses.append(c2w @ np.diag([1.0, -1.0, -1.0, 1.0]))  # OpenCV → OpenGL camera axes
+        poses.append(opencv_to_opengl_c2w(c2w))
     return SyntheticSequence(
         even=np.stack(even).astype(np.float32),
         spot=np.stack(spot).astype(np.float32),
@@ -143,53 +147,27 @@ def render_room_sequence(
     )
 
 
-def _encode_srgb(x: np.ndarray) -> np.ndarray:
-    """sRGB transfer of linear values in [0, 1] (any shape)."""
-    return np.where(x <= 0.0031308, 12.92 * x, 1.055 * np.power(np.maximum(x, 0.0031308), 1 / 2.4) - 0.055)
-
-
-def save_png(path, img: np.ndarray) -> None:
-    """Write (H, W, 3) floats in [0, 1] as an 8-bit RGB PNG, atomically."""
-    from PIL import Image
-
-    from spotlessgs.io.atomic import atomic_path
-
-    with atomic_path(path) as tmp:
-        Image.fromarray(np.round(np.clip(img, 0, 1) * 255.0).astype(np.uint8)).save(tmp, format="PNG")
-
-
 def write_dataset_folder(seq: SyntheticSequence, root, with_depth: bool = True, test_every: int = 11) -> list[str]:
-    """Write ``seq`` as a minimal dataset folder (transforms.json, images/ = spotlight, gt/ = even, depth/*.exr).
+    """Write ``seq`` as a dataset folder with the shared writers: ``transforms.json`` (our contract, split every
+    ``test_every``-th frame, no light truth), images/ = spotlight, gt/ = even, depth/*.exr (channel ``depth.Z``).
 
-    Only the fields the evaluation reads are written (see :mod:`evaluation.dataset`). Returns the image names.
+    Returns the image names.
     """
     from pathlib import Path
-
-    import OpenEXR
-
-    from spotlessgs.io.atomic import atomic_path, write_json
 
     root = Path(root)
     frames, names = [], []
     for k in range(len(seq.even)):
         name = f"frame_{k:05d}.png"
         names.append(name)
-        save_png(root / "images" / name, seq.spot[k])
-        save_png(root / "gt" / name, seq.even[k])
-        frame = {"file_path": f"images/{name}", "gt_file_path": f"gt/{name}",
-                 "transform_matrix": seq.c2w_opengl[k].tolist()}
+        write_png(root / "images" / name, seq.spot[k])
+        write_png(root / "gt" / name, seq.even[k])
+        exr = None
         if with_depth:
-            exr = root / "depth" / f"frame_{k:05d}.exr"
-            exr.parent.mkdir(parents=True, exist_ok=True)
-            header = {"compression": OpenEXR.ZIP_COMPRESSION, "type": OpenEXR.scanlineimage}
-            with atomic_path(exr) as tmp:
-                OpenEXR.File(header, {"depth.Z": seq.depth[k].astype(np.float32)}).write(str(tmp))
-            frame["exr_file_path"] = f"depth/frame_{k:05d}.exr"
-        frames.append(frame)
-    intr = seq.intrinsics
-    write_json(root / "transforms.json", {
-        "fl_x": intr.fx, "fl_y": intr.fy, "cx": intr.cx, "cy": intr.cy, "w": intr.width, "h": intr.height,
-        "camera_model": "PINHOLE", "frames": frames,
-        "spotless": {"split": {"test": [i for i in range(len(frames)) if i % test_every == 0]}},
-    })
+            exr = f"depth/frame_{k:05d}.exr"
+            write_exr(root / exr, {DEPTH_CHANNEL: seq.depth[k]})
+        frames.append(FrameRecord(f"images/{name}", seq.c2w_opengl[k], gt_file_path=f"gt/{name}", exr_file_path=exr))
+    meta = DatasetMeta(scene_id="synthetic-box-room", renderer={"engine": "evaluation.synthetic ray casting"},
+                       test_every=test_every)
+    write_transforms(root / "transforms.json", seq.intrinsics, frames, meta)
     return names

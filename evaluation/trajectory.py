@@ -105,7 +105,3 @@ def trajectory_errors(est_c2w: np.ndarray, true_c2w: np.ndarray) -> TrajectoryEr
         alignment=sim,
     )
 
-
-def opengl_to_opencv_c2w(c2w: np.ndarray) -> np.ndarray:
-    """Convert (..., 4, 4) camera-to-world poses from OpenGL axes (y up, looking along −z) to OpenCV (y down, +z)."""
-    return np.asarray(c2w, dtype=np.float64) @ np.diag([1.0, -1.0, -1.0, 1.0])

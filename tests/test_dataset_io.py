@@ -38,7 +38,7 @@ from spotlessgs.io.colmap_text import (
 from spotlessgs.io.colorspace import linear_to_srgb, srgb_to_linear, to_uint8
 from spotlessgs.io.dataset import load_initial_points, read_colmap_dataset, read_dataset
 from spotlessgs.io.exr import FrameEXR, blender_depth_to_planar, read_exr, read_frame_exr, write_exr, write_frame_exr
-from spotlessgs.io.images import read_image, write_png
+from spotlessgs.io.images import IMAGE_SUFFIXES, is_image_name, list_image_files, read_image, write_png
 from spotlessgs.io.ply import read_point_cloud, write_point_cloud
 from spotlessgs.io.transforms import (
     DatasetError,
@@ -151,6 +151,25 @@ def test_srgb_known_values():
     assert srgb_to_linear(np.array([0, 255], dtype=np.uint8) / 255.0)[1] == 1.0
 
 
+def test_srgb_on_torch_tensors_matches_numpy_and_has_finite_gradients():
+    import torch
+
+    x = np.linspace(-0.1, 1.1, 1201)
+    for fn in (srgb_to_linear, linear_to_srgb):
+        got = fn(torch.from_numpy(x))
+        assert isinstance(got, torch.Tensor) and got.dtype == torch.float64
+        np.testing.assert_allclose(got.numpy(), fn(x), rtol=0, atol=1e-15)  # one formula (pow may differ by 1 ulp)
+        assert fn(torch.from_numpy(x).float()).dtype == torch.float32
+    assert srgb_to_linear(torch.tensor([0, 255], dtype=torch.uint8))[1] == 1.0  # integers become float64, then clip
+    assert float(srgb_to_linear(torch.tensor(0.5, dtype=torch.float64))) == pytest.approx(0.214041, abs=5e-7)
+    y = torch.linspace(0, 1, 1001, dtype=torch.float64)
+    assert torch.allclose(linear_to_srgb(srgb_to_linear(y)), y, atol=1e-12)
+    for fn in (srgb_to_linear, linear_to_srgb):
+        t = torch.tensor([0.0, 0.002, 0.04045, 0.5, 1.0], dtype=torch.float64, requires_grad=True)
+        fn(t).sum().backward()
+        assert torch.isfinite(t.grad).all() and (t.grad[:4] > 0).all()
+
+
 def test_to_uint8_rounds_and_clips():
     np.testing.assert_array_equal(to_uint8(np.array([-0.2, 0.0, 0.5, 1 / 255, 0.9999, 1.3])), [0, 0, 128, 1, 255, 255])
     np.testing.assert_array_equal(to_uint8(np.array([0.4 / 255, 0.6 / 255])), [0, 1])
@@ -229,6 +248,66 @@ def test_read_grey_alpha_and_jpeg(tmp_path):
     smooth = np.tile(np.linspace(0, 255, 16, dtype=np.uint8), (16, 1))
     Image.fromarray(np.stack([smooth] * 3, -1)).save(tmp_path / "j.jpg", quality=95)
     assert np.abs(read_image(tmp_path / "j.jpg") - smooth[:, :, None] / 255.0).max() < 0.03
+
+
+@pytest.mark.parametrize("channels", [4, 2])
+def test_alpha_over_black_on_16bit_png(tmp_path, channels):
+    data = np.random.default_rng(10 + channels).integers(0, 65536, (4, 5, channels)).astype(np.uint16)
+    _png16(tmp_path / "x.png", data, filters=[0, 4])
+    img = read_image(tmp_path / "x.png", alpha="over_black")
+    colour = data[:, :, :3] if channels == 4 else np.repeat(data[:, :, :1], 3, axis=2)
+    expected = (colour.astype(np.float64) / 65535.0) * (data[:, :, -1:].astype(np.float64) / 65535.0)
+    np.testing.assert_allclose(img, expected, atol=1e-7)
+
+
+def test_alpha_over_black_on_8bit_rgba_grey_alpha_and_palette(tmp_path):
+    rgba = np.zeros((2, 2, 4), np.uint8)
+    rgba[..., :3] = 200
+    rgba[..., 3] = [[255, 0], [51, 255]]  # alpha 1, 0, 0.2, 1
+    Image.fromarray(rgba, "RGBA").save(tmp_path / "a.png")
+    by_hand = np.array([[200 / 255, 0.0], [200 / 255 * 0.2, 200 / 255]])
+    np.testing.assert_allclose(read_image(tmp_path / "a.png", alpha="over_black")[..., 0], by_hand, atol=1e-6)
+    np.testing.assert_allclose(read_image(tmp_path / "a.png")[..., 0], 200 / 255, atol=1e-7)  # default: dropped
+    Image.fromarray(rgba[..., [0, 3]], "LA").save(tmp_path / "la.png")
+    got = read_image(tmp_path / "la.png", alpha="over_black")
+    np.testing.assert_allclose(got, np.repeat(by_hand[..., None], 3, axis=2), atol=1e-6)
+    pal = Image.fromarray(np.full((2, 2, 3), [10, 20, 30], np.uint8)).convert("P", palette=Image.ADAPTIVE)
+    pal.save(tmp_path / "p.png")
+    np.testing.assert_allclose(read_image(tmp_path / "p.png", alpha="over_black")[1, 1], np.array([10, 20, 30]) / 255)
+    with pytest.raises(ValueError, match=r"alpha must be one of \('drop', 'over_black'\), got 'white'"):
+        read_image(tmp_path / "a.png", alpha="white")
+
+
+def test_32bit_integer_image_outside_16bit_range_is_refused(tmp_path):
+    Image.fromarray(np.array([[0, 70000]], np.int32), "I").save(tmp_path / "i.tiff")
+    with pytest.raises(ValueError, match=r"i.tiff: 32-bit integer image with values outside \[0, 65535\]"):
+        read_image(tmp_path / "i.tiff")
+    Image.fromarray(np.array([[0, 65535]], np.int32), "I").save(tmp_path / "ok.tiff")
+    np.testing.assert_array_equal(read_image(tmp_path / "ok.tiff")[0, :, 0], [0.0, 1.0])
+    Image.fromarray(np.zeros((2, 2), np.float32), "F").save(tmp_path / "f.tiff")
+    with pytest.raises(ValueError, match="f.tiff: unsupported image mode 'F'"):
+        read_image(tmp_path / "f.tiff")
+
+
+def test_list_image_files_skips_or_refuses_other_files(tmp_path):
+    folder = tmp_path / "imgs"
+    for name in ("b.PNG", "a.jpg", "c.webp", ".hidden.png", "notes.txt"):
+        (folder / name).parent.mkdir(exist_ok=True)
+        (folder / name).write_bytes(b"")  # only names matter when listing
+    (folder / "sub.png").mkdir()
+    assert [p.name for p in list_image_files(folder)] == ["a.jpg", "b.PNG", "c.webp"]
+    assert list_image_files(folder)[0] == folder / "a.jpg"
+    assert is_image_name("X.JPEG") and not is_image_name("x.exr") and ".tiff" in IMAGE_SUFFIXES
+    with pytest.raises(ValueError, match=r"imgs: non-image files found: notes.txt; expected only .png, .jpg"):
+        list_image_files(folder, non_images="error")
+    with pytest.raises(FileNotFoundError, match="nope: image folder not found"):
+        list_image_files(tmp_path / "nope")
+    (tmp_path / "empty").mkdir()
+    (tmp_path / "empty" / "readme.md").write_text("x")
+    with pytest.raises(ValueError, match=r"empty: no image files \(.png, .jpg, .jpeg, .tif"):
+        list_image_files(tmp_path / "empty")
+    with pytest.raises(ValueError, match="non_images must be 'skip' or 'error', got 'keep'"):
+        list_image_files(folder, non_images="keep")
 
 
 def test_image_errors(tmp_path):

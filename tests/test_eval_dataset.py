@@ -34,20 +34,43 @@ def test_reads_fields_and_default_split(tmp_path):
     assert [f.name for f in d.test_frames] == ["frame_00000.png", "frame_00011.png", "frame_00022.png"]
 
 
+def _spotless(train, test):
+    """A minimal valid "spotless" block with an explicit (non-rule) split."""
+    return {"schema_version": 1, "scene_id": "s", "color_space": "srgb", "light": None,
+            "split": {"rule": "custom", "test_every": 2, "train": train, "test": test}}
+
+
 def test_explicit_split(tmp_path):
-    _transforms(tmp_path, [_frame(i) for i in range(5)], spotless={"split": {"test": [1, 3]}})
+    _transforms(tmp_path, [_frame(i) for i in range(5)], spotless=_spotless([0, 2, 4], [1, 3]))
     assert read_dataset(tmp_path).test_indices == (1, 3)
+
+
+def test_colmap_folder_has_no_ground_truth_and_every_11th_split(tmp_path):
+    sparse = tmp_path / "sparse" / "0"
+    sparse.mkdir(parents=True)
+    (sparse / "cameras.txt").write_text("1 PINHOLE 80 60 100 101 40 30\n")
+    # IMAGE_ID QW QX QY QZ TX TY TZ CAMERA_ID NAME, then an empty line of 2D points; identity rotations.
+    (sparse / "images.txt").write_text("".join(f"{i + 1} 1 0 0 0 0 0 {0.1 * i} 1 f{i:02d}.png\n\n" for i in range(12)))
+    (sparse / "points3D.txt").write_text("")
+    d = read_dataset(tmp_path)
+    assert d.intrinsics.fy == 101.0 and d.test_indices == (0, 11)
+    assert d.frames[2].input_path == tmp_path / "images" / "f02.png" and d.frames[2].gt_path is None
+    # COLMAP centre C = -R^T t: a world-to-camera translation of +0.2 z puts the camera at z = -0.2.
+    np.testing.assert_allclose(d.frames[2].c2w_opengl[:3, 3], [0.0, 0.0, -0.2], atol=1e-12)
 
 
 @pytest.mark.parametrize(
     "mutate,match",
     [
-        (lambda m: m.pop("fl_x"), "missing intrinsics field 'fl_x'"),
-        (lambda m: m.update(frames=[]), "'frames' must be a non-empty list"),
-        (lambda m: m["frames"][1].pop("transform_matrix"), r"frames\[1\] needs 'file_path' and 'transform_matrix'"),
-        (lambda m: m["frames"][0].update(transform_matrix=[[1, 0], [0, 1]]), r"frames\[0\].transform_matrix must be"),
-        (lambda m: m["frames"][1].update(file_path="other/frame_00000.png"), "file names are not unique"),
-        (lambda m: m.update(spotless={"split": {"test": [0, 7]}}), r"indices outside 0..2: \[7\]"),
+        (lambda m: m.pop("fl_x"), r"frames\[0\]: missing key 'fl_x'"),
+        (lambda m: m.update(frames=[]), "missing or empty 'frames' list"),
+        (lambda m: m["frames"][1].pop("transform_matrix"), r"frames\[1\]: missing key 'transform_matrix'"),
+        (lambda m: m["frames"][0].update(transform_matrix=[[1, 0], [0, 1]]),
+         r"frames\[0\].transform_matrix: must be 4x4"),
+        (lambda m: m["frames"][1].update(file_path="other/frame_00000.png"),
+         r"file names are not unique: frames\[0\] and frames\[1\] are both 'frame_00000.png'"),
+        (lambda m: m.update(spotless=_spotless([1, 2], [0, 7])),
+         r"split.test: indices \[7\] out of range for 3 frames"),
     ],
 )
 def test_transforms_errors(tmp_path, mutate, match):
@@ -59,7 +82,7 @@ def test_transforms_errors(tmp_path, mutate, match):
 
 
 def test_transforms_missing_or_invalid(tmp_path):
-    with pytest.raises(FileNotFoundError, match="transforms.json not found"):
+    with pytest.raises(FileNotFoundError, match="neither transforms.json nor a COLMAP sparse/ folder"):
         read_dataset(tmp_path)
     (tmp_path / "transforms.json").write_text("{nope")
     with pytest.raises(ValueError, match="transforms.json: not valid JSON"):
@@ -87,9 +110,9 @@ def test_depth_exr_single_and_multi_part(tmp_path):
     OpenEXR.File(parts).write(str(tmp_path / "b.exr"))
     assert read_depth_exr(tmp_path / "b.exr")[1, 1] == 5.0
     OpenEXR.File(header, {"RGB": np.zeros((4, 5, 3), np.float32)}).write(str(tmp_path / "c.exr"))
-    with pytest.raises(ValueError, match=r"c.exr: no depth channel .* channels are \['RGB'\]"):
+    with pytest.raises(ValueError, match=r"c.exr: no depth channel .* channels are \['B', 'G', 'R'\]"):
         read_depth_exr(tmp_path / "c.exr")
-    with pytest.raises(FileNotFoundError, match="depth EXR not found"):
+    with pytest.raises(FileNotFoundError, match="none.exr: EXR file not found"):
         read_depth_exr(tmp_path / "none.exr")
 
 

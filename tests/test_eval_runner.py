@@ -11,14 +11,14 @@ import torch
 from click.testing import CliRunner
 from PIL import Image
 
-from evaluation.alignment import linear_to_srgb, srgb_to_linear
 from evaluation.cli import eval_command
-from evaluation.images import load_image
 from evaluation.metrics import psnr, ssim
 from evaluation.runner import EvalConfig, evaluate_folders, evaluate_run
 from evaluation.sfm import SfmConfig
-from evaluation.synthetic import save_png, render_room_sequence, write_dataset_folder
+from evaluation.synthetic import render_room_sequence, write_dataset_folder
 from spotlessgs.io.atomic import write_json
+from spotlessgs.io.colorspace import linear_to_srgb, srgb_to_linear
+from spotlessgs.io.images import read_image, write_png
 
 TOP_KEYS = {"psnr", "ssim", "lpips", "psnr_aligned", "ssim_aligned", "lpips_aligned", "tmp_psnr", "tmp_ssim", "sfm"}
 QUIET = EvalConfig(progress=False, num_threads=1)  # no progress bars, one torch thread
@@ -36,7 +36,7 @@ def _one_torch_thread():
 
 def _darker(img: np.ndarray, factor: float) -> np.ndarray:
     """The same image ``factor`` times as bright in linear light."""
-    return linear_to_srgb(srgb_to_linear(torch.from_numpy(img).double()) * factor).numpy()
+    return linear_to_srgb(srgb_to_linear(img.astype(np.float64)) * factor)
 
 
 @pytest.fixture(scope="module")
@@ -47,7 +47,7 @@ def run_dir(tmp_path_factory):
     run = root / "run"
     write_json(run / "run.json", {"data_dir": "../data"})  # relative to the run folder
     for k, n in enumerate(names):
-        save_png(run / "relit" / n, _darker(seq.even[k], 0.5))  # a perfect relighting at half the exposure
+        write_png(run / "relit" / n, _darker(seq.even[k], 0.5))  # a perfect relighting at half the exposure
     return run
 
 
@@ -69,8 +69,8 @@ def test_run_results_keys_and_values(run_results, run_dir):
     inp = r["input"]
     assert inp["psnr_aligned"] < r["psnr_aligned"] - 10 and inp["lpips"] > r["lpips"]
     # the per-image numbers are the library functions' numbers on the files
-    pred = torch.from_numpy(load_image(run_dir / "relit" / "frame_00004.png")).permute(2, 0, 1)
-    gt = torch.from_numpy(load_image(run_dir.parent / "data" / "gt" / "frame_00004.png")).permute(2, 0, 1)
+    pred = torch.from_numpy(read_image(run_dir / "relit" / "frame_00004.png")).permute(2, 0, 1)
+    gt = torch.from_numpy(read_image(run_dir.parent / "data" / "gt" / "frame_00004.png")).permute(2, 0, 1)
     row = r["per_image"][1]
     assert row["name"] == "frame_00004.png"
     assert row["psnr"] == pytest.approx(float(psnr(pred, gt)[0]), abs=1e-5)
@@ -116,7 +116,7 @@ def test_folders_mode_via_cli(run_dir, tmp_path):
 def test_folders_identical_images(tmp_path):
     for sub in ("a", "b"):
         for k in range(2):
-            save_png(tmp_path / sub / f"{k}.png", np.full((40, 40, 3), 0.25 + 0.5 * k))
+            write_png(tmp_path / sub / f"{k}.png", np.full((40, 40, 3), 0.25 + 0.5 * k))
     r = evaluate_folders(tmp_path / "a", tmp_path / "b", QUIET, json_path=tmp_path / "r.json")
     assert math.isinf(r["psnr"]) and r["ssim"] == pytest.approx(1.0) and r["lpips"] == 0.0
     assert r["exposure_gain"] == pytest.approx(1.0)
@@ -134,8 +134,8 @@ def test_folders_with_sfm_and_estimated_intrinsics(run_dir, tmp_path):
 
 
 def test_size_mismatch_is_named(tmp_path):
-    save_png(tmp_path / "p" / "x.png", np.zeros((20, 30, 3)))
-    save_png(tmp_path / "g" / "x.png", np.zeros((20, 31, 3)))
+    write_png(tmp_path / "p" / "x.png", np.zeros((20, 30, 3)))
+    write_png(tmp_path / "g" / "x.png", np.zeros((20, 31, 3)))
     with pytest.raises(ValueError, match=r"x.png: size mismatch: prediction .* is 30x20, reference .* is 31x20"):
         evaluate_folders(tmp_path / "p", tmp_path / "g", QUIET)
 
@@ -150,7 +150,7 @@ def test_run_errors(run_dir, tmp_path):
     write_json(bad / "run.json", {"data_dir": str(run_dir.parent / "data")})
     with pytest.raises(FileNotFoundError, match="the run has no relit images"):
         evaluate_run(bad, QUIET)
-    save_png(bad / "relit" / "frame_00000.png", np.zeros((150, 200, 3)))
+    write_png(bad / "relit" / "frame_00000.png", np.zeros((150, 200, 3)))
     with pytest.raises(FileNotFoundError, match=r"missing relit images for 11 view\(s\)"):
         evaluate_run(bad, QUIET)
 
@@ -159,8 +159,8 @@ def test_run_without_ground_truth(run_dir, tmp_path):
     meta = json.loads((run_dir.parent / "data" / "transforms.json").read_text())
     for fr in meta["frames"]:
         fr.pop("gt_file_path")
-        fr["file_path"] = str(run_dir.parent / "data" / fr["file_path"])
-    write_json(tmp_path / "data" / "transforms.json", meta)
+    write_json(tmp_path / "data" / "transforms.json", meta)  # the shared reader takes relative paths only
+    (tmp_path / "data" / "images").symlink_to(run_dir.parent / "data" / "images")
     write_json(tmp_path / "run" / "run.json", {"data_dir": str(tmp_path / "data")})
     (tmp_path / "run" / "relit").symlink_to(run_dir / "relit")
     with pytest.raises(ValueError, match="no test view has a ground-truth image"):

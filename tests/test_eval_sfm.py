@@ -6,9 +6,10 @@ import numpy as np
 import pytest
 from PIL import Image
 
-from evaluation.sfm import PinholeIntrinsics, SfmConfig, run_sfm
-from evaluation.synthetic import save_png, render_room_sequence
-from evaluation.trajectory import opengl_to_opencv_c2w
+from evaluation.sfm import SfmConfig, run_sfm
+from evaluation.synthetic import render_room_sequence
+from spotlessgs.io.cameras import Intrinsics, opengl_to_opencv_c2w
+from spotlessgs.io.images import write_png
 
 
 @pytest.fixture(scope="module")
@@ -18,7 +19,7 @@ def room_images(tmp_path_factory):
     names = []
     for k, img in enumerate(seq.even):
         names.append(f"frame_{k:05d}.png")
-        save_png(root / "even" / names[-1], img)
+        write_png(root / "even" / names[-1], img)
     true = {n: opengl_to_opencv_c2w(c) for n, c in zip(names, seq.c2w_opengl)}
     return root, names, seq.intrinsics, true
 
@@ -58,7 +59,7 @@ def test_uninformative_images_register_nothing(tmp_path):
 
 def test_errors(tmp_path):
     Image.fromarray(np.zeros((60, 80, 3), np.uint8)).save(tmp_path / "a.png")
-    intr = PinholeIntrinsics(50.0, 50.0, 40.0, 30.0, 100, 30)
+    intr = Intrinsics(50.0, 50.0, 40.0, 30.0, 100, 30)
     with pytest.raises(ValueError, match=r"a.png: image is 80x60 but the intrinsics are for 100x30"):
         run_sfm(tmp_path, ["a.png"], tmp_path / "w", SfmConfig(), intr)
     with pytest.raises(FileNotFoundError, match="b.png: image listed for SfM does not exist"):

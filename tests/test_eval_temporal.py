@@ -17,7 +17,7 @@ from evaluation.temporal import (
     warp_into,
     warped_temporal_scores,
 )
-from evaluation.trajectory import opengl_to_opencv_c2w
+from spotlessgs.io.cameras import opengl_to_opencv_c2w
 
 @pytest.fixture(autouse=True, scope="module")
 def _one_torch_thread():
@@ -32,7 +32,7 @@ def _one_torch_thread():
 @pytest.fixture(scope="module")
 def room():
     seq = render_room_sequence(num_frames=6, width=120, height=90, seed=5)
-    K = torch.from_numpy(seq.intrinsics.matrix())
+    K = torch.from_numpy(seq.intrinsics.K())
     frames = [
         PosedFrame(torch.from_numpy(seq.even[k]).permute(2, 0, 1), torch.from_numpy(seq.depth[k]),
                    torch.from_numpy(opengl_to_opencv_c2w(seq.c2w_opengl[k])))

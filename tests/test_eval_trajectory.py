@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from evaluation.trajectory import opengl_to_opencv_c2w, rotation_angle_deg, trajectory_errors, umeyama
+from evaluation.trajectory import rotation_angle_deg, trajectory_errors, umeyama
 
 
 def _rot(axis, deg):
@@ -73,12 +73,6 @@ def test_rotation_angle_edge_cases():
     assert rotation_angle_deg(np.eye(3)) == pytest.approx(0.0, abs=1e-12)
     assert rotation_angle_deg(_rot([0, 0, 1], 180)) == pytest.approx(180.0, abs=1e-9)
     assert rotation_angle_deg(_rot([1, 1, 0], 1e-4)) == pytest.approx(1e-4, rel=1e-6)
-
-
-def test_opengl_to_opencv_flips_y_and_z_axes():
-    c2w = np.eye(4)
-    out = opengl_to_opencv_c2w(c2w)
-    np.testing.assert_array_equal(np.diag(out), [1, -1, -1, 1])
 
 
 def test_errors():

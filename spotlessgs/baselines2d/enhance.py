@@ -10,10 +10,10 @@ from typing import Any, Callable
 import numpy as np
 
 from spotlessgs.baselines2d.clahe import ClaheConfig, clahe
-from spotlessgs.baselines2d.folders import list_images, refuse_name_clashes
+from spotlessgs.baselines2d.folders import refuse_name_clashes
 from spotlessgs.baselines2d.msrcr import MsrcrConfig, msrcr
 from spotlessgs.io.atomic import write_json
-from spotlessgs.io.images import read_image, write_png
+from spotlessgs.io.images import list_image_files, read_image, write_png
 from spotlessgs.io.provenance import provenance
 
 METHODS = ("clahe", "msrcr", "cyclegan")
@@ -61,7 +61,7 @@ def enhance_folder(method: str, in_dir: str | os.PathLike, out_dir: str | os.Pat
         settings = {k: str(v) if isinstance(v, os.PathLike) else v for k, v in opts.items()}
     else:
         function, settings = _classic(method, opts)
-        files = list_images(in_dir)
+        files = list_image_files(in_dir)
         refuse_name_clashes(files)
         written = []
         for path in files:

@@ -1,25 +1,8 @@
-"""Listing the image files of a folder (shared by the 2D baselines)."""
+"""Output-name checks shared by the 2D baselines (folders are listed with spotlessgs.io.images.list_image_files)."""
 
 from __future__ import annotations
 
-import os
 from pathlib import Path
-
-IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg")
-
-
-def list_images(folder: str | os.PathLike) -> list[Path]:
-    """Image files (PNG/JPEG, case-insensitive suffix) directly inside ``folder``, sorted by name.
-
-    Raises FileNotFoundError when the folder is missing and ValueError when it holds no image.
-    """
-    folder = Path(folder)
-    if not folder.is_dir():
-        raise FileNotFoundError(f"{folder}: image folder not found")
-    files = sorted(p for p in folder.iterdir() if p.is_file() and p.suffix.lower() in IMAGE_SUFFIXES)
-    if not files:
-        raise ValueError(f"{folder}: no image files ({', '.join(IMAGE_SUFFIXES)}) in this folder")
-    return files
 
 
 def refuse_name_clashes(files: list[Path]) -> None:

@@ -14,8 +14,8 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from spotlessgs.baselines2d.folders import list_images
-from spotlessgs.io.images import read_image
+from spotlessgs.io.colorspace import to_uint8
+from spotlessgs.io.images import list_image_files, read_image
 
 
 @dataclass(frozen=True)
@@ -36,7 +36,7 @@ def load_domain(name: str, folders: list[str | os.PathLike], min_height: int, mi
         raise ValueError(f"no {name} image folders were given")
     files: list[Path] = []
     for folder in folders:
-        files.extend(list_images(folder))
+        files.extend(list_image_files(folder))
     images = []
     for path in files:
         img = read_image(path)
@@ -45,7 +45,7 @@ def load_domain(name: str, folders: list[str | os.PathLike], min_height: int, mi
                 f"{path}: {name} image is {img.shape[0]}x{img.shape[1]} pixels, smaller than the training crop "
                 f"{min_height}x{min_width}; use a smaller crop_height/crop_width"
             )
-        images.append(np.rint(img * 255.0).astype(np.uint8))
+        images.append(to_uint8(img))
     return ImageDomain(name, tuple(files), tuple(images))
 
 

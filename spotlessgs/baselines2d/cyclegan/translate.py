@@ -13,8 +13,8 @@ from spotlessgs.baselines2d._validate import check_rgb_image
 from spotlessgs.baselines2d.cyclegan.checkpoint import load_checkpoint
 from spotlessgs.baselines2d.cyclegan.networks import ResnetGenerator, build_generator
 from spotlessgs.baselines2d.cyclegan.train import torch_threads
-from spotlessgs.baselines2d.folders import list_images, refuse_name_clashes
-from spotlessgs.io.images import read_image, write_png
+from spotlessgs.baselines2d.folders import refuse_name_clashes
+from spotlessgs.io.images import list_image_files, read_image, write_png
 
 # Which generator each direction uses (a = uneven, b = even).
 DIRECTIONS = {"uneven_to_even": "G_ab", "even_to_uneven": "G_ba"}
@@ -82,7 +82,7 @@ def translate_folder(
     """
     state = load_checkpoint(checkpoint)
     generator = generator_from_state(state, direction)
-    files = list_images(in_dir)
+    files = list_image_files(in_dir)
     refuse_name_clashes(files)
     threads = num_threads if num_threads is not None else state["config"].num_threads
     out_dir = Path(out_dir)
