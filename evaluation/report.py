@@ -6,9 +6,8 @@ import math
 import os
 from typing import Any
 
-import numpy as np
 
-from spotlessgs.io.atomic import write_json, write_text
+from spotlessgs.io.atomic import to_jsonable, write_json, write_text
 
 #: Image-metric keys in display order, with their column titles and number formats.
 IMAGE_COLUMNS: tuple[tuple[str, str, str], ...] = (
@@ -30,24 +29,6 @@ SFM_COLUMNS: tuple[tuple[str, str, str], ...] = (
     ("registered_images", "Registered", "{}"),
     ("points3d", "3D points", "{}"),
 )
-
-
-def to_jsonable(obj: Any) -> Any:
-    """Recursively convert numpy scalars/arrays and tuples to JSON types; NaN and ±inf become None (JSON has none)."""
-    if isinstance(obj, dict):
-        return {str(k): to_jsonable(v) for k, v in obj.items()}
-    if isinstance(obj, (list, tuple)):
-        return [to_jsonable(v) for v in obj]
-    if isinstance(obj, np.ndarray):
-        return to_jsonable(obj.tolist())
-    if isinstance(obj, (np.floating, float)):
-        value = float(obj)
-        return value if math.isfinite(value) else None
-    if isinstance(obj, np.integer):
-        return int(obj)
-    if isinstance(obj, np.bool_):
-        return bool(obj)
-    return obj
 
 
 def write_results_json(path: str | os.PathLike, results: dict) -> None:

@@ -26,9 +26,12 @@ from spotlessgs.io.provenance import provenance
 
 def psnr_srgb(image_linear: np.ndarray, reference_linear: np.ndarray) -> float:
     """PSNR (dB) between two linear renders after sRGB encoding (clipped to [0, 1]), as images are compared."""
-    a, b = linear_to_srgb(image_linear), linear_to_srgb(reference_linear)
-    mse = float(np.mean((a - b) ** 2))
-    return float("inf") if mse == 0 else 10.0 * np.log10(1.0 / mse)
+    import torch
+
+    from evaluation.metrics import psnr
+
+    a, b = (torch.from_numpy(linear_to_srgb(x)).permute(2, 0, 1) for x in (image_linear, reference_linear))
+    return float(psnr(a, b)[0])
 
 
 def run_benchmark(scene_path: Path, out_dir: Path, samples: list[int], reference_samples: int, width: int,

@@ -30,7 +30,7 @@ from simulator.front3d import LoadOptions, load_house
 from simulator.lighting import SPOTLIGHT_PRESETS, GroundTruthLighting, SpotlightConfig, with_ground_truth_lighting
 from simulator.pointcloud import backproject_depth, merge_point_clouds
 from simulator.trajectory import TrajectoryConfig, sample_trajectory
-from spotlessgs.io.atomic import write_json
+from spotlessgs.io.atomic import to_jsonable, write_json
 from spotlessgs.io.cameras import Intrinsics
 from spotlessgs.io.colmap_text import model_from_poses, write_colmap_text
 from spotlessgs.io.colorspace import linear_to_srgb
@@ -139,21 +139,7 @@ def frame_done(out_dir: Path, index: int) -> bool:
 def _fingerprint(scene_path: Path, config: RenderConfig) -> dict[str, Any]:
     """The settings that determine the output (JSON-able)."""
     cfg = dataclasses.asdict(config)
-    return {"scene": str(scene_path.resolve()), "config": _jsonable(cfg)}
-
-
-def _jsonable(obj: Any) -> Any:
-    if isinstance(obj, dict):
-        return {k: _jsonable(v) for k, v in obj.items()}
-    if isinstance(obj, (list, tuple)):
-        return [_jsonable(v) for v in obj]
-    if isinstance(obj, np.ndarray):
-        return obj.tolist()
-    if isinstance(obj, (np.floating, np.integer)):
-        return obj.item()
-    if isinstance(obj, Path):
-        return str(obj)
-    return obj
+    return {"scene": str(scene_path.resolve()), "config": to_jsonable(cfg)}
 
 
 def _prepare_plan(out_dir: Path, scene_path: Path, config: RenderConfig, poses: np.ndarray) -> None:
@@ -324,8 +310,8 @@ def finalize_dataset(
             "max_bounces": config.max_bounces,
             "view_transform": "Standard",
             "ambient": config.ambient,
-            "ground_truth_lighting": _jsonable(dataclasses.asdict(config.ground_truth)),
-            "trajectory": _jsonable(dataclasses.asdict(config.trajectory)),
+            "ground_truth_lighting": to_jsonable(dataclasses.asdict(config.ground_truth)),
+            "trajectory": to_jsonable(dataclasses.asdict(config.trajectory)),
             "h_fov_deg": config.h_fov_deg,
         },
         provenance=provenance(seed=config.seed, extra_packages=("bpy",), blender_version=blender or package_version("bpy"),

@@ -13,6 +13,8 @@ from typing import Callable
 import numpy as np
 from scipy import ndimage
 
+from spotlessgs.io.colorspace import to_uint8
+
 RGB = tuple[int, int, int]
 
 
@@ -82,11 +84,6 @@ def _tint(color: RGB, shade: np.ndarray) -> np.ndarray:
     """(H, W) multiplicative shade (1 = unchanged) times an sRGB colour -> (H, W, 3) float in [0, 1]."""
     base = np.asarray(color, dtype=np.float64) / 255.0
     return np.clip(shade[..., None] * base[None, None, :], 0.0, 1.0)
-
-
-def to_uint8(img: np.ndarray) -> np.ndarray:
-    """(H, W, 3) float sRGB in [0, 1] -> uint8 (rounded, clipped)."""
-    return np.clip(np.round(img * 255.0), 0, 255).astype(np.uint8)
 
 
 def _jitter(rng: np.random.Generator, color: RGB, amount: float) -> np.ndarray:
