@@ -63,8 +63,9 @@ def train(data_dir, run_dir, model, preset, iterations, image_width, seed, resum
 
 @main.command()
 @click.argument("run_dir", type=click.Path(exists=True, file_okay=False, path_type=Path))
-@click.option("--l0", nargs=3, type=click.FloatRange(0), default=(1.0, 1.0, 1.0), show_default=True,
-              metavar="R G B", help="Constant linear RGB radiance that replaces the spotlight.")
+@click.option("--l0", nargs=3, type=click.FloatRange(0), default=None, metavar="R G B",
+              help="Constant linear RGB radiance that replaces the spotlight. Default: automatic (white, scaled so "
+                   "that about 1% of relit pixels reach 1; the value used is reported).")
 @click.option("--views", "which", default="all", show_default=True, type=click.Choice(["test", "train", "all"]))
 @click.option("--out", "out_dir", type=click.Path(file_okay=False, path_type=Path), default=None,
               help="Output folder (default RUN/relit).")
@@ -75,7 +76,7 @@ def relight(run_dir, l0, which, out_dir, exr, device, quiet):
     """Relight a trained run under even light (paper eq. 8) and write PNGs named like the dataset's images."""
     from spotlessgs.rendering import render_run
 
-    click.echo(json.dumps(render_run(run_dir, "relit", which, out_dir, l0=l0, exr=exr, progress=not quiet,
+    click.echo(json.dumps(render_run(run_dir, "relit", which, out_dir, l0=l0 or "auto", exr=exr, progress=not quiet,
                                      device=device), indent=2))
 
 

@@ -249,3 +249,51 @@ def test_calibrated_darkgs_uses_the_true_light_and_export_writes_a_3dgs_ply(bedr
     assert names[:3] == ["x", "y", "z"] and "f_dc_0" in names and "f_rest_44" in names and "rot_3" in names
     assert len(names) == 3 + 3 + 3 + 45 + 1 + 3 + 4
     assert np.isfinite(np.stack([ply["vertex"][n] for n in names])).all()
+
+
+# ---- relit rendering ------------------------------------------------------------------------------------------------
+
+
+@pytest.mark.parametrize("variant", ["darkgs", "spotless"])
+def test_cached_relit_colours_equal_per_view_shading(variant):
+    """RelitColours (one reflectance evaluation for all views) reproduces shade(..., relight_l0) view by view,
+    including Gaussians seen from behind (two-sided normals)."""
+    from spotlessgs.models.relightable import RelightableScene
+    from spotlessgs.rendering import RelitColours
+
+    rng = np.random.default_rng(0)
+    xyz = rng.uniform(-1, 1, (50, 3))
+    normals = rng.normal(size=(50, 3))  # half of them face away from any given camera
+    g = GaussianParams.from_point_cloud(xyz, rng.integers(0, 256, (50, 3)).astype(np.uint8), normals)
+    scene = RelightableScene.create(variant, g, seed=0)
+    with torch.no_grad():
+        if scene.appearance.lf_light is not None and hasattr(scene.appearance.lf_light, "coeffs"):
+            scene.appearance.lf_light.coeffs.normal_(0.0, 0.3, generator=torch.Generator().manual_seed(1))
+    cams = []
+    for eye in ([0.0, 0.0, -4.0], [3.0, 1.0, 2.0]):
+        z = -torch.tensor(eye) / torch.linalg.norm(torch.tensor(eye))
+        x = torch.linalg.cross(torch.tensor([0.0, 1.0, 0.0]), z)
+        x = x / torch.linalg.norm(x)
+        c2w = torch.eye(4)
+        c2w[:3, 0], c2w[:3, 1], c2w[:3, 2], c2w[:3, 3] = x, torch.linalg.cross(z, x), z, torch.tensor(eye)
+        cams.append(c2w)
+    with torch.no_grad():
+        cached = RelitColours(scene, cams[0])
+        for c2w in cams:
+            feats = cached.features(c2w)
+            l0 = torch.tensor([0.7, 0.8, 0.9])
+            expected = scene.colours(c2w, relight_l0=l0.tolist())
+            torch.testing.assert_close(feats[:, :3] * l0 + feats[:, 3:], expected, rtol=1e-5, atol=1e-6)
+
+
+def test_auto_l0_puts_the_chosen_percentile_at_the_target():
+    from spotlessgs.rendering import AUTO_L0_PERCENTILE, AUTO_L0_TARGET, auto_l0
+
+    rng = np.random.default_rng(0)
+    r = [rng.uniform(0.0, 0.5, (20, 30, 3)).astype(np.float32) for _ in range(3)]
+    low = [np.full((20, 30, 3), 0.05, np.float32) for _ in range(3)]
+    s = auto_l0(r, low)[0]
+    lum = np.concatenate([(s * a + b).mean(axis=2).ravel() for a, b in zip(r, low)])
+    assert np.percentile(lum, AUTO_L0_PERCENTILE) == pytest.approx(AUTO_L0_TARGET, rel=1e-6)
+    # the low-frequency light alone already exceeds the target: no spotlight replacement is needed
+    assert auto_l0(r, [np.full((20, 30, 3), 2.0, np.float32)] * 3) == [0.0, 0.0, 0.0]

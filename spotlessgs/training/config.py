@@ -63,7 +63,9 @@ class TrainConfig:
     opacity_reset_every: int = 1000
     reset_opacity_value: float = 0.01
     # Hard cap on the number of Gaussians (densification picks the highest-gradient candidates first).
-    max_gaussians: int = 60_000
+    max_gaussians: int = 20_000
+    # At most this many initial Gaussians (a seeded random subset of the point cloud); None = every point.
+    init_points: int | None = 12_000
 
     # Hidden width of the learned BRDF MLP (paper 256; it dominates CPU shading time).
     brdf_hidden: int = 64
@@ -92,12 +94,14 @@ class TrainConfig:
 PRESETS: dict[str, TrainConfig] = {
     "tiny": TrainConfig(
         preset="tiny", iterations=200, image_width=64, densify_from=60, densify_until=150, densify_every=30,
-        opacity_reset_every=0, checkpoint_every=100, log_every=10, max_gaussians=8000, brdf_hidden=32,
+        opacity_reset_every=0, checkpoint_every=100, log_every=10, max_gaussians=8000, init_points=4000,
+        brdf_hidden=32,
     ),
     "quick": TrainConfig(),
     "paper": TrainConfig(
         preset="paper", iterations=30_000, image_width=None, densify_from=2000, densify_until=15_000,
         densify_every=300, opacity_reset_every=5000, checkpoint_every=5000, log_every=100, max_gaussians=1_000_000,
+        init_points=None,
         brdf_hidden=256,
     ),
 }

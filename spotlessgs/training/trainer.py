@@ -79,8 +79,9 @@ def build_scene(
     cfg = model_config(variant, config)
     cloud = initial_point_cloud(views, numpy_rng(seed, "init_points"))
     xyz, rgb, normals = cloud.xyz, cloud.rgb, cloud.normals
-    if len(xyz) > config.max_gaussians:
-        keep = np.sort(numpy_rng(seed, "init_subsample").choice(len(xyz), config.max_gaussians, replace=False))
+    limit = config.max_gaussians if config.init_points is None else min(config.init_points, config.max_gaussians)
+    if len(xyz) > limit:
+        keep = np.sort(numpy_rng(seed, "init_subsample").choice(len(xyz), limit, replace=False))
         xyz, rgb = xyz[keep], rgb[keep]
         normals = None if normals is None else normals[keep]
     gaussians = GaussianParams.from_point_cloud(xyz, rgb, normals, rgb_is_srgb=True)
