@@ -1,0 +1,122 @@
+"""What each model component costs and buys: per variant, training ms/step, relit-render FPS, peak memory, and
+test-view PSNR after a fixed iteration budget.
+
+    python -m spotlessgs.benchmark --data data/bedroom --out bench/train --iterations 1500
+
+Each variant trains in its own subprocess (so its peak resident memory, ``ru_maxrss``, is its own), then relights its
+test views and scores them: PSNR of the relit test views against the ground truth after one exposure gain
+(``psnr_aligned``, the meaningful figure, see the evaluation package) and the spotlight-lit reconstruction PSNR of the
+held-out views. Timings are wall clock on the machine that runs it: compare rows of one run.
+"""
+
+from __future__ import annotations
+
+import json
+import resource
+import subprocess
+import sys
+from pathlib import Path
+
+import click
+
+from spotlessgs.io.atomic import write_json, write_text
+from spotlessgs.io.provenance import provenance
+
+VARIANTS = ("3dgs", "darkgs", "darkgs-calibrated", "darkgs+sh", "darkgs+brdf", "spotless")
+
+
+def _child(data: str, run: str, variant: str, preset: str, iterations: int, threads: int, seed: int) -> None:
+    """Train, relight the test views and score them, in this (sub)process; prints one JSON line."""
+    from evaluation.runner import EvalConfig, evaluate_folders
+    from spotlessgs.rendering import render_run
+    from spotlessgs.training.config import preset as make_preset
+    from spotlessgs.training.trainer import train
+
+    config = make_preset(preset, iterations=iterations, num_threads=threads)
+    result = train(data, run, variant, config, seed=seed, progress=False)
+    relit = render_run(run, "relit", "test", Path(run) / "relit_test", progress=False)
+    row = {"variant": variant, "iterations": iterations, "ms_per_step": result.ms_per_step,
+           "train_seconds": result.seconds, "gaussians": result.num_gaussians,
+           "test_psnr_reconstruction": result.test_psnr, "relit_fps": relit["fps"]}
+    gt_dir = Path(data) / "gt"
+    if gt_dir.is_dir():
+        from spotlessgs.training.trainer import load_run
+
+        _scene, views, _cfg, _info = load_run(run)
+        names = [views.names[k] for k in views.test]
+        gt_test = Path(run) / "gt_test"
+        gt_test.mkdir(exist_ok=True)
+        for name in names:
+            target = gt_test / name
+            if not target.exists():
+                target.symlink_to((gt_dir / name).resolve())
+        scores = evaluate_folders(Path(run) / "relit_test", gt_test,
+                                  EvalConfig(lpips=False, temporal=False, num_threads=threads, progress=False))
+        row.update({"psnr": scores["psnr"], "psnr_aligned": scores["psnr_aligned"],
+                    "ssim_aligned": scores["ssim_aligned"]})
+    row["peak_rss_mb"] = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
+    print(json.dumps(row))
+
+
+def run_benchmark(data: Path, out: Path, variants: tuple[str, ...], preset: str, iterations: int, threads: int,
+                  seed: int = 0) -> list[dict]:
+    """Benchmark each variant in a subprocess; writes ``train_benchmark.json`` and ``.md`` to ``out``."""
+    rows = []
+    for variant in variants:
+        run = out / variant.replace("+", "_")
+        if (run / "benchmark_row.json").is_file():
+            rows.append(json.loads((run / "benchmark_row.json").read_text()))
+            continue
+        cmd = [sys.executable, "-m", "spotlessgs.benchmark", "--child", "--data", str(data), "--out", str(run),
+               "--variants", variant, "--preset", preset, "--iterations", str(iterations), "--threads", str(threads),
+               "--seed", str(seed)]
+        proc = subprocess.run(cmd, capture_output=True, text=True)
+        if proc.returncode != 0:
+            raise RuntimeError(f"benchmark of {variant} failed:\n{proc.stderr[-3000:]}")
+        row = json.loads(proc.stdout.strip().splitlines()[-1])
+        write_json(run / "benchmark_row.json", row)
+        rows.append(row)
+    write_json(out / "train_benchmark.json", {"data": str(data), "preset": preset, "iterations": iterations,
+                                              "threads": threads, "rows": rows, "provenance": provenance(seed=seed)})
+    write_text(out / "train_benchmark.md", markdown_table(rows, iterations, threads))
+    return rows
+
+
+def markdown_table(rows: list[dict], iterations: int, threads: int) -> str:
+    """The benchmark as a Markdown table."""
+    def fmt(value, spec):
+        return "–" if value is None else format(value, spec)
+
+    lines = [f"{iterations} iterations per variant, {threads} thread(s)", "",
+             "| model | ms / step | train s | Gaussians | relit FPS | peak RSS (MB) | test PSNR recon. | "
+             "relit PSNR | relit PSNR aligned | relit SSIM aligned |",
+             "|---|---|---|---|---|---|---|---|---|---|"]
+    for r in rows:
+        lines.append(
+            f"| {r['variant']} | {r['ms_per_step']:.1f} | {r['train_seconds']:.1f} | {r['gaussians']} | "
+            f"{r['relit_fps']:.1f} | {r['peak_rss_mb']:.0f} | {fmt(r.get('test_psnr_reconstruction'), '.2f')} | "
+            f"{fmt(r.get('psnr'), '.2f')} | {fmt(r.get('psnr_aligned'), '.2f')} | {fmt(r.get('ssim_aligned'), '.3f')} |")
+    return "\n".join(lines) + "\n"
+
+
+@click.command()
+@click.option("--data", required=True, type=click.Path(exists=True, file_okay=False, path_type=Path))
+@click.option("--out", required=True, type=click.Path(file_okay=False, path_type=Path))
+@click.option("--variants", default=",".join(VARIANTS), show_default=True)
+@click.option("--preset", default="quick", show_default=True)
+@click.option("--iterations", default=1500, show_default=True, type=int)
+@click.option("--threads", default=1, show_default=True, type=int)
+@click.option("--seed", default=0, show_default=True, type=int)
+@click.option("--child", is_flag=True, hidden=True)
+def main(data, out, variants, preset, iterations, threads, seed, child):
+    """Benchmark training and relit rendering per model variant."""
+    names = tuple(v for v in variants.split(",") if v)
+    if child:
+        _child(str(data), str(out), names[0], preset, iterations, threads, seed)
+        return
+    rows = run_benchmark(data, out, names, preset, iterations, threads, seed)
+    click.echo(markdown_table(rows, iterations, threads))
+
+
+if __name__ == "__main__":
+    main()
