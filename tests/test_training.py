@@ -297,3 +297,51 @@ def test_auto_l0_puts_the_chosen_percentile_at_the_target():
     assert np.percentile(lum, AUTO_L0_PERCENTILE) == pytest.approx(AUTO_L0_TARGET, rel=1e-6)
     # the low-frequency light alone already exceeds the target: no spotlight replacement is needed
     assert auto_l0(r, [np.full((20, 30, 3), 2.0, np.float32)] * 3) == [0.0, 0.0, 0.0]
+
+
+@pytest.mark.parametrize("variant", ["3dgs", "darkgs", "spotless"])
+def test_a_view_with_no_visible_gaussian_renders_black_with_finite_gradients(variant):
+    from spotlessgs.models.relightable import RelightableScene
+
+    rng = np.random.default_rng(0)
+    g = GaussianParams.from_point_cloud(rng.uniform(-1, 1, (20, 3)), rng.integers(0, 256, (20, 3)).astype(np.uint8))
+    scene = RelightableScene.create(variant, g, seed=0)
+    c2w = torch.eye(4)
+    c2w[2, 3] = 5.0  # at z = 5 looking along +z: every Gaussian is behind the camera
+    K = torch.tensor([[50.0, 0.0, 16.0], [0.0, 50.0, 12.0], [0.0, 0.0, 1.0]])
+    out = scene.render(c2w, torch.linalg.inv(c2w), K, 32, 24)
+    assert float(out.image.detach().abs().sum()) == 0.0 and int(out.visible.sum()) == 0
+    loss, _ = photometric_loss(out.image, torch.full((24, 32, 3), 0.2), torch.zeros(24, 32, dtype=torch.bool))
+    loss.backward()
+    assert all(torch.isfinite(p.grad).all() for p in scene.parameters() if p.grad is not None)
+
+
+def test_random_initialisation_in_the_frusta_when_a_dataset_has_no_points(tmp_path, caplog):
+    """A nerfstudio folder without a point cloud: Gaussians start at random depths inside the training frusta."""
+    from spotlessgs.io.cameras import Intrinsics
+    from spotlessgs.io.images import write_png
+    from spotlessgs.io.transforms import FrameRecord, write_transforms
+    from spotlessgs.training.data import initial_point_cloud, load_training_views
+
+    intr = Intrinsics.from_fov(60.0, 32, 24)
+    frames = []
+    for k in range(4):
+        c2w = np.eye(4)
+        c2w[0, 3] = 0.3 * k
+        write_png(tmp_path / "images" / f"f{k}.png", np.full((24, 32, 3), 0.5))
+        frames.append(FrameRecord(f"images/f{k}.png", c2w))
+    write_transforms(tmp_path / "transforms.json", intr, frames, None)
+    views = load_training_views(tmp_path)
+    with caplog.at_level("WARNING"):
+        cloud = initial_point_cloud(views, np.random.default_rng(0), n_random=300)
+    assert "no point cloud" in caplog.text
+    assert len(cloud.xyz) >= 200 and np.isfinite(cloud.xyz).all()
+    # every point lies in front of some training camera and projects inside its image
+    inside_any = np.zeros(len(cloud.xyz), dtype=bool)
+    for k in views.train:
+        w2c = np.linalg.inv(views.c2w[k].double().numpy())
+        cam = cloud.xyz @ w2c[:3, :3].T + w2c[:3, 3]
+        u = intr.fx * cam[:, 0] / cam[:, 2] + intr.cx
+        v = intr.fy * cam[:, 1] / cam[:, 2] + intr.cy
+        inside_any |= (cam[:, 2] > 0) & (u >= 0) & (u <= 32) & (v >= 0) & (v <= 24)
+    assert inside_any.all()
