@@ -7,17 +7,7 @@ from typing import Mapping, Sequence
 
 import numpy as np
 
-from spotlessgs.io.atomic import atomic_path
-
-
-def _pyplot():
-    """matplotlib.pyplot on the non-interactive Agg backend."""
-    import matplotlib
-
-    matplotlib.use("Agg", force=True)
-    import matplotlib.pyplot as plt
-
-    return plt
+from spotlessgs.io.figures import pyplot, save_figure
 
 
 def save_image_grid(
@@ -36,7 +26,7 @@ def save_image_grid(
     """
     if not rows or any(len(r) != len(column_titles) for r in rows) or len(row_titles) != len(rows):
         raise ValueError("image grid: every row needs one image per column title, and one title per row")
-    plt = _pyplot()
+    plt = pyplot()
     h, w = rows[0][0].shape[:2]
     ncol, nrow = len(column_titles), len(rows)
     scale = 3.2 / max(w, h) * max(w, 1)
@@ -51,10 +41,7 @@ def save_image_grid(
                 ax.set_title(column_titles[c], fontsize=10)
             if c == 0:
                 ax.set_ylabel(row_titles[r], fontsize=8)
-    fig.tight_layout()
-    with atomic_path(path) as tmp:
-        fig.savefig(tmp, dpi=110, format="png")
-    plt.close(fig)
+    save_figure(fig, path, dpi=110)
 
 
 def save_trajectory_plot(
@@ -72,7 +59,7 @@ def save_trajectory_plot(
     """
     if not panels:
         raise ValueError("trajectory plot: no panels")
-    plt = _pyplot()
+    plt = pyplot()
     fig, axes = plt.subplots(1, len(panels), figsize=(5.2 * len(panels), 4.8), squeeze=False)
     for ax, (title, panel) in zip(axes[0], panels.items()):
         centres = np.asarray(panel.get("centres", np.zeros((0, 3))), dtype=np.float64).reshape(-1, 3)
@@ -105,10 +92,7 @@ def save_trajectory_plot(
         ax.set_aspect("equal", adjustable="datalim")
         if len(centres) or len(points):
             ax.legend(loc="best", fontsize=7)
-    fig.tight_layout()
-    with atomic_path(path) as tmp:
-        fig.savefig(tmp, dpi=110, format="png")
-    plt.close(fig)
+    save_figure(fig, path, dpi=110)
 
 
 def _principal_plane(x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

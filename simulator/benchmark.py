@@ -19,7 +19,8 @@ import numpy as np
 
 from simulator.front3d import LoadOptions
 from simulator.render_pipeline import RenderConfig, plan_poses
-from spotlessgs.io.atomic import atomic_path, write_json, write_text
+from spotlessgs.io.atomic import write_json, write_text
+from spotlessgs.io.figures import pyplot, save_figure
 from spotlessgs.io.colorspace import linear_to_srgb
 from spotlessgs.io.provenance import provenance
 
@@ -88,11 +89,7 @@ def markdown_table(rows: list[dict], width: int, height: int) -> str:
 
 def plot(rows: list[dict], path: Path, width: int, height: int) -> None:
     """Seconds per pair (x) against PSNR (y), one curve per render and denoise setting."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
+    plt = pyplot()
     fig, ax = plt.subplots(figsize=(6, 4))
     for denoise, style in ((False, "--"), (True, "-")):
         sel = [r for r in rows if not r["reference"] and r["denoise"] == denoise]
@@ -107,10 +104,7 @@ def plot(rows: list[dict], path: Path, width: int, height: int) -> None:
     ax.set_title(f"Cycles CPU, {width}x{height}")
     ax.grid(True, alpha=0.3)
     ax.legend(fontsize=8)
-    fig.tight_layout()
-    with atomic_path(path) as tmp:
-        fig.savefig(tmp, dpi=120)
-    plt.close(fig)
+    save_figure(fig, path)
 
 
 @click.command()

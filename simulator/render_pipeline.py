@@ -3,9 +3,9 @@
 Output folder (the dataset contract, see ``docs/dataset.md``)::
 
     OUT/plan.json            settings fingerprint + poses (written first; a rerun with other settings is refused)
-    OUT/images/frame_XXXXX.png  spotlight-only (uneven) input, 8-bit sRGB
-    OUT/gt/frame_XXXXX.png      lamps-on ground truth, 8-bit sRGB
-    OUT/exr/frame_XXXXX.exr     linear uneven.RGB, gt.RGB, depth.Z (planar, m), normal.XYZ (world)
+    OUT/images/frame_00042.png  spotlight-only (uneven) input, 8-bit sRGB
+    OUT/gt/frame_00042.png      lamps-on ground truth, 8-bit sRGB
+    OUT/exr/frame_00042.exr     linear uneven.RGB, gt.RGB, depth.Z (planar, m), normal.XYZ (world)
     OUT/points3d.ply            initial coloured point cloud back-projected from depth
     OUT/sparse/0/*.txt          COLMAP text model (true poses)
     OUT/transforms.json         nerfstudio-compatible + our "spotless" block (written last: the dataset is complete)

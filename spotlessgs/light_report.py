@@ -10,7 +10,8 @@ from typing import Any
 import numpy as np
 import torch
 
-from spotlessgs.io.atomic import atomic_path, write_json
+from spotlessgs.io.atomic import write_json
+from spotlessgs.io.figures import pyplot, save_figure
 from spotlessgs.io.transforms import LightTruth
 from spotlessgs.models.light import ConstantAmbient, LowFrequencyLight, cone_profile
 
@@ -72,11 +73,7 @@ def write_light_report(scene, views, run_dir: Path) -> dict[str, Any]:
 def plot_rid(scene, truth: LightTruth | None, path: Path) -> None:
     """The learned radiant intensity against the angle off the light axis (normalised to its peak), with the true
     cone profile when known."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
+    plt = pyplot()
     theta = torch.linspace(0.0, math.radians(80.0), 200)
     rid = scene.appearance.light.rid_curve(theta).reshape(-1).double().cpu().numpy()
     fig, ax = plt.subplots(figsize=(5, 3.4))
@@ -89,7 +86,4 @@ def plot_rid(scene, truth: LightTruth | None, path: Path) -> None:
     ax.set_ylabel("relative intensity")
     ax.grid(True, alpha=0.3)
     ax.legend(fontsize=8)
-    fig.tight_layout()
-    with atomic_path(path) as tmp:
-        fig.savefig(tmp, dpi=120)
-    plt.close(fig)
+    save_figure(fig, path)
