@@ -87,6 +87,31 @@ def test_config_errors():
         ReproduceConfig(scenes_dir=Path("/nonexistent")).scene_file("bedroom")
 
 
+def test_cli_options_to_config():
+    from spotlessgs.reproduce.cli import config_from_options
+
+    c = config_from_options("quick", ("office",), 3, None, True)
+    assert c.scenes == ("office",) and c.gan_rooms == ("living_room", "bedroom") and c.seed == 3 and not c.sfm
+    assert config_from_options("tiny", (), 0, None, False) == preset("tiny")
+    with pytest.raises(ValueError, match="gan_rooms needs at least two rooms"):
+        config_from_options("quick", ("bedroom", "living_room", "office", "storage_room"), 0, None, False)
+
+
+def test_cli_reports_refused_folder_and_bad_options(tmp_path):
+    from click.testing import CliRunner
+
+    from spotlessgs.cli import main
+
+    check_or_record_config(preset("tiny", seed=5), tmp_path)
+    result = CliRunner().invoke(main, ["reproduce", "--preset", "tiny", "--out", str(tmp_path)])
+    assert result.exit_code == 1 and "made with other settings (differing: ['seed'])" in result.output
+    result = CliRunner().invoke(main, ["reproduce", "--preset", "tiny", "--out", str(tmp_path), "--scenes", "bedroom",
+                                       "--scenes", "office", "--scenes", "living_room", "--scenes", "storage_room"])
+    assert result.exit_code == 2 and "gan_rooms needs at least two rooms" in result.output
+    result = CliRunner().invoke(main, ["reproduce", "--preset", "tiny", "--out", str(tmp_path), "--jobs", "0"])
+    assert result.exit_code == 2 and "--jobs" in result.output
+
+
 def test_curve_milestones():
     assert curve_milestones(150, (0.5,)) == [75, 150]
     assert curve_milestones(10, (0.01, 0.25, 0.5, 0.75)) == [1, 2, 5, 8, 10]  # round(2.5) = 2 (banker's), 7.5 -> 8

@@ -222,8 +222,8 @@ def runtime_table(collected: dict) -> Table:
     table.notes.append("Training time: wall time of the training loop (sum over the segments between the curve "
                        "milestones). Relit FPS: render_run over every view at the dataset's resolution. Peak memory "
                        "relit: ru_maxrss of a fresh process that loads the run and renders every relit view (it "
-                       "includes the Python/torch runtime: the 'baseline' column is that process's peak right after "
-                       "its imports); peak memory training: ru_maxrss of the training stage's process. The paper's "
+                       "includes the Python/torch runtime: the 'baseline' column is that process's resident memory "
+                       "right after its imports; torch's import has a transient peak of its own); peak memory training: ru_maxrss of the training stage's process. The paper's "
                        "figure is GPU memory; ours is host RSS (also on a GPU).")
     table.notes.append(f"Paper rows: {paper.RUNTIME_SOURCE}. 2D rows: FPS of enhancing the whole folder; the Cycle-GAN "
                        "row's training time is its training on other rooms.")
