@@ -10,7 +10,6 @@ import json
 import math
 import shutil
 import time
-from pathlib import Path
 
 import pytest
 from click.testing import CliRunner

@@ -41,6 +41,11 @@ def sleep_and_time(path: str, seconds: float, threads: int) -> dict:
     return {}
 
 
+def thread_env(threads: int) -> dict:
+    """The worker's OMP thread setting and the ``threads`` argument it was given."""
+    return {"omp": os.environ.get("OMP_NUM_THREADS"), "threads_arg": threads}
+
+
 def fail(message: str, threads: int) -> dict:
     raise RuntimeError(message)
 
@@ -303,7 +308,8 @@ def test_best_darkgs_picks_higher_aligned_psnr():
 def test_table1_rows_and_paper_numbers():
     t = table1(_collected())
     ours = [r for r in t.rows if r[0] == "bedroom-uneven"]
-    assert [r[1] for r in ours] == ["Input (spotlight-lit)", "3DGS", "DarkGS (best: calibrated light)", "SpotlessGS (ours)"]
+    assert [r[1] for r in ours] == ["Input (spotlight-lit)", "3DGS", "DarkGS (best: calibrated light)",
+                                    "SpotlessGS (ours)"]
     assert ours[2][t.columns.index("PSNR (aligned)")] == 15.5
     paper_rows = {r[1]: r for r in t.rows if r[0] == "paper (synthetic)"}
     assert paper_rows["SpotlessGS (ours)"][2:5] == [12.67, 0.727, 0.381]
@@ -335,7 +341,8 @@ def test_all_tables_present_with_finite_numbers():
 def test_check_order_agrees_disagrees_unknown():
     ok = check_order("c", {"A": 3.0, "B": 2.0, "C": 1.0}, ["A", "B", "C"], True, "dB", {"A": 9, "B": 8, "C": 7}, 1)
     assert ok.status == "agrees"
-    assert ok.text == "Paper: A > B > C (9.0 > 8.0 > 7.0 dB). Ours: A 3.0, B 2.0, C 1.0 dB — same ordering as the paper."
+    assert ok.text == ("Paper: A > B > C (9.0 > 8.0 > 7.0 dB). Ours: A 3.0, B 2.0, C 1.0 dB — same ordering as the "
+                       "paper.")
     bad = check_order("c", {"A": 3.0, "B": 4.0, "C": 1.0}, ["A", "B", "C"], True)
     assert bad.status == "disagrees" and "disagrees with the paper's ordering: A ≤ B." in bad.text
     low = check_order("c", {"A": 0.5, "B": 0.4}, ["A", "B"], False)
@@ -386,8 +393,23 @@ def test_format_cell():
     assert format_cell(3) == "3" and format_cell(True) == "yes"
 
 
-def test_thread_env_is_set_in_workers(tmp_path):
-    stage = Stage("env", f"{HERE}:append_line", {"path": str(tmp_path / "x"), "text": "y"})
+def test_thread_env_is_set_in_workers(tmp_path, monkeypatch):
+    monkeypatch.setenv("OMP_NUM_THREADS", "7")
+    stage = Stage("env", f"{HERE}:thread_env", {})
     execute(StageGraph([stage]), tmp_path, jobs=2, cores=4)
-    assert read_marker(tmp_path, "env")["threads"] == 2
-    assert os.environ.get("OMP_NUM_THREADS") != "sentinel"  # the parent environment is untouched
+    marker = read_marker(tmp_path, "env")
+    assert marker["threads"] == 2 and marker["result"] == {"omp": "2", "threads_arg": 2}
+    assert os.environ["OMP_NUM_THREADS"] == "7"  # the parent's environment is untouched
+
+
+def test_report_errors_name_the_missing_piece(tmp_path):
+    from spotlessgs.reproduce.report import collect, load_config
+
+    with pytest.raises(FileNotFoundError, match="not a reproduction folder"):
+        load_config(tmp_path)
+    check_or_record_config(preset("tiny"), tmp_path)
+    assert load_config(tmp_path) == preset("tiny")  # the recorded config reads back identically
+    with pytest.raises(FileNotFoundError, match="stage 'cyclegan/train' has not finished"):
+        collect(tmp_path, preset("tiny"))
+    with pytest.raises(FileNotFoundError, match="stage 'train/bedroom-uneven/3dgs' has not finished"):
+        collect(tmp_path, preset("tiny", baselines=()))

@@ -147,8 +147,8 @@ PRESETS: dict[str, ReproduceConfig] = {
     # Tests: one room, a dozen frames at 96x72, a 150-step trainer, a 60-step Cycle-GAN; a few minutes on 2 cores.
     "tiny": ReproduceConfig(
         preset="tiny", frames=12, width=96, height=72, samples=4, train_preset="tiny", train_iterations=150,
-        train_width=64, curve_fractions=(0.5,), gan_rooms=("office", "living_room"), gan_frames=6, gan_width=96, gan_height=72,
-        gan_samples=4, cyclegan_preset="tiny", cyclegan_steps=None, sfm_matcher="exhaustive",
+        train_width=64, curve_fractions=(0.5,), gan_rooms=("office", "living_room"), gan_frames=6, gan_width=96,
+        gan_height=72, gan_samples=4, cyclegan_preset="tiny", cyclegan_steps=None, sfm_matcher="exhaustive",
     ),
     # README main job: about half an hour on a 2-core CPU.
     "quick": ReproduceConfig(),

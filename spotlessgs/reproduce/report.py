@@ -74,7 +74,8 @@ def render_markdown(config: ReproduceConfig, tables: list[Table], notes: list[Ag
         f"Preset `{config.preset}`: rooms {', '.join(config.scenes)}; variants {', '.join(config.variants)}; "
         f"{config.frames} frames at {config.width}x{config.height}, {config.samples} samples; trainer preset "
         f"`{config.train_preset}`" + (f" with {config.train_iterations} iterations" if config.train_iterations else "")
-        + f"; Cycle-GAN preset `{config.cyclegan_preset}` trained on {', '.join(config.gan_rooms)}; seed {config.seed}.",
+        + f"; Cycle-GAN preset `{config.cyclegan_preset}` trained on {', '.join(config.gan_rooms)}; "
+        f"seed {config.seed}.",
         "",
         f"Paper figures are from the {paper.SOURCE}; they come from other data (and a GPU), so compare orderings, "
         "not values.", "",

@@ -92,7 +92,9 @@ def _finite(x: Any) -> bool:
 
 
 def _darkgs_label(name: str | None) -> str:
-    return "DarkGS" if name is None else f"DarkGS (best: {'calibrated light' if name == 'darkgs-calibrated' else 'joint'})"
+    if name is None:
+        return "DarkGS"
+    return f"DarkGS (best: {'calibrated light' if name == 'darkgs-calibrated' else 'joint'})"
 
 
 def method_rows(ds: dict[str, Any], names: Sequence[str]) -> list[tuple[str, str, dict | None]]:
@@ -223,8 +225,9 @@ def runtime_table(collected: dict) -> Table:
                        "milestones). Relit FPS: render_run over every view at the dataset's resolution. Peak memory "
                        "relit: ru_maxrss of a fresh process that loads the run and renders every relit view (it "
                        "includes the Python/torch runtime: the 'baseline' column is that process's resident memory "
-                       "right after its imports; torch's import has a transient peak of its own); peak memory training: ru_maxrss of the training stage's process. The paper's "
-                       "figure is GPU memory; ours is host RSS (also on a GPU).")
+                       "right after its imports; torch's import has a transient peak of its own); peak memory "
+                       "training: ru_maxrss of the training stage's process. The paper's figure is GPU memory; ours "
+                       "is host RSS (also on a GPU).")
     table.notes.append(f"Paper rows: {paper.RUNTIME_SOURCE}. 2D rows: FPS of enhancing the whole folder; the Cycle-GAN "
                        "row's training time is its training on other rooms.")
     return table
