@@ -413,3 +413,18 @@ def test_report_errors_name_the_missing_piece(tmp_path):
         collect(tmp_path, preset("tiny"))
     with pytest.raises(FileNotFoundError, match="stage 'train/bedroom-uneven/3dgs' has not finished"):
         collect(tmp_path, preset("tiny", baselines=()))
+
+
+@pytest.mark.parametrize("name", ["tiny", "quick", "paper"])
+def test_every_preset_camera_loop_is_admissible(name):
+    """The simulator can place every frame of every room a preset renders (the shipped bedroom, e.g., admits no
+    40-48 or 316-frame loop with seed 0)."""
+    from simulator.front3d import LoadOptions
+    from simulator.render_pipeline import RenderConfig, plan_poses
+
+    config = preset(name)
+    rooms = [(r, config.frames) for r in config.scenes] + [(r, config.gan_frames) for r in config.gan_rooms]
+    for room, frames in rooms:
+        render = RenderConfig.from_preset("uneven", frames=frames, seed=config.seed)
+        poses = plan_poses(config.scene_file(room), render, LoadOptions())[3]
+        assert len(poses) == frames, room
