@@ -41,6 +41,12 @@ def sleep_and_time(path: str, seconds: float, threads: int) -> dict:
     return {}
 
 
+def sleep_forever(path: str, threads: int) -> dict:
+    Path(path).write_text(str(os.getpid()))
+    time.sleep(120)
+    return {}
+
+
 def thread_env(threads: int) -> dict:
     """The worker's OMP thread setting and the ``threads`` argument it was given."""
     return {"omp": os.environ.get("OMP_NUM_THREADS"), "threads_arg": threads}
@@ -428,3 +434,41 @@ def test_every_preset_camera_loop_is_admissible(name):
         render = RenderConfig.from_preset("uneven", frames=frames, seed=config.seed)
         poses = plan_poses(config.scene_file(room), render, LoadOptions())[3]
         assert len(poses) == frames, room
+
+
+def test_workers_die_with_the_parent(tmp_path):
+    """Killing the pipeline's process stops its running stage (no orphan keeps working without a parent)."""
+    import signal
+    import subprocess
+    import sys
+
+    script = (
+        "import sys; sys.path[:0] = sys.argv[1:3]\n"
+        "from spotlessgs.reproduce.executor import execute\n"
+        "from spotlessgs.reproduce.stages import Stage, StageGraph\n"
+        "if __name__ == '__main__':\n"
+        "    execute(StageGraph([Stage('s', 'test_reproduce_units:sleep_forever', {'path': sys.argv[3]})]), "
+        "sys.argv[4], jobs=1)\n"
+    )
+    pid_file = tmp_path / "pid"
+    here = str(Path(__file__).parent)
+    root = str(Path(__file__).parents[1])
+    parent = subprocess.Popen([sys.executable, "-c", script, here, root, str(pid_file), str(tmp_path / "root")])
+    deadline = time.time() + 60
+    while not pid_file.exists() or not pid_file.read_text():
+        assert time.time() < deadline and parent.poll() is None, "the stage never started"
+        time.sleep(0.2)
+    worker = int(pid_file.read_text())
+    parent.send_signal(signal.SIGKILL)
+    parent.wait()
+    deadline = time.time() + 10
+    while time.time() < deadline:
+        try:
+            os.kill(worker, 0)
+        except ProcessLookupError:
+            break
+        time.sleep(0.2)
+    else:
+        os.kill(worker, signal.SIGKILL)
+        pytest.fail("the worker outlived its parent")
+    assert not is_done(tmp_path / "root", "s")

@@ -49,10 +49,25 @@ def threads_per_job(jobs: int, cores: int | None = None) -> int:
     return max(1, cores // jobs)
 
 
+def _die_with_parent() -> bool:
+    """Linux: ask the kernel to SIGTERM this worker when the parent process dies, so that killing ``spotless
+    reproduce`` stops its stages too (their markers are then missing and a rerun redoes them). False elsewhere."""
+    try:
+        import ctypes
+        import signal
+
+        libc = ctypes.CDLL("libc.so.6", use_errno=True)
+        pr_set_pdeathsig = 1
+        return libc.prctl(pr_set_pdeathsig, int(signal.SIGTERM), 0, 0, 0) == 0
+    except (OSError, AttributeError):
+        return False
+
+
 def _init_worker(threads: int) -> None:
-    """Set the thread environment before the stage imports numpy/torch."""
+    """Set the thread environment before the stage imports numpy/torch; tie the worker's life to the parent's."""
     for key in _THREAD_ENV:
         os.environ[key] = str(threads)
+    _die_with_parent()
 
 
 def run_stage(root: str, stage: Stage, threads: int) -> dict[str, Any]:
