@@ -204,10 +204,10 @@ def table4(collected: dict) -> Table:
 def runtime_table(collected: dict) -> Table:
     """Training time, relit FPS and peak memory per method (and the 2D baselines' per-folder times)."""
     columns = ["Dataset", "Method", "Training time (s)", "ms / step", "Gaussians", "Relit FPS",
-               "Peak memory relit (MB)", "of which runtime baseline (MB)", "Peak memory training (MB)", "Device"]
+               "Peak memory relit (MB)", "RSS after imports (MB)", "Peak memory training (MB)", "Device"]
     table = Table("runtime", "Runtime", columns,
                   digits={"Training time (s)": 1, "ms / step": 1, "Relit FPS": 1, "Peak memory relit (MB)": 0,
-                          "of which runtime baseline (MB)": 0, "Peak memory training (MB)": 0})
+                          "RSS after imports (MB)": 0, "Peak memory training (MB)": 0})
     for ds_name, ds in collected["datasets"].items():
         for name, entry in ds.get("methods", {}).items():
             train, relit = entry.get("train", {}), entry.get("relight", {})
@@ -224,7 +224,7 @@ def runtime_table(collected: dict) -> Table:
     table.notes.append("Training time: wall time of the training loop (sum over the segments between the curve "
                        "milestones). Relit FPS: render_run over every view at the dataset's resolution. Peak memory "
                        "relit: ru_maxrss of a fresh process that loads the run and renders every relit view (it "
-                       "includes the Python/torch runtime: the 'baseline' column is that process's resident memory "
+                       "includes the Python/torch runtime: the 'RSS after imports' column is that process's resident memory "
                        "right after its imports; torch's import has a transient peak of its own); peak memory "
                        "training: ru_maxrss of the training stage's process. The paper's figure is GPU memory; ours "
                        "is host RSS (also on a GPU).")
