@@ -224,10 +224,10 @@ def runtime_table(collected: dict) -> Table:
     table.notes.append("Training time: wall time of the training loop (sum over the segments between the curve "
                        "milestones). Relit FPS: render_run over every view at the dataset's resolution. Peak memory "
                        "relit: ru_maxrss of a fresh process that loads the run and renders every relit view (it "
-                       "includes the Python/torch runtime: the 'RSS after imports' column is that process's resident memory "
+                       "includes the Python/torch runtime: 'RSS after imports' is that process's resident memory "
                        "right after its imports; torch's import has a transient peak of its own); peak memory "
                        "training: ru_maxrss of the training stage's process. The paper's figure is GPU memory; ours "
-                       "is host RSS (also on a GPU).")
+                       "is host RSS (also on a GPU). Timings on a shared machine vary with its load.")
     table.notes.append(f"Paper rows: {paper.RUNTIME_SOURCE}. 2D rows: FPS of enhancing the whole folder; the Cycle-GAN "
                        "row's training time is its training on other rooms.")
     return table
