@@ -156,7 +156,8 @@ PRESETS: dict[str, ReproduceConfig] = {
     # the trainer's paper schedule. The living room: the shipped bedroom admits no 316-frame loop (frame 314 hits an
     # obstacle).
     "paper": ReproduceConfig(
-        preset="paper", scenes=("living_room",), gan_rooms=("office", "bedroom"), frames=316, width=640, height=480, samples=64, train_preset="paper", train_iterations=None,
+        preset="paper", scenes=("living_room",), gan_rooms=("office", "bedroom"), frames=316, width=640, height=480,
+        samples=64, train_preset="paper", train_iterations=None,
         curve_fractions=(0.1, 0.25, 0.5, 0.75), gan_frames=120, gan_width=640, gan_height=480, gan_samples=32,
         cyclegan_preset="paper", cyclegan_steps=None,
     ),

@@ -295,7 +295,8 @@ def check_sfm(claim: str, relit: dict[str, Any], original: dict[str, Any], relit
         return Agreement(claim, "unknown", body + " — no image registered in either sequence, nothing to compare.")
     if ra != rb:
         status = "agrees" if ra > rb else "disagrees"
-        return Agreement(claim, status, body + (" — more images registered." if ra > rb else " — fewer registered."))
+        return Agreement(claim, status, body + (" — more images registered." if ra > rb
+                                                else " — fewer images registered."))
     if not (_finite(ea) and _finite(eb)):
         return Agreement(claim, "unknown", body + " — equal registration, reprojection error missing.")
     status = "agrees" if ea <= eb else "disagrees"
