@@ -11,6 +11,7 @@ import click
 
 from evaluation.cli import eval_command
 from spotlessgs.baselines2d.cli import baseline2d
+from spotlessgs.reproduce.cli import reproduce
 
 MODELS = ["3dgs", "darkgs", "darkgs-calibrated", "darkgs+sh", "darkgs+brdf", "spotless"]
 
@@ -109,6 +110,7 @@ def export(run_dir, out_path, l0):
 
 main.add_command(eval_command, name="eval")
 main.add_command(baseline2d)
+main.add_command(reproduce)
 
 if __name__ == "__main__":
     main()

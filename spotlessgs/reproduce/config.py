@@ -1,0 +1,171 @@
+"""Settings of ``spotless reproduce``: a frozen dataclass with a comment per field and three named presets.
+
+``tiny`` finishes in a few minutes on a 2-core CPU (the tests run it), ``quick`` in about half an hour there (the
+README's main job), ``paper`` is the paper's scale (316 frames at native size, the full training schedule) for a GPU.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+# Every model the trainer knows; the tables read them by these names.
+METHODS_3D: tuple[str, ...] = ("3dgs", "darkgs", "darkgs-calibrated", "darkgs+sh", "darkgs+brdf", "spotless")
+# Single-view 2D baselines (spotlessgs.baselines2d).
+METHODS_2D: tuple[str, ...] = ("clahe", "msrcr", "cyclegan")
+# Dataset variants of METHOD.md §8 (simulator spotlight presets).
+VARIANTS: tuple[str, ...] = ("uneven", "saturated")
+# Room kinds shipped under scenes/<kind>/house.json.
+SHIPPED_ROOMS: tuple[str, ...] = ("bedroom", "living_room", "office", "storage_room", "corridor")
+# The default location of the shipped rooms (the repository's scenes/ folder).
+DEFAULT_SCENES_DIR = Path(__file__).resolve().parents[2] / "scenes"
+
+
+@dataclass(frozen=True)
+class ReproduceConfig:
+    """Everything that determines a reproduction run besides the output folder (which records it)."""
+
+    # Preset name this config started from.
+    preset: str = "quick"
+    # Test rooms (shipped room kinds): every 3D method and 2D baseline is scored on each.
+    scenes: tuple[str, ...] = ("bedroom",)
+    # Dataset variants rendered for every test room.
+    variants: tuple[str, ...] = VARIANTS
+    # Frames along the camera loop of a test room (every 11th is a test view; the shipped bedroom admits no camera
+    # loop of 40-48 frames with seed 0: its path corner hits an obstacle, so quick uses 36).
+    frames: int = 36
+    # Rendered image size of the test rooms (pixels).
+    width: int = 160
+    height: int = 120
+    # Cycles samples per pixel.
+    samples: int = 16
+    # 3D models trained on every test dataset.
+    methods: tuple[str, ...] = METHODS_3D
+    # Trainer preset (spotlessgs.training.config) and overrides (None keeps the preset's value). quick: 1000 steps at
+    # 160 px (measured 74 ms/step for 3dgs, 139 ms/step for spotless on one busy core with ~60k Gaussians).
+    train_preset: str = "quick"
+    train_iterations: int | None = 1000
+    train_width: int | None = None
+    # Training is interrupted at these fractions of the schedule to score the relit test views (the speed-against-
+    # error curve); 1.0 is always included.
+    curve_fractions: tuple[float, ...] = (0.25, 0.5, 0.75)
+    # Single-view 2D baselines, run on the dataset variants in ``baseline_variants`` only.
+    baselines: tuple[str, ...] = METHODS_2D
+    baseline_variants: tuple[str, ...] = ("uneven",)
+    # Rooms whose renders train the Cycle-GAN (never a test room), at least two: the uneven inputs of the rooms at even
+    # positions and the evenly lit ground truth of the rooms at odd positions are the two domains, so no image of one
+    # domain has a pixel-aligned partner in the other (unpaired by construction).
+    gan_rooms: tuple[str, ...] = ("office", "living_room")
+    # Frames, size and samples of the Cycle-GAN's training renders.
+    gan_frames: int = 24
+    gan_width: int = 160
+    gan_height: int = 120
+    gan_samples: int = 8
+    # Cycle-GAN preset (spotlessgs.baselines2d.cyclegan.config) and optional step count override.
+    cyclegan_preset: str = "quick"
+    cyclegan_steps: int | None = 600
+    # Run SfM on the original and every method's relit sequence (Table III).
+    sfm: bool = True
+    # SfM pairing: "sequential" or "exhaustive" (short sequences with wide baselines need exhaustive).
+    sfm_matcher: str = "sequential"
+    # Compute LPIPS (AlexNet) besides PSNR and SSIM.
+    lpips: bool = True
+    # The command seed (renders, training, Cycle-GAN and SfM derive their own streams from it).
+    seed: int = 0
+    # Folder with the shipped rooms (scenes/<kind>/house.json).
+    scenes_dir: Path = DEFAULT_SCENES_DIR
+
+    def __post_init__(self) -> None:
+        def check_subset(name: str, allowed: tuple[str, ...]) -> None:
+            values = getattr(self, name)
+            if not values:
+                raise ValueError(f"ReproduceConfig.{name} is empty")
+            bad = [v for v in values if v not in allowed]
+            if bad:
+                raise ValueError(f"ReproduceConfig.{name}: unknown {bad}; choose from {list(allowed)}")
+            if len(set(values)) != len(values):
+                raise ValueError(f"ReproduceConfig.{name} lists an entry twice: {list(values)}")
+
+        check_subset("scenes", SHIPPED_ROOMS)
+        check_subset("variants", VARIANTS)
+        check_subset("methods", METHODS_3D)
+        if self.baselines:
+            check_subset("baselines", METHODS_2D)
+            check_subset("baseline_variants", self.variants)
+        if "cyclegan" in self.baselines:
+            check_subset("gan_rooms", SHIPPED_ROOMS)
+            if len(self.gan_rooms) < 2:
+                raise ValueError(f"ReproduceConfig.gan_rooms needs at least two rooms (one per unpaired domain), "
+                                 f"got {list(self.gan_rooms)}")
+            shared = sorted(set(self.gan_rooms) & set(self.scenes))
+            if shared:
+                raise ValueError(f"ReproduceConfig: Cycle-GAN training rooms {shared} are also test rooms; the 2D "
+                                 "baseline must never see the test room")
+        for name in ("frames", "width", "height", "samples", "gan_frames", "gan_width", "gan_height", "gan_samples"):
+            if getattr(self, name) < 1:
+                raise ValueError(f"ReproduceConfig.{name} must be at least 1, got {getattr(self, name)}")
+        if self.frames < 2:
+            raise ValueError(f"ReproduceConfig.frames must be at least 2 (one test view, one training view), "
+                             f"got {self.frames}")
+        if any(not 0.0 < f < 1.0 for f in self.curve_fractions):
+            raise ValueError(f"ReproduceConfig.curve_fractions must lie in (0, 1), got {self.curve_fractions}")
+        if self.sfm_matcher not in ("sequential", "exhaustive"):
+            raise ValueError(f"ReproduceConfig.sfm_matcher must be sequential or exhaustive, got {self.sfm_matcher!r}")
+
+    def replace(self, **changes: Any) -> "ReproduceConfig":
+        """A copy with some fields changed (unknown names are an error)."""
+        unknown = set(changes) - {f.name for f in dataclasses.fields(self)}
+        if unknown:
+            raise ValueError(f"unknown ReproduceConfig field(s): {sorted(unknown)}")
+        return dataclasses.replace(self, **changes)
+
+    def scene_file(self, room: str) -> Path:
+        """``scenes_dir/<room>/house.json`` (FileNotFoundError naming it when absent)."""
+        path = Path(self.scenes_dir) / room / "house.json"
+        if not path.is_file():
+            raise FileNotFoundError(f"{path}: shipped room {room!r} not found (is --scenes-dir right?)")
+        return path
+
+    def datasets(self) -> list[tuple[str, str]]:
+        """(room, variant) of every test dataset, in table order."""
+        return [(room, variant) for room in self.scenes for variant in self.variants]
+
+    def gan_domains(self) -> tuple[tuple[str, ...], tuple[str, ...]]:
+        """(rooms whose uneven inputs form the Cycle-GAN's source domain, rooms whose ground truth forms its target)."""
+        return tuple(self.gan_rooms[0::2]), tuple(self.gan_rooms[1::2])
+
+    def to_dict(self) -> dict[str, Any]:
+        """Plain-JSON form (recorded in results.json)."""
+        out = dataclasses.asdict(self)
+        out["scenes_dir"] = str(self.scenes_dir)
+        return out
+
+
+PRESETS: dict[str, ReproduceConfig] = {
+    # Tests: one room, a dozen frames at 96x72, a 150-step trainer, a 60-step Cycle-GAN; a few minutes on 2 cores.
+    "tiny": ReproduceConfig(
+        preset="tiny", frames=12, width=96, height=72, samples=4, train_preset="tiny", train_iterations=150,
+        train_width=64, curve_fractions=(0.5,), gan_rooms=("office", "living_room"), gan_frames=6, gan_width=96,
+        gan_height=72, gan_samples=4, cyclegan_preset="tiny", cyclegan_steps=None, sfm_matcher="exhaustive",
+    ),
+    # README main job: about half an hour on a 2-core CPU.
+    "quick": ReproduceConfig(),
+    # The paper's scale (GPU): 316 frames at 640x480 (the Cycle-GAN's 256x256 crops need images at least that big),
+    # the trainer's paper schedule. The living room: the shipped bedroom admits no 316-frame loop (frame 314 hits an
+    # obstacle).
+    "paper": ReproduceConfig(
+        preset="paper", scenes=("living_room",), gan_rooms=("office", "bedroom"), frames=316, width=640, height=480,
+        samples=64, train_preset="paper", train_iterations=None,
+        curve_fractions=(0.1, 0.25, 0.5, 0.75), gan_frames=120, gan_width=640, gan_height=480, gan_samples=32,
+        cyclegan_preset="paper", cyclegan_steps=None,
+    ),
+}
+
+
+def preset(name: str, **overrides: Any) -> ReproduceConfig:
+    """The named preset with some fields changed."""
+    if name not in PRESETS:
+        raise ValueError(f"unknown reproduce preset {name!r}; choose one of {sorted(PRESETS)}")
+    return PRESETS[name].replace(**overrides)

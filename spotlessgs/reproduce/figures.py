@@ -1,0 +1,92 @@
+"""Figures of the report: the qualitative grid and the speed-against-error plot (PNG, written atomically)."""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from evaluation.plots import save_image_grid
+from spotlessgs.io.atomic import atomic_path
+from spotlessgs.io.images import read_image
+from spotlessgs.reproduce.tables import LABELS, best_darkgs
+
+
+def _pyplot():
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    return plt
+
+
+def qualitative_grid(path: Path, data_dir: Path, runs_dir: Path, methods: dict[str, Any], test_views: list[str],
+                     max_rows: int = 3) -> list[str]:
+    """Write input / 3DGS / DarkGS (the better run) / ours / GT for up to ``max_rows`` test views.
+
+    Args:
+        path: output PNG.
+        data_dir: the dataset folder (``images/``, ``gt/``).
+        runs_dir: folder holding one run folder per method (``<method>/relit/<name>``).
+        methods: the dataset's method entries (to choose the DarkGS run).
+        test_views: file names of the test views.
+    Returns:
+        the column titles actually drawn (methods that were not trained are left out).
+    Raises:
+        ValueError: no test views.
+    """
+    if not test_views:
+        raise ValueError(f"{data_dir}: no test views for the qualitative grid")
+    darkgs, _ = best_darkgs(methods)
+    columns: list[tuple[str, Path]] = [("Input", data_dir / "images")]
+    for key, title in (("3dgs", "3DGS"), (darkgs, LABELS.get(darkgs or "", "DarkGS")), ("spotless", "Ours")):
+        if key and key in methods:
+            columns.append((title, runs_dir / key / "relit"))
+    columns.append(("Ground truth", data_dir / "gt"))
+    picks = [test_views[int(round(i))] for i in np.linspace(0, len(test_views) - 1, min(max_rows, len(test_views)))]
+    rows = [[read_image(folder / name, alpha="over_black") for _title, folder in columns] for name in picks]
+    save_image_grid(path, rows, [t for t, _ in columns], picks)
+    return [t for t, _ in columns]
+
+
+def speed_error_plot(path: Path, collected: dict[str, Any]) -> None:
+    """Test PSNR (exposure-aligned) against training time: one curve per 3D method (a point per curve milestone),
+    one subplot per dataset; 2D baselines as markers (Cycle-GAN at its training time) or horizontal lines (no
+    training)."""
+    plt = _pyplot()
+    datasets = list(collected["datasets"].items())
+    fig, axes = plt.subplots(1, max(len(datasets), 1), figsize=(5.2 * max(len(datasets), 1), 4.0), squeeze=False)
+    for ax, (ds_name, ds) in zip(axes[0], datasets):
+        for name, entry in ds.get("methods", {}).items():
+            curve = [p for p in entry.get("curve", []) if _finite(p.get("psnr_aligned"))]
+            if curve:
+                ax.plot([p["train_seconds"] for p in curve], [p["psnr_aligned"] for p in curve], marker="o",
+                        label=LABELS.get(name, name))
+        for name, entry in ds.get("baselines2d", {}).items():
+            value = entry.get("metrics", {}).get("psnr_aligned")
+            if not _finite(value):
+                continue
+            if name == "cyclegan" and _finite((collected.get("cyclegan") or {}).get("seconds")):
+                ax.scatter([collected["cyclegan"]["seconds"]], [value], marker="s", label=LABELS[name], zorder=3)
+            else:
+                ax.axhline(value, linestyle="--", linewidth=1, label=f"{LABELS.get(name, name)} (no training)",
+                           color="0.5" if name == "clahe" else "0.7")
+        input_psnr = (ds.get("input") or {}).get("psnr_aligned")
+        if _finite(input_psnr):
+            ax.axhline(input_psnr, linestyle=":", color="k", linewidth=1, label="Input (spotlight-lit)")
+        ax.set_title(ds_name)
+        ax.set_xlabel("training time (s)")
+        ax.set_ylabel("test PSNR, exposure-aligned (dB)")
+        ax.grid(alpha=0.3)
+        ax.legend(fontsize=7)
+    fig.tight_layout()
+    with atomic_path(path) as tmp:
+        fig.savefig(tmp, dpi=110, format="png")
+    plt.close(fig)
+
+
+def _finite(x: Any) -> bool:
+    return isinstance(x, (int, float)) and not isinstance(x, bool) and math.isfinite(x)

@@ -1,0 +1,119 @@
+"""The reproduction pipeline: which stages exist for a config, where they write, and the one entry point.
+
+Output folder layout::
+
+    OUT/reproduce.json                    the resolved config (a rerun with another config is refused)
+    OUT/datasets/<room>-<variant>/        rendered test datasets (simulator)
+    OUT/datasets/gan-<room>/              other rooms' renders for the Cycle-GAN
+    OUT/runs/<room>-<variant>/<method>/   training runs (+ relit/, eval/, curve/)
+    OUT/cyclegan/                         the Cycle-GAN checkpoint
+    OUT/baselines2d/<room>-<variant>/<method>/  enhanced images and their evaluation
+    OUT/.stages/...                       done-markers with each stage's summary
+    OUT/REPORT.md, OUT/results.json, OUT/figures/
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+from spotlessgs.io.atomic import write_json
+from spotlessgs.reproduce.config import ReproduceConfig
+from spotlessgs.reproduce.executor import RunReport, execute
+from spotlessgs.reproduce.stages import Stage, StageGraph
+
+CONFIG_FILE = "reproduce.json"
+TASKS = "spotlessgs.reproduce.tasks"
+
+
+def dataset_id(room: str, variant: str) -> str:
+    """Name of a test dataset: ``bedroom-uneven``."""
+    return f"{room}-{variant}"
+
+
+def build_graph(config: ReproduceConfig, out: Path) -> StageGraph:
+    """Every stage of the pipeline for ``config`` writing under ``out``.
+
+    The list order is the scheduling priority among ready stages: renders first (everything waits for them), then
+    the Cycle-GAN (long, independent of the 3D runs), then the 3D runs, the 2D baselines and the report.
+    """
+    out = Path(out)
+    stages: list[Stage] = []
+    common = {"sfm": config.sfm, "sfm_matcher": config.sfm_matcher, "lpips": config.lpips, "seed": config.seed}
+    for room, variant in config.datasets():
+        ds = dataset_id(room, variant)
+        stages.append(Stage(
+            f"render/{ds}", f"{TASKS}:render_room", output=out / "datasets" / ds, clean_on_retry=False,
+            kwargs={"scene_file": str(config.scene_file(room)), "out_dir": str(out / "datasets" / ds),
+                    "variant": variant, "frames": config.frames, "width": config.width, "height": config.height,
+                    "samples": config.samples, "seed": config.seed}))
+    if "cyclegan" in config.baselines:
+        for room in config.gan_rooms:
+            stages.append(Stage(
+                f"render/gan-{room}", f"{TASKS}:render_room", output=out / "datasets" / f"gan-{room}",
+                clean_on_retry=False,
+                kwargs={"scene_file": str(config.scene_file(room)), "out_dir": str(out / "datasets" / f"gan-{room}"),
+                        "variant": "uneven", "frames": config.gan_frames, "width": config.gan_width,
+                        "height": config.gan_height, "samples": config.gan_samples, "seed": config.seed}))
+        source, target = config.gan_domains()
+        stages.append(Stage(
+            "cyclegan/train", f"{TASKS}:train_cyclegan_stage", output=out / "cyclegan",
+            deps=tuple(f"render/gan-{room}" for room in config.gan_rooms),
+            kwargs={"uneven_dirs": [str(out / "datasets" / f"gan-{r}" / "images") for r in source],
+                    "even_dirs": [str(out / "datasets" / f"gan-{r}" / "gt") for r in target],
+                    "out_dir": str(out / "cyclegan"), "cyclegan_preset": config.cyclegan_preset,
+                    "steps": config.cyclegan_steps, "seed": config.seed}))
+    for room, variant in config.datasets():
+        ds = dataset_id(room, variant)
+        for method in config.methods:
+            run_dir = out / "runs" / ds / method
+            stages.append(Stage(
+                f"train/{ds}/{method}", f"{TASKS}:train_method", deps=(f"render/{ds}",), output=run_dir,
+                kwargs={"data_dir": str(out / "datasets" / ds), "run_dir": str(run_dir), "variant": method,
+                        "train_preset": config.train_preset, "iterations": config.train_iterations,
+                        "image_width": config.train_width, "curve_fractions": tuple(config.curve_fractions),
+                        **common}))
+    for room, variant in config.datasets():
+        if variant not in config.baseline_variants:
+            continue
+        ds = dataset_id(room, variant)
+        for method in config.baselines:
+            deps = (f"render/{ds}",) + (("cyclegan/train",) if method == "cyclegan" else ())
+            target_dir = out / "baselines2d" / ds / method
+            stages.append(Stage(
+                f"baseline2d/{ds}/{method}", f"{TASKS}:run_baseline2d", deps=deps, output=target_dir,
+                kwargs={"method": method, "data_dir": str(out / "datasets" / ds), "out_dir": str(target_dir),
+                        "checkpoint": str(out / "cyclegan" / "checkpoint.pt") if method == "cyclegan" else None,
+                        **common}))
+    stages.append(Stage("report", f"{TASKS}:write_report_stage", deps=tuple(s.name for s in stages),
+                        kwargs={"out_dir": str(out)}))
+    return StageGraph(stages)
+
+
+def check_or_record_config(config: ReproduceConfig, out: Path) -> None:
+    """Write ``OUT/reproduce.json``, or refuse (ValueError naming the differing fields) a folder made with another
+    config."""
+    path = Path(out) / CONFIG_FILE
+    wanted = json.loads(json.dumps(config.to_dict()))
+    if path.is_file():
+        old = json.loads(path.read_text(encoding="utf-8"))
+        if old != wanted:
+            fields = sorted(k for k in set(old) | set(wanted) if old.get(k) != wanted.get(k))
+            raise ValueError(f"{path}: this folder was made with other settings (differing: {fields}); "
+                             "use a new --out or the same settings")
+        return
+    write_json(path, wanted)
+
+
+def reproduce(config: ReproduceConfig, out: str | Path, jobs: int = 1) -> RunReport:
+    """Run (or resume) every stage for ``config`` in ``out`` with up to ``jobs`` stages at once.
+
+    Raises:
+        ValueError: ``out`` was made with other settings; FileNotFoundError: a shipped room is missing;
+        spotlessgs.reproduce.executor.StageFailedError: a stage raised (the others keep their results).
+    """
+    out = Path(out)
+    graph = build_graph(config, out)  # checks the rooms exist before anything is written
+    out.mkdir(parents=True, exist_ok=True)
+    check_or_record_config(config, out)
+    return execute(graph, out, jobs=jobs)

@@ -1,0 +1,143 @@
+"""Collect the finished stages of a reproduction folder into ``results.json``, ``REPORT.md`` and ``figures/``."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+from typing import Any
+
+from spotlessgs.io.atomic import write_json, write_text
+from spotlessgs.io.provenance import provenance
+from spotlessgs.reproduce import paper
+from spotlessgs.reproduce.config import ReproduceConfig
+from spotlessgs.reproduce.figures import qualitative_grid, speed_error_plot
+from spotlessgs.reproduce.stages import MARKER_DIR, read_marker
+from spotlessgs.reproduce.tables import Agreement, Table, agreement_notes, all_tables
+
+RESULTS_FILE = "results.json"
+REPORT_FILE = "REPORT.md"
+
+
+def load_config(out: Path) -> ReproduceConfig:
+    """The config recorded in ``OUT/reproduce.json`` (FileNotFoundError naming it when absent)."""
+    path = Path(out) / "reproduce.json"
+    if not path.is_file():
+        raise FileNotFoundError(f"{path}: not a reproduction folder (reproduce.json missing)")
+    raw = json.loads(path.read_text(encoding="utf-8"))
+    tuples = {k: tuple(v) for k, v in raw.items() if isinstance(v, list)}
+    return ReproduceConfig(**{**raw, **tuples, "scenes_dir": Path(raw["scenes_dir"])})
+
+
+def collect(out: Path, config: ReproduceConfig) -> dict[str, Any]:
+    """Every finished stage's summary, arranged per dataset (the structure documented in :mod:`tables`).
+
+    Raises:
+        FileNotFoundError: a stage the report needs has not finished (named).
+    """
+    from spotlessgs.reproduce.pipeline import dataset_id
+
+    collected: dict[str, Any] = {"datasets": {}, "cyclegan": None}
+    if "cyclegan" in config.baselines:
+        collected["cyclegan"] = read_marker(out, "cyclegan/train")["result"] | {
+            "stage_seconds": read_marker(out, "cyclegan/train")["seconds"]}
+    for room, variant in config.datasets():
+        ds = dataset_id(room, variant)
+        entry: dict[str, Any] = {"room": room, "variant": variant, "methods": {}, "baselines2d": {}, "input": None}
+        for method in config.methods:
+            marker = read_marker(out, f"train/{ds}/{method}")
+            entry["methods"][method] = marker["result"]
+            entry["methods"][method]["stage"] = {"seconds": marker["seconds"], "peak_rss_mb": marker["peak_rss_mb"]}
+            if entry["input"] is None:
+                entry["input"] = marker["result"]["metrics"].get("input")
+        if variant in config.baseline_variants:
+            for method in config.baselines:
+                entry["baselines2d"][method] = read_marker(out, f"baseline2d/{ds}/{method}")["result"]
+        collected["datasets"][ds] = entry
+    return collected
+
+
+def _stage_times(out: Path) -> dict[str, float]:
+    """Wall time of every finished stage (from the markers)."""
+    times = {}
+    for path in sorted((Path(out) / MARKER_DIR).rglob("*.json")):
+        name = str(path.relative_to(Path(out) / MARKER_DIR))[: -len(".json")]
+        if name != "report":
+            times[name] = float(json.loads(path.read_text(encoding="utf-8"))["seconds"])
+    return times
+
+
+def render_markdown(config: ReproduceConfig, tables: list[Table], notes: list[Agreement], figures: dict[str, str],
+                    stage_times: dict[str, float]) -> str:
+    """The text of REPORT.md."""
+    lines = [
+        "# SpotlessGS reproduction report", "",
+        f"Preset `{config.preset}`: rooms {', '.join(config.scenes)}; variants {', '.join(config.variants)}; "
+        f"{config.frames} frames at {config.width}x{config.height}, {config.samples} samples; trainer preset "
+        f"`{config.train_preset}`" + (f" with {config.train_iterations} iterations" if config.train_iterations else "")
+        + f"; Cycle-GAN preset `{config.cyclegan_preset}` trained on {', '.join(config.gan_rooms)}; "
+        f"seed {config.seed}.",
+        "",
+        f"Paper figures are from the {paper.SOURCE}; they come from other data (and a GPU), so compare orderings, "
+        "not values.", "",
+        "## Agreement with the paper's ordering", "",
+    ]
+    icon = {"agrees": "agrees", "disagrees": "**DISAGREES**", "unknown": "cannot check"}
+    for note in notes:
+        lines.append(f"- {note.claim} — {icon[note.status]}. {note.text}")
+    lines += ["", "## Tables", ""]
+    for table in tables:
+        lines.append(table.markdown())
+    lines += ["## Figures", ""]
+    for title, rel in figures.items():
+        lines += [f"**{title}**", "", f"![{title}]({rel})", ""]
+    total = sum(stage_times.values())
+    lines += ["## Stage times", "", f"Sum of stage wall times: {total:.1f} s (stages run in parallel overlap).", "",
+              "| Stage | Seconds |", "|---|---|"]
+    lines += [f"| {name} | {sec:.1f} |" for name, sec in stage_times.items()]
+    return "\n".join(lines) + "\n"
+
+
+def write_report(out: Path) -> dict[str, Any]:
+    """Write ``results.json``, ``REPORT.md`` and ``figures/*.png`` for a finished reproduction folder.
+
+    Returns:
+        {"report": path, "results": path, "figures": [paths]}.
+    """
+    from evaluation.dataset import read_dataset
+    from spotlessgs.reproduce.pipeline import dataset_id
+
+    out = Path(out)
+    config = load_config(out)
+    collected = collect(out, config)
+    tables = all_tables(collected)
+    notes = agreement_notes(collected)
+    figures: dict[str, str] = {}
+    for room, variant in config.datasets():
+        ds = dataset_id(room, variant)
+        data_dir = out / "datasets" / ds
+        test_views = [f.name for f in read_dataset(data_dir).test_frames if f.gt_path is not None]
+        rel = f"figures/qualitative_{ds}.png"
+        qualitative_grid(out / rel, data_dir, out / "runs" / ds, collected["datasets"][ds]["methods"], test_views)
+        figures[f"Qualitative comparison, {ds} (input / 3DGS / DarkGS / ours / ground truth)"] = rel
+    speed_error_plot(out / "figures" / "speed_vs_error.png", collected)
+    figures["Test PSNR (exposure-aligned) against training time; one point per curve milestone"] = \
+        "figures/speed_vs_error.png"
+    stage_times = _stage_times(out)
+    results = {
+        "preset": config.preset,
+        "config": config.to_dict(),
+        "datasets": collected["datasets"],
+        "cyclegan": collected["cyclegan"],
+        "tables": {t.key: t.to_dict() for t in tables},
+        "agreement": [n.to_dict() for n in notes],
+        "paper": {"source": paper.SOURCE, "table1": paper.TABLE1, "table2": paper.TABLE2, "table3": paper.TABLE3,
+                  "table4": paper.TABLE4, "runtime": paper.RUNTIME, "runtime_source": paper.RUNTIME_SOURCE},
+        "figures": sorted(figures.values()),
+        "stage_seconds": stage_times,
+        "provenance": provenance(seed=config.seed),
+    }
+    write_json(out / RESULTS_FILE, results)
+    write_text(out / REPORT_FILE, render_markdown(config, tables, notes, figures, stage_times))
+    return {"report": str(out / REPORT_FILE), "results": str(out / RESULTS_FILE),
+            "figures": [str(out / f) for f in sorted(figures.values())]}
+

@@ -1,0 +1,257 @@
+"""The work of each pipeline stage: module-level functions that a 'spawn' worker imports and calls.
+
+Every function takes keyword arguments (paths as strings, plain settings) plus ``threads`` (CPU threads granted by
+the executor), writes under its own output folder and returns a JSON-able summary (stored in the stage's marker).
+Heavy packages are imported inside the functions so that a worker imports only what its stage needs.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import resource
+import shutil
+import subprocess
+import sys
+import time
+from pathlib import Path
+from typing import Any, Sequence
+
+from spotlessgs.io.atomic import write_json
+
+# Keys of an evaluation result that hold per-image lists, configs or provenance (kept in the per-stage JSON only).
+_BULKY_KEYS = ("per_image", "config", "provenance", "test_views")
+
+
+def compact_metrics(results: dict[str, Any]) -> dict[str, Any]:
+    """An evaluation results dict without per-image lists, configs and provenance (recursively for ``input``)."""
+    out = {k: v for k, v in results.items() if k not in _BULKY_KEYS}
+    if isinstance(out.get("input"), dict):
+        out["input"] = compact_metrics(out["input"])
+    return out
+
+
+# ---------------------------------------------------------------------------------------------------------------------
+# Peak memory of one phase of a process
+
+
+def peak_rss_mb() -> float:
+    """Peak resident set size of this process so far, MiB (ru_maxrss; the executor runs each stage in a fresh
+    process, so this is the stage's own peak)."""
+    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
+
+
+def relight_in_fresh_process(run_dir: Path, threads: int) -> dict[str, Any]:
+    """Relight every view of ``run_dir`` into ``run_dir/relit`` in a fresh Python process (so that its peak memory
+    is that of loading the run and rendering, not of training); returns its summary (see relight_process)."""
+    import spotlessgs
+
+    summary_path = run_dir / "relit.summary.json"
+    env = dict(os.environ)
+    root = str(Path(spotlessgs.__file__).resolve().parents[1])
+    env["PYTHONPATH"] = os.pathsep.join([root] + ([env["PYTHONPATH"]] if env.get("PYTHONPATH") else []))
+    for key in ("OMP_NUM_THREADS", "MKL_NUM_THREADS"):
+        env[key] = str(threads)
+    proc = subprocess.run([sys.executable, "-m", "spotlessgs.reproduce.relight_process", str(run_dir), "all",
+                           str(run_dir / "relit"), str(summary_path)], env=env, capture_output=True, text=True)
+    if proc.returncode != 0:
+        raise RuntimeError(f"relighting {run_dir} failed (exit {proc.returncode}): {proc.stderr.strip()[-2000:]}")
+    return json.loads(summary_path.read_text(encoding="utf-8"))
+
+
+# ---------------------------------------------------------------------------------------------------------------------
+# Datasets
+
+
+def render_room(scene_file: str, out_dir: str, variant: str, frames: int, width: int, height: int, samples: int,
+                seed: int, threads: int) -> dict[str, Any]:
+    """Render (or resume) one paired dataset with the simulator; RuntimeError when it is not complete afterwards."""
+    from simulator.render_pipeline import ExecutionOptions, RenderConfig, render_dataset
+
+    config = RenderConfig.from_preset(variant, frames=frames, width=width, height=height, samples=samples, seed=seed)
+    summary = render_dataset(scene_file, out_dir, config, execution=ExecutionOptions(threads=threads, progress=False))
+    if not summary["complete"]:
+        raise RuntimeError(f"{out_dir}: rendering finished but the dataset is incomplete: {summary}")
+    return summary
+
+
+# ---------------------------------------------------------------------------------------------------------------------
+# 3D methods: train (with intermediate scores), relight, evaluate
+
+
+def _eval_config(sfm: bool, sfm_matcher: str, lpips: bool, seed: int, threads: int):
+    """The evaluation settings shared by every method (identical SfM settings for every sequence)."""
+    from evaluation.runner import EvalConfig
+    from evaluation.sfm import SfmConfig
+
+    return EvalConfig(lpips=lpips, sfm=sfm, sfm_config=SfmConfig(matcher=sfm_matcher, num_threads=1, seed=seed),
+                      num_threads=threads, progress=False)
+
+
+def relight_views(run_dir: Path, which: str, out_dir: Path) -> dict[str, Any]:
+    """``render_run(run_dir, "relit", which)`` into ``out_dir``, keeping ``out_dir`` image-only.
+
+    The render summary (``render.json``, which render_run writes beside the images) is moved to
+    ``<out_dir>.render.json`` because the evaluation refuses image folders that hold other files.
+    """
+    from spotlessgs.rendering import render_run
+
+    summary = render_run(run_dir, "relit", which, out_dir, progress=False)
+    sidecar = out_dir / "render.json"
+    if sidecar.is_file():
+        os.replace(sidecar, out_dir.parent / f"{out_dir.name}.render.json")
+    return summary
+
+
+def score_test_views(data_dir: Path, pred_dir: Path, threads: int) -> dict[str, float]:
+    """Mean PSNR/SSIM (raw and exposure-aligned) of ``pred_dir``'s test views against the dataset's ground truth."""
+    from evaluation.dataset import read_dataset
+    from evaluation.folders import ImagePair
+    from evaluation.runner import EvalConfig, score_pairs
+
+    data = read_dataset(data_dir)
+    pairs = [ImagePair(f.name, pred_dir / f.name, f.gt_path) for f in data.test_frames if f.gt_path is not None]
+    scores = score_pairs(pairs, EvalConfig(lpips=False, temporal=False, num_threads=threads, progress=False))
+    return {k: scores[k] for k in ("psnr", "ssim", "psnr_aligned", "ssim_aligned")}
+
+
+def curve_milestones(iterations: int, fractions: Sequence[float]) -> list[int]:
+    """Training steps at which the speed-against-error curve is sampled: each fraction of ``iterations`` (at least
+    step 1), then ``iterations`` itself; sorted, without duplicates."""
+    steps = {max(1, int(round(f * iterations))) for f in fractions if 0.0 < f < 1.0}
+    steps.add(iterations)
+    return sorted(s for s in steps if s <= iterations)
+
+
+def train_method(data_dir: str, run_dir: str, variant: str, train_preset: str, iterations: int | None,
+                 image_width: int | None, curve_fractions: Sequence[float], sfm: bool, sfm_matcher: str, lpips: bool,
+                 seed: int, threads: int) -> dict[str, Any]:
+    """Train one model, scoring its relit test views at each curve milestone; relight every view; evaluate the run.
+
+    Returns:
+        ``metrics`` (evaluate_run's results without per-image lists), ``train`` (steps, seconds: the sum of the
+        training loops' wall time, ms_per_step, gaussians, peak_rss_mb of the process while training), ``relight``
+        (render_run's summary of all views + ``peak_rss_mb`` and ``baseline_rss_mb`` of the fresh process that loaded
+        the model and rendered them), ``curve`` (one point per milestone: step,
+        train_seconds, psnr/ssim raw and aligned on the test views).
+    """
+    from evaluation.runner import evaluate_run
+    from spotlessgs.training.config import preset as train_config
+    from spotlessgs.training.trainer import train
+
+    data, run = Path(data_dir), Path(run_dir)
+    overrides: dict[str, Any] = {"num_threads": threads}
+    if iterations is not None:
+        overrides["iterations"] = iterations
+    if image_width is not None:
+        overrides["image_width"] = image_width
+    config = train_config(train_preset, **overrides)
+    milestones = curve_milestones(config.iterations, curve_fractions)
+    curve: list[dict[str, Any]] = []
+    train_seconds = 0.0
+    result = None
+    for step in milestones:
+        result = train(data, run, variant, config, seed=seed, resume=True, progress=False, stop_after=step)
+        train_seconds += result.seconds
+        if step < config.iterations:
+            curve_dir = run / "curve" / f"step_{step:06d}"
+            relight_views(run, "test", curve_dir)
+            curve.append({"step": step, "train_seconds": train_seconds, **score_test_views(data, curve_dir, threads)})
+    train_peak = peak_rss_mb()
+    summary = json.loads((run / "train_summary.json").read_text(encoding="utf-8"))
+
+    relit = relight_in_fresh_process(run, threads)
+
+    results = evaluate_run(run, _eval_config(sfm, sfm_matcher, lpips, seed, threads), out_dir=run / "eval")
+    metrics = compact_metrics(results)
+    curve.append({"step": config.iterations, "train_seconds": train_seconds,
+                  **{k: metrics[k] for k in ("psnr", "ssim", "psnr_aligned", "ssim_aligned")}})
+    return {
+        "variant": variant,
+        "metrics": metrics,
+        "train": {"steps": result.steps if result else 0, "seconds": train_seconds,
+                  "ms_per_step": 1000.0 * train_seconds / max(config.iterations, 1),
+                  "num_gaussians": summary["num_gaussians"],
+                  "test_psnr_reconstruction": summary["test_psnr_reconstruction"], "device": summary["device"],
+                  "peak_rss_mb": train_peak},
+        "relight": relit,
+        "curve": curve,
+    }
+
+
+# ---------------------------------------------------------------------------------------------------------------------
+# 2D baselines
+
+
+def train_cyclegan_stage(uneven_dirs: Sequence[str], even_dirs: Sequence[str], out_dir: str, cyclegan_preset: str,
+                         steps: int | None, seed: int, threads: int) -> dict[str, Any]:
+    """Train the unpaired Cycle-GAN on other rooms' renders; returns the checkpoint path and the training time."""
+    from spotlessgs.baselines2d.cyclegan.config import preset as cyclegan_config
+    from spotlessgs.baselines2d.cyclegan.train import train_cyclegan
+
+    overrides: dict[str, Any] = {"num_threads": threads}
+    if steps is not None:
+        overrides["steps"] = steps
+    config = cyclegan_config(cyclegan_preset, **overrides)
+    start = time.perf_counter()
+    checkpoint = train_cyclegan(list(uneven_dirs), list(even_dirs), out_dir, config, seed=seed, progress=False)
+    return {"checkpoint": str(checkpoint), "seconds": time.perf_counter() - start, "steps": config.steps,
+            "uneven_dirs": list(uneven_dirs), "even_dirs": list(even_dirs), "peak_rss_mb": peak_rss_mb()}
+
+
+def evaluate_enhanced(data_dir: Path, enhanced_dir: Path, work_dir: Path, sfm: bool, sfm_matcher: str, lpips: bool,
+                      seed: int, threads: int) -> dict[str, Any]:
+    """Score a folder of per-frame enhanced images like a run: image metrics on the test views, temporal metrics on
+    the whole sequence, SfM with the dataset's intrinsics and true poses."""
+    from evaluation.dataset import read_dataset
+    from evaluation.folders import ImagePair
+    from evaluation.runner import score_pairs, temporal_block
+    from evaluation.sfm import run_sfm
+    from spotlessgs.io.cameras import opengl_to_opencv_c2w
+
+    config = _eval_config(sfm, sfm_matcher, lpips, seed, threads)
+    data = read_dataset(data_dir)
+    pairs = [ImagePair(f.name, enhanced_dir / f.name, f.gt_path) for f in data.test_frames if f.gt_path is not None]
+    if not pairs:
+        raise ValueError(f"{data_dir}: no test view has a ground-truth image")
+    results: dict[str, Any] = dict(score_pairs(pairs, config, "enhanced vs gt"))
+    results.update(temporal_block([enhanced_dir / f.name for f in data.frames], config, "enhanced", data))
+    if sfm:
+        names = [f.name for f in data.frames]
+        true = {f.name: opengl_to_opencv_c2w(f.c2w_opengl) for f in data.frames}
+        sfm_result = run_sfm(enhanced_dir, names, work_dir, config.sfm_config, data.intrinsics)
+        results["sfm"] = sfm_result.summary(true, names)
+    return results
+
+
+def run_baseline2d(method: str, data_dir: str, out_dir: str, checkpoint: str | None, sfm: bool, sfm_matcher: str,
+                   lpips: bool, seed: int, threads: int) -> dict[str, Any]:
+    """Enhance every input image of a test dataset on its own with a 2D method, then evaluate the sequence."""
+    from spotlessgs.baselines2d import enhance_folder
+
+    data, out = Path(data_dir), Path(out_dir)
+    enhanced = out / "enhanced"
+    options: dict[str, Any] = {"checkpoint": checkpoint, "num_threads": threads} if method == "cyclegan" else {}
+    start = time.perf_counter()
+    enhance_folder(method, data / "images", enhanced, **options)
+    seconds = time.perf_counter() - start
+    # The provenance file would make the folder fail the evaluation's image-only check: keep it beside the images.
+    for extra in enhanced.iterdir():
+        if extra.suffix == ".json":
+            shutil.move(str(extra), str(out / extra.name))
+    results = evaluate_enhanced(data, enhanced, out / "sfm", sfm, sfm_matcher, lpips, seed, threads)
+    write_json(out / "results.json", results)
+    frames = len([p for p in enhanced.iterdir() if p.suffix == ".png"])
+    return {"method": method, "metrics": compact_metrics(results),
+            "runtime": {"seconds": seconds, "fps": frames / seconds if seconds > 0 else None}}
+
+
+# ---------------------------------------------------------------------------------------------------------------------
+# Report
+
+
+def write_report_stage(out_dir: str, threads: int) -> dict[str, Any]:
+    """Collect every stage's summary into results.json, REPORT.md and the figures (see spotlessgs.reproduce.report)."""
+    from spotlessgs.reproduce.report import write_report
+
+    return write_report(Path(out_dir))

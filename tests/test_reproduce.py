@@ -1,0 +1,122 @@
+"""End to end: ``spotless reproduce --preset tiny`` (Blender renders, every model, 2D baselines, SfM, report).
+
+About 2.5-3 minutes on a 2-core CPU, so it is marked ``slow`` (run with ``-m slow``); one module-scoped run serves
+every test.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import shutil
+import time
+
+import pytest
+from click.testing import CliRunner
+
+from spotlessgs.cli import main
+from spotlessgs.reproduce.config import preset
+from spotlessgs.reproduce.pipeline import reproduce
+from spotlessgs.reproduce.stages import marker_path
+
+pytestmark = [pytest.mark.slow, pytest.mark.blender]
+
+TABLE_KEYS = ["table1", "table2", "table3", "table4", "runtime"]
+
+
+@pytest.fixture(scope="module")
+def tiny_run(tmp_path_factory):
+    out = tmp_path_factory.mktemp("reproduce") / "tiny"
+    start = time.perf_counter()
+    result = CliRunner().invoke(main, ["reproduce", "--preset", "tiny", "--out", str(out), "--jobs", "2"])
+    seconds = time.perf_counter() - start
+    assert result.exit_code == 0, result.output + repr(result.exception)
+    return out, seconds, result.output
+
+
+def _ours(table: dict) -> list[list]:
+    return [r for r in table["rows"] if not str(r[0]).startswith("paper")]
+
+
+def test_report_has_every_table_with_finite_numbers(tiny_run):
+    out, seconds, output = tiny_run
+    assert "ran 21 stage(s), skipped 0" in output
+    report = (out / "REPORT.md").read_text()
+    for heading in ("### Table I —", "### Table II —", "### Table III —", "### Table IV —", "### Runtime",
+                    "## Agreement with the paper's ordering"):
+        assert heading in report
+    assert "| paper (synthetic) | SpotlessGS (ours) | 12.67 | 0.727 | 0.381 |" in report
+    results = json.loads((out / "results.json").read_text())
+    for key in TABLE_KEYS:
+        rows = _ours(results["tables"][key])
+        assert rows, key
+        for row in rows:
+            numbers = [v for v in row[2:] if isinstance(v, (int, float))]
+            assert numbers and all(math.isfinite(v) for v in numbers), (key, row)
+    # Tables I, II and IV have every metric of every row (SfM may legitimately register nothing at this size).
+    for key in ("table1", "table2", "table4"):
+        for row in _ours(results["tables"][key]):
+            assert all(isinstance(v, float) and math.isfinite(v) for v in row[2:]), (key, row)
+    for row in _ours(results["tables"]["table3"]):
+        assert isinstance(row[4], int) and 0 <= row[4] <= 12
+    runtime = _ours(results["tables"]["runtime"])
+    spotless = next(r for r in runtime if r[0] == "bedroom-uneven" and r[1] == "SpotlessGS (ours)")
+    assert spotless[2] > 0 and spotless[5] > 0 and spotless[6] >= spotless[7] > 0  # time, FPS, peak >= baseline
+
+
+def test_results_json_structure(tiny_run):
+    out, _, _ = tiny_run
+    results = json.loads((out / "results.json").read_text())
+    assert {"preset", "config", "datasets", "cyclegan", "tables", "agreement", "paper", "figures", "stage_seconds",
+            "provenance"} <= set(results)
+    assert results["preset"] == "tiny" and set(results["datasets"]) == {"bedroom-uneven", "bedroom-saturated"}
+    ds = results["datasets"]["bedroom-uneven"]
+    assert set(ds["methods"]) == {"3dgs", "darkgs", "darkgs-calibrated", "darkgs+sh", "darkgs+brdf", "spotless"}
+    assert set(ds["baselines2d"]) == {"clahe", "msrcr", "cyclegan"}
+    assert results["datasets"]["bedroom-saturated"]["baselines2d"] == {}
+    curve = ds["methods"]["spotless"]["curve"]
+    assert [p["step"] for p in curve] == [75, 150]
+    assert curve[0]["train_seconds"] < curve[1]["train_seconds"]
+    assert ds["methods"]["spotless"]["metrics"]["psnr_aligned"] == curve[1]["psnr_aligned"]
+    assert {a["status"] for a in results["agreement"]} <= {"agrees", "disagrees", "unknown"}
+    assert len(results["agreement"]) >= 10
+    assert results["paper"]["table3"]["spotless"]["reprojection_error_px"] == 0.463
+    # The Cycle-GAN saw other rooms only.
+    assert all("bedroom" not in d for d in results["cyclegan"]["uneven_dirs"] + results["cyclegan"]["even_dirs"])
+
+
+def test_figures_exist(tiny_run):
+    out, _, _ = tiny_run
+    from PIL import Image
+
+    for name in ("qualitative_bedroom-uneven.png", "qualitative_bedroom-saturated.png", "speed_vs_error.png"):
+        with Image.open(out / "figures" / name) as img:
+            assert img.width > 200 and img.height > 100
+    assert "![" in (out / "REPORT.md").read_text()
+
+
+def test_rerun_skips_everything_and_redoes_an_interrupted_stage(tiny_run):
+    out, _, _ = tiny_run
+    config = preset("tiny")
+    start = time.perf_counter()
+    again = reproduce(config, out, jobs=2)
+    assert again.ran == [] and len(again.skipped) == 21 and time.perf_counter() - start < 5.0
+
+    # Interrupt one training stage: its marker is gone and a half-written file is left in its run folder.
+    stage = "train/bedroom-uneven/3dgs"
+    marker_path(out, stage).unlink()
+    run_dir = out / "runs" / "bedroom-uneven" / "3dgs"
+    shutil.rmtree(run_dir / "eval")
+    (run_dir / "partial.tmp").write_text("half")
+    before = json.loads((out / "results.json").read_text())["datasets"]["bedroom-uneven"]["methods"]["3dgs"]
+    redo = reproduce(config, out, jobs=2)
+    assert redo.retried == [stage] and redo.ran == [stage, "report"]
+    assert not (run_dir / "partial.tmp").exists() and (run_dir / "eval" / "results.json").is_file()
+    after = json.loads((out / "results.json").read_text())["datasets"]["bedroom-uneven"]["methods"]["3dgs"]
+    assert after["curve"][-1]["step"] == before["curve"][-1]["step"] == 150
+
+
+def test_other_settings_are_refused(tiny_run):
+    out, _, _ = tiny_run
+    with pytest.raises(ValueError, match=r"made with other settings \(differing: \['seed'\]\)"):
+        reproduce(preset("tiny", seed=1), out)
