@@ -9,18 +9,9 @@ from typing import Any
 import numpy as np
 
 from evaluation.plots import save_image_grid
-from spotlessgs.io.atomic import atomic_path
+from spotlessgs.io.figures import pyplot, save_figure
 from spotlessgs.io.images import read_image
 from spotlessgs.reproduce.tables import LABELS, best_darkgs
-
-
-def _pyplot():
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    return plt
 
 
 def qualitative_grid(path: Path, data_dir: Path, runs_dir: Path, methods: dict[str, Any], test_views: list[str],
@@ -56,7 +47,7 @@ def speed_error_plot(path: Path, collected: dict[str, Any]) -> None:
     """Test PSNR (exposure-aligned) against training time: one curve per 3D method (a point per curve milestone),
     one subplot per dataset; 2D baselines as markers (Cycle-GAN at its training time) or horizontal lines (no
     training)."""
-    plt = _pyplot()
+    plt = pyplot()
     datasets = list(collected["datasets"].items())
     fig, axes = plt.subplots(1, max(len(datasets), 1), figsize=(5.2 * max(len(datasets), 1), 4.0), squeeze=False)
     for ax, (ds_name, ds) in zip(axes[0], datasets):
@@ -82,10 +73,7 @@ def speed_error_plot(path: Path, collected: dict[str, Any]) -> None:
         ax.set_ylabel("test PSNR, exposure-aligned (dB)")
         ax.grid(alpha=0.3)
         ax.legend(fontsize=7)
-    fig.tight_layout()
-    with atomic_path(path) as tmp:
-        fig.savefig(tmp, dpi=110, format="png")
-    plt.close(fig)
+    save_figure(fig, path, dpi=110)
 
 
 def _finite(x: Any) -> bool:
