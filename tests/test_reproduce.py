@@ -1,7 +1,7 @@
 """End to end: ``spotless reproduce --preset tiny`` (Blender renders, every model, 2D baselines, SfM, report).
 
-About 2.5-3 minutes on a 2-core CPU, so it is marked ``slow`` (run with ``-m slow``); one module-scoped run serves
-every test.
+About 2.5-3 minutes on a 2-core CPU; it is part of the default suite (the issue's acceptance: CI runs the tiny
+preset). One module-scoped run serves every test.
 """
 
 from __future__ import annotations
@@ -19,7 +19,7 @@ from spotlessgs.reproduce.config import preset
 from spotlessgs.reproduce.pipeline import reproduce
 from spotlessgs.reproduce.stages import marker_path
 
-pytestmark = [pytest.mark.slow, pytest.mark.blender]
+pytestmark = [pytest.mark.blender]
 
 TABLE_KEYS = ["table1", "table2", "table3", "table4", "runtime"]
 
