@@ -472,3 +472,17 @@ def test_workers_die_with_the_parent(tmp_path):
         os.kill(worker, signal.SIGKILL)
         pytest.fail("the worker outlived its parent")
     assert not is_done(tmp_path / "root", "s")
+
+
+def test_workers_drop_blender_script_paths_inherited_from_the_parent(monkeypatch):
+    """A parent that imported bpy passes Blender's script folders to spawned children, where they would shadow the
+    compiled bpy module ("No module named '_bpy'"); the worker initialiser removes them and nothing else."""
+    import sys
+
+    from spotlessgs.reproduce.executor import _drop_blender_script_paths
+
+    fake = ["/x/site-packages/bpy/5.0/scripts/modules", "/x/site-packages/bpy/5.0/scripts/startup"]
+    keep = ["/x/site-packages", "/work/bpy-notes", "/x/scripts"]
+    monkeypatch.setattr(sys, "path", keep[:1] + fake + keep[1:])
+    _drop_blender_script_paths()
+    assert sys.path == keep

@@ -10,6 +10,7 @@ from __future__ import annotations
 import logging
 import multiprocessing
 import os
+import sys
 import resource
 import time
 from concurrent.futures import FIRST_COMPLETED, Future, ProcessPoolExecutor, wait
@@ -67,7 +68,18 @@ def _init_worker(threads: int) -> None:
     """Set the thread environment before the stage imports numpy/torch; tie the worker's life to the parent's."""
     for key in _THREAD_ENV:
         os.environ[key] = str(threads)
+    _drop_blender_script_paths()
     _die_with_parent()
+
+
+def _drop_blender_script_paths() -> None:
+    """Remove Blender's script folders from ``sys.path``.
+
+    A parent that has imported bpy has ``.../bpy/<version>/scripts/...`` on its path, and a spawned child inherits it:
+    there ``import bpy`` would find the pure-Python ``scripts/modules/bpy`` package before the compiled module and
+    fail with "No module named '_bpy'". The child's own ``import bpy`` puts the folders back in the right order.
+    """
+    sys.path[:] = [p for p in sys.path if not ("bpy" in Path(p).parts and "scripts" in Path(p).parts)]
 
 
 def run_stage(root: str, stage: Stage, threads: int) -> dict[str, Any]:
