@@ -161,7 +161,7 @@ def select_model(
     """
     data_dir, run_dir = Path(data_dir).resolve(), Path(run_dir)
     path = run_dir / SELECTION_FILE
-    settings = _settings(config, selection, seed, data_dir)
+    settings = json.loads(json.dumps(_settings(config, selection, seed, data_dir)))  # as stored (tuples -> lists)
     if path.is_file():
         if not resume:
             raise FileExistsError(f"{path} exists: pass --resume to continue this run or use a new --out")

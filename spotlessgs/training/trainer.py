@@ -381,7 +381,8 @@ def train(
         write_light_report(scene, views, run_dir)
         write_json(run_dir / "train_summary.json", {
             "steps": result.steps, "seconds_this_session": seconds, "ms_per_step": result.ms_per_step,
-            "num_gaussians": result.num_gaussians, "final_loss": loss_value,
+            "num_gaussians": result.num_gaussians,
+            "final_loss": loss_value if math.isfinite(loss_value) else None,  # None: resumed a finished run
             "test_psnr_reconstruction": test_psnr, "device": str(device),
             "validation_views": split.validation, "validation_psnr": val_psnr,
         })
