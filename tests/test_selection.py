@@ -66,6 +66,7 @@ def test_candidates_are_spotlight_models_with_an_sh_light():
 
 @pytest.mark.parametrize("kwargs, match", [
     ({"tolerance_db": -0.1}, "tolerance_db"), ({"proxy_fraction": 0.0}, "proxy_fraction"),
+    ({"base_fraction": 2.0}, "base_fraction"),
     ({"proxy_fraction": 1.5}, "proxy_fraction"), ({"min_proxy_iterations": 0}, "min_proxy_iterations"),
     ({"validation_every": 1}, "validation_every"), ({"search": "random"}, "search"),
     ({"sh_degrees": (0, 5)}, "sh_degrees"), ({"sh_degrees": ()}, "sh_degrees"),
@@ -79,6 +80,8 @@ def test_proxy_schedule_is_a_fraction_without_densification():
     full = preset("quick")
     proxy = proxy_config(full, SelectionConfig(proxy_fraction=0.1, validation_every=5))
     assert proxy.iterations == 300 and proxy.validation_every == 5 and not proxy.validation_rejoin
+    assert proxy_config(full, SelectionConfig()).iterations == 150  # default: 5 % of 3000 per candidate
+    assert proxy_config(full, SelectionConfig(), 0.1).iterations == 300  # the shared base run
     assert proxy.densify_until == 0 and proxy.opacity_reset_every == 0 and not proxy.gaussian_budget
     assert proxy_config(preset("tiny"), SelectionConfig(min_proxy_iterations=150)).iterations == 150
     assert selection_config(0.5, None) == dataclasses.replace(SelectionConfig(), tolerance_db=0.5)
@@ -158,6 +161,11 @@ def test_train_model_auto_writes_the_decision_prints_the_table_and_trains_the_ch
     summary = json.loads((out / "train_summary.json").read_text())
     assert summary["steps"] == 300 and summary["num_gaussians"] <= 400
     assert not (out / "selection" / names[0] / "checkpoints").exists()  # proxies keep metrics, not checkpoints
+    assert not (out / "selection" / "base" / "checkpoints").exists()
+    assert decision["base"]["steps"] == 100
+    for name in names:  # every candidate started from the shared base run
+        assert json.loads((out / "selection" / name / "run.json").read_text())["init_from"] == \
+            str((out / "selection" / "base").resolve())
     # same folder again: refused without --resume; with --resume the decision is reused
     again = CliRunner().invoke(main, args)
     assert again.exit_code != 0 and "--resume" in str(again.exception)
@@ -176,3 +184,37 @@ def test_selection_options_need_model_auto(box_room, tmp_path):
     res = CliRunner().invoke(main, ["train", "--data", str(box_room), "--out", str(tmp_path / "r"), "--model",
                                     "darkgs", "--tolerance-db", "0.5", "-q"])
     assert res.exit_code != 0 and "only apply to --model auto" in res.output
+
+
+def test_warm_start_copies_gaussians_light_and_the_leading_sh_block():
+    from spotlessgs.models.gaussians import GaussianParams
+    from spotlessgs.models.relightable import RelightableScene
+    from spotlessgs.training.warm_start import warm_start_scene
+
+    import numpy as np
+
+    def scene(model, n, seed):
+        xyz = np.random.default_rng(seed).normal(size=(n, 3))
+        return RelightableScene.create(model, GaussianParams.from_point_cloud(xyz, np.full((n, 3), 90, np.uint8)),
+                                       seed=seed)
+
+    src = scene(candidate_model(1, "lambert"), 7, 0)
+    with torch.no_grad():
+        src.appearance.lf_light.coeffs.copy_(torch.arange(12.0).reshape(4, 3))
+        src.appearance.light.log_gamma.fill_(0.3)
+    ckpt = {"gaussians": {k: v.detach() for k, v in src.gaussians.params.items()},
+            "appearance": src.modules_.state_dict()}
+    dst = warm_start_scene(scene(candidate_model(2, "mlp"), 3, 1), ckpt)
+    assert len(dst.gaussians) == 7
+    torch.testing.assert_close(dst.gaussians.means, src.gaussians.means)
+    assert float(dst.appearance.light.log_gamma.detach()) == pytest.approx(0.3)
+    coeffs = dst.appearance.lf_light.coeffs.detach()
+    assert coeffs.shape == (9, 3)
+    torch.testing.assert_close(coeffs[:4], torch.arange(12.0).reshape(4, 3))
+    assert float(coeffs[4:].abs().sum()) == 0.0
+    low = warm_start_scene(scene(candidate_model(0, "lambert"), 3, 2), ckpt)  # a lower degree keeps the DC row
+    torch.testing.assert_close(low.appearance.lf_light.coeffs.detach(), torch.tensor([[0.0, 1.0, 2.0]]))
+    with pytest.raises(ValueError, match="not a training checkpoint"):
+        warm_start_scene(dst, {"gaussians": {}}, "x.pt")
+    with pytest.raises(ValueError, match="needs a spotlight"):
+        warm_start_scene(scene("3dgs", 3, 0), ckpt, "x.pt")

@@ -45,8 +45,12 @@ class SelectionConfig:
 
     # A candidate within this many dB of the best held-out PSNR counts as good enough (the cheapest of those wins).
     tolerance_db: float = 0.25
-    # Proxy run length as a fraction of the full run's iterations (at least min_proxy_iterations steps).
-    proxy_fraction: float = 0.1
+    # Shared base run (Lambert, SH degree 0) that fits geometry and spotlight once, as a fraction of the full run's
+    # iterations; every candidate starts from it (warm start).
+    base_fraction: float = 0.1
+    # Each candidate's proxy run (from the base) as a fraction of the full run's iterations; both at least
+    # min_proxy_iterations steps.
+    proxy_fraction: float = 0.05
     min_proxy_iterations: int = 100
     # Hold out every k-th training view for validation during the proxy runs.
     validation_every: int = 5
@@ -58,8 +62,9 @@ class SelectionConfig:
     def __post_init__(self) -> None:
         if not self.tolerance_db >= 0:
             raise ValueError(f"SelectionConfig: tolerance_db must be >= 0, got {self.tolerance_db}")
-        if not 0 < self.proxy_fraction <= 1:
-            raise ValueError(f"SelectionConfig: proxy_fraction must be in (0, 1], got {self.proxy_fraction}")
+        for name in ("base_fraction", "proxy_fraction"):
+            if not 0 < getattr(self, name) <= 1:
+                raise ValueError(f"SelectionConfig: {name} must be in (0, 1], got {getattr(self, name)}")
         if self.min_proxy_iterations < 1:
             raise ValueError(f"SelectionConfig: min_proxy_iterations must be >= 1, got {self.min_proxy_iterations}")
         if self.validation_every < 2:
@@ -118,9 +123,11 @@ def appearance_parameters(model: ModelConfig) -> int:
     return int(sum(p.numel() for p in build_appearance_models(model).module_dict().parameters()))
 
 
-def proxy_config(config: TrainConfig, selection: SelectionConfig) -> TrainConfig:
-    """The short proxy schedule: a fraction of the iterations, no densification or opacity reset, validation on."""
-    steps = max(int(round(selection.proxy_fraction * config.iterations)), selection.min_proxy_iterations)
+def proxy_config(config: TrainConfig, selection: SelectionConfig, fraction: float | None = None) -> TrainConfig:
+    """The short proxy schedule: ``fraction`` (default: proxy_fraction) of the iterations, no densification or opacity
+    reset, validation views held out."""
+    fraction = selection.proxy_fraction if fraction is None else fraction
+    steps = max(int(round(fraction * config.iterations)), selection.min_proxy_iterations)
     return config.replace(
         iterations=steps, validation_every=selection.validation_every, validation_rejoin=False,
         gaussian_budget=False, densify_from=steps, densify_until=0, opacity_reset_every=0, checkpoint_every=steps,
@@ -130,15 +137,16 @@ def proxy_config(config: TrainConfig, selection: SelectionConfig) -> TrainConfig
 
 def _settings(config: TrainConfig, selection: SelectionConfig, seed: int, data_dir: Path) -> dict:
     return {"selection": dataclasses.asdict(selection), "proxy_iterations": proxy_config(config, selection).iterations,
+            "base_iterations": proxy_config(config, selection, selection.base_fraction).iterations,
             "full_iterations": config.iterations, "seed": seed, "data_dir": str(data_dir)}
 
 
 def _score(data_dir: Path, proxy_dir: Path, model: ModelConfig, config: TrainConfig, seed: int,
-           light_prior, resume: bool, progress: bool) -> CandidateResult:
+           light_prior, resume: bool, progress: bool, base_dir: Path) -> CandidateResult:
     from spotlessgs.training.trainer import train
 
     result = train(data_dir, proxy_dir, model, config, seed=seed, resume=resume, light_prior=light_prior,
-                   progress=progress)
+                   progress=progress, init_from=base_dir)
     if result.validation_psnr is None:
         raise RuntimeError(f"{proxy_dir}: the proxy run of {model.name} has no validation PSNR")
     shutil.rmtree(proxy_dir / "checkpoints", ignore_errors=True)
@@ -159,6 +167,8 @@ def select_model(
     Raises:
         FileExistsError: a decision exists and ``resume`` is False; ValueError: ``resume`` with other settings.
     """
+    from spotlessgs.training.trainer import train
+
     data_dir, run_dir = Path(data_dir).resolve(), Path(run_dir)
     path = run_dir / SELECTION_FILE
     settings = json.loads(json.dumps(_settings(config, selection, seed, data_dir)))  # as stored (tuples -> lists)
@@ -170,13 +180,19 @@ def select_model(
             raise ValueError(f"{path}: --resume with other selection settings than the run was started with")
         return decision
     proxy = proxy_config(config, selection)
+    base_dir = run_dir / "selection" / "base"
+    base_model = dataclasses.replace(candidate_model(0, "lambert"), name="auto-base")
+    log.info("model selection: shared base run (%s)", base_model.name)
+    base = train(data_dir, base_dir, base_model, proxy_config(config, selection, selection.base_fraction), seed=seed,
+                 resume=resume, light_prior=light_prior, progress=progress)
     scored: dict[str, CandidateResult] = {}
 
     def score(model: ModelConfig) -> CandidateResult:
         if model.name not in scored:
             log.info("model selection: proxy run of %s (%d steps)", model.name, proxy.iterations)
             scored[model.name] = _score(data_dir, run_dir / "selection" / model.name, model, proxy, seed,
-                                        light_prior, resume, progress)
+                                        light_prior, resume,
+                                        progress, base_dir)
         return scored[model.name]
 
     degrees = sorted(set(selection.sh_degrees))
@@ -200,9 +216,11 @@ def select_model(
         "best": best.name,
         "tolerance_db": selection.tolerance_db,
         "candidates": [dataclasses.asdict(r) for r in results],
+        "base": {"steps": base.steps, "validation_psnr": base.validation_psnr, "ms_per_step": base.ms_per_step},
         "settings": settings,
     }
     write_json(path, decision)
+    shutil.rmtree(base_dir / "checkpoints", ignore_errors=True)
     return decision
 
 

@@ -31,6 +31,7 @@ from spotlessgs.training.config import TrainConfig
 from spotlessgs.training.data import TrainingViews, initial_point_cloud, load_training_views
 from spotlessgs.training.losses import photometric_loss
 from spotlessgs.training.strategy import DensifyConfig, DensifyStrategy
+from spotlessgs.training.warm_start import warm_start_scene
 from spotlessgs.training.budget import BudgetConfig, BudgetStrategy, budget_report
 from spotlessgs.training.validation import (
     ViewSplit, evenly_spaced, gaussian_contributions, split_training_views, validation_psnr,
@@ -254,6 +255,7 @@ def train(
     light_prior: Sequence[float] | None = None,
     progress: bool = True,
     stop_after: int | None = None,
+    init_from: str | Path | None = None,
 ) -> TrainResult:
     """Train (or resume) a model of ``variant`` on the dataset in ``data_dir``; writes everything to ``run_dir``.
 
@@ -268,6 +270,8 @@ def train(
         light_prior: (3,) prior light translation in camera coordinates (m): adds weight · ‖t − prior‖.
         progress: show a progress bar.
         stop_after: stop (with a checkpoint) after this many total steps, as if interrupted (tests, time budgets).
+        init_from: start from the Gaussians and spotlight of this run's checkpoint (model selection's shared warm
+            start, see spotlessgs.training.warm_start) instead of the point cloud.
     """
     data_dir, run_dir = Path(data_dir).resolve(), Path(run_dir)
     if config.num_threads:
@@ -277,6 +281,8 @@ def train(
     run_info = {"data_dir": str(data_dir), "model": variant.name if isinstance(variant, ModelConfig) else variant,
                 "seed": seed, "preset": config.preset,
                 "light_prior": None if light_prior is None else [float(v) for v in light_prior]}
+    if init_from is not None:
+        run_info["init_from"] = str(Path(init_from).resolve())
     if isinstance(variant, ModelConfig):
         run_info["model_config"] = dataclasses.asdict(model_config(variant, config))
     resolved = {"train": dataclasses.asdict(config), "run": run_info}
@@ -309,7 +315,10 @@ def train(
         log.info("resuming %s at step %d", run_dir, start)
     else:
         run_dir.mkdir(parents=True, exist_ok=True)
-        scene = build_scene(views, variant, config, seed, light_prior).to(device)
+        scene = build_scene(views, variant, config, seed, light_prior)
+        if init_from is not None:
+            scene = warm_start_scene(scene, load_checkpoint(Path(init_from)), str(init_from))
+        scene = scene.to(device)
         strategy = make_strategy(config, extent, seed, device, scene, views, split)
         opts = build_optimizers(scene, config, extent)
         write_json(run_dir / "run.json", run_info)
