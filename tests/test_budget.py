@@ -227,3 +227,19 @@ def test_budget_run_writes_its_decisions_respects_the_cap_and_resumes_exactly(bo
     a, b = load_checkpoint(tmp_path / "full"), load_checkpoint(tmp_path / "split")
     for name in a["gaussians"]:
         torch.testing.assert_close(a["gaussians"][name], b["gaussians"][name])
+
+
+def test_cli_gaussian_budget_flag_holds_out_views_and_respects_max_gaussians(box_room, tmp_path):
+    from click.testing import CliRunner
+
+    from spotlessgs.cli import main
+
+    out = tmp_path / "run"
+    res = CliRunner().invoke(main, ["train", "--data", str(box_room), "--out", str(out), "--model", "darkgs",
+                                    "--preset", "tiny", "--iterations", "60", "--width", "32", "--threads", "1",
+                                    "--max-gaussians", "350", "--gaussian-budget", "-q"])
+    assert res.exit_code == 0, res.output
+    train_cfg = json.loads((out / "config.json").read_text())["train"]
+    assert train_cfg["gaussian_budget"] and train_cfg["validation_every"] == 8 and train_cfg["validation_rejoin"]
+    assert json.loads((out / "train_summary.json").read_text())["num_gaussians"] <= 350
+    assert (out / "gaussian_budget.json").is_file()

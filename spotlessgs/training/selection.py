@@ -6,10 +6,13 @@ choice does not depend on timing noise of a busy machine: Lambertian before MLP,
 (``cost_rank``). The measured ms/step and the parameter count of each candidate are reported beside it.
 
 Criterion, from the uneven training images alone (no ground truth, the test split untouched): every k-th training view
-is held out (:mod:`spotlessgs.training.validation`); each candidate is trained for a short proxy run (a fraction of the
-full schedule, without densification, every candidate from the same seeded initial point cloud) on the remaining
-training views; its error is the spotlight-lit PSNR of the held-out views. The chosen model is the cheapest candidate
-whose PSNR is within ``tolerance_db`` of the best candidate's.
+is held out (:mod:`spotlessgs.training.validation`). A shared base model (Lambert, SH degree 0) is fitted once on the
+remaining training views for ``base_fraction`` of the full schedule; every candidate then starts from its Gaussians and
+spotlight (:mod:`spotlessgs.training.warm_start`) and trains for ``proxy_fraction`` of the schedule, so the candidates
+differ in the compared components only, not in how far geometry and light got. A candidate's error is the
+spotlight-lit PSNR of the held-out views. The chosen model is the cheapest candidate whose PSNR is within
+``tolerance_db`` of the best candidate's. Cost with the defaults (coordinate search): 0.1 + 5 × 0.05 = 0.35 of the
+full run's steps (proxies skip densification, so they are cheaper per step than the full run).
 
 Search (``SelectionConfig.search``): ``grid`` trains every (degree, BRDF) pair; ``coordinate`` (default, about half
 the cost) first compares the SH degrees with the Lambertian BRDF, then adds the MLP BRDF at the degree chosen so far
