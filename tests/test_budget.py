@@ -243,3 +243,23 @@ def test_cli_gaussian_budget_flag_holds_out_views_and_respects_max_gaussians(box
     assert train_cfg["gaussian_budget"] and train_cfg["validation_every"] == 8 and train_cfg["validation_rejoin"]
     assert json.loads((out / "train_summary.json").read_text())["num_gaussians"] <= 350
     assert (out / "gaussian_budget.json").is_file()
+
+
+def test_budget_plot_draws_every_point_and_rejects_bad_input(tmp_path):
+    from PIL import Image
+
+    from spotlessgs.training.budget_plot import BudgetPoint, plot_budget
+
+    points = [BudgetPoint("bedroom", "default", 20000, 18.0, 3.0), BudgetPoint("bedroom", "budget", 9000, 17.9, 6.0),
+              BudgetPoint("storage_room", "default", 20000, 15.0, 2.5),
+              BudgetPoint("storage_room", "budget", 12000, 14.9, 4.0)]
+    path = plot_budget(points, tmp_path / "budget.png")
+    with Image.open(path) as img:
+        assert img.format == "PNG" and img.size[0] > 500
+    assert [p.name for p in tmp_path.iterdir()] == ["budget.png"]  # atomic: no temporary file left
+    with pytest.raises(ValueError, match="no points"):
+        plot_budget([], tmp_path / "x.png")
+    with pytest.raises(ValueError, match="gaussians must be >= 1"):
+        BudgetPoint("r", "s", 0, 1.0, 1.0)
+    with pytest.raises(ValueError, match="relit_fps is not finite"):
+        BudgetPoint("r", "s", 5, 1.0, math.inf)
