@@ -51,12 +51,6 @@ def split_training_views(train: Sequence[int], every: int) -> ViewSplit:
     return ViewSplit(fit, validation)
 
 
-def psnr_linear(pred: torch.Tensor, target: torch.Tensor) -> float:
-    """PSNR (dB) of a linear image (H, W, 3) clamped to [0, 1] against a target in [0, 1]; +inf when equal."""
-    mse = float(torch.mean((pred.detach().clamp(0, 1) - target) ** 2))
-    return float("inf") if mse <= 0 else -10.0 * math.log10(mse)
-
-
 @torch.no_grad()
 def validation_psnr(
     scene: RelightableScene, c2ws: torch.Tensor, viewmats: torch.Tensor, K: torch.Tensor, images: torch.Tensor,
