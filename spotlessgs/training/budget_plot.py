@@ -51,7 +51,7 @@ def plot_budget(points: list[BudgetPoint], out_path: str | Path, title: str = "G
     colours = {r: plt.get_cmap("tab10")(i % 10) for i, r in enumerate(rooms)}
     markers = {s: "os^Dv"[i % 5] for i, s in enumerate(strategies)}
     fig, axes = plt.subplots(1, 2, figsize=(9, 3.6))
-    for ax, field, label in ((axes[0], "relit_psnr", "relit PSNR vs GT (dB)"),
+    for ax, field, label in ((axes[0], "relit_psnr", "relit PSNR vs GT, exposure-aligned (dB)"),
                              (axes[1], "relit_fps", "relit render speed (FPS)")):
         for room in rooms:
             mine = sorted((p for p in points if p.room == room), key=lambda p: p.gaussians)
