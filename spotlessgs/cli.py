@@ -28,7 +28,9 @@ def main(verbose: bool) -> None:
 @click.option("--data", "data_dir", required=True, type=click.Path(exists=True, file_okay=False, path_type=Path),
               help="Dataset folder: ours (transforms.json + spotless block), nerfstudio, or COLMAP (images/ + sparse/0).")
 @click.option("--out", "run_dir", required=True, type=click.Path(file_okay=False, path_type=Path), help="Run folder.")
-@click.option("--model", default="spotless", show_default=True, type=click.Choice(MODELS))
+@click.option("--model", default="spotless", show_default=True, type=click.Choice([*MODELS, "auto"]),
+              help="Model variant, or 'auto': choose the light/reflectance model from held-out training views "
+                   "(spotlessgs.training.selection), then train it.")
 @click.option("--preset", default="quick", show_default=True, type=click.Choice(["tiny", "quick", "paper"]))
 @click.option("--iterations", type=click.IntRange(1), default=None, help="Override the preset's iteration count.")
 @click.option("--width", "image_width", type=click.IntRange(8), default=None,
@@ -39,12 +41,19 @@ def main(verbose: bool) -> None:
               help="Prior light position in the camera frame (m, OpenCV axes): adds weight * |t - prior|.")
 @click.option("--light-prior-weight", type=click.FloatRange(0), default=None)
 @click.option("--linear", "linear_input", is_flag=True, help="The images are linear (RAW), not sRGB.")
-@click.option("--max-gaussians", type=click.IntRange(1), default=None)
+@click.option("--max-gaussians", type=click.IntRange(1), default=None, help="Hard cap on the number of Gaussians.")
+@click.option("--tolerance-db", type=click.FloatRange(0), default=None,
+              help="--model auto: pick the cheapest candidate within this many dB of the best (default 0.25).")
+@click.option("--selection-search", type=click.Choice(["coordinate", "grid"]), default=None,
+              help="--model auto: candidate search (default coordinate).")
+@click.option("--gaussian-budget", is_flag=True,
+              help="Stop densifying when held-out error stops improving and prune Gaussians that do not change the "
+                   "renders (spotlessgs.training.budget).")
 @click.option("--threads", type=click.IntRange(1), default=None, help="CPU threads.")
 @click.option("--device", default="auto", show_default=True, type=click.Choice(["auto", "cpu", "cuda"]))
 @click.option("-q", "--quiet", is_flag=True, help="No progress bar.")
 def train(data_dir, run_dir, model, preset, iterations, image_width, seed, resume, light_prior, light_prior_weight,
-          linear_input, max_gaussians, threads, device, quiet):
+          linear_input, max_gaussians, tolerance_db, selection_search, gaussian_budget, threads, device, quiet):
     """Train a relightable model (or a baseline) on the uneven images of a dataset."""
     from spotlessgs.training.config import preset as make_preset
     from spotlessgs.training.trainer import train as run_training
@@ -54,12 +63,29 @@ def train(data_dir, run_dir, model, preset, iterations, image_width, seed, resum
                        ("light_prior_weight", light_prior_weight), ("max_gaussians", max_gaussians)):
         if value is not None:
             overrides[key] = value
+    overrides.update(budget_overrides(gaussian_budget))
     config = make_preset(preset, **overrides)
-    result = run_training(data_dir, run_dir, model, config, seed=seed, resume=resume,
-                          light_prior=list(light_prior) if light_prior else None, progress=not quiet)
+    prior = list(light_prior) if light_prior else None
+    if model == "auto":
+        from spotlessgs.training.selection import format_selection_table, selection_config, train_auto
+
+        decision, result = train_auto(data_dir, run_dir, config, seed=seed,
+                                      selection=selection_config(tolerance_db, selection_search), light_prior=prior,
+                                      resume=resume, progress=not quiet)
+        click.echo(format_selection_table(decision))
+    elif tolerance_db is not None or selection_search is not None:
+        raise click.UsageError("--tolerance-db and --selection-search only apply to --model auto")
+    else:
+        result = run_training(data_dir, run_dir, model, config, seed=seed, resume=resume, light_prior=prior,
+                              progress=not quiet)
     psnr = "n/a" if result.test_psnr is None else f"{result.test_psnr:.2f} dB"
     click.echo(f"{run_dir}: {result.steps} steps, {result.num_gaussians} Gaussians, {result.ms_per_step:.0f} ms/step, "
                f"test reconstruction PSNR {psnr}")
+
+
+def budget_overrides(gaussian_budget: bool) -> dict:
+    """TrainConfig fields of ``--gaussian-budget`` (every 8th training view held out until densification ends)."""
+    return {"gaussian_budget": True, "validation_every": 8, "validation_rejoin": True} if gaussian_budget else {}
 
 
 @main.command()

@@ -72,6 +72,26 @@ class TrainConfig:
     # Weight of the light-translation prior ‖t - t_prior‖ (used only when a prior is given).
     light_prior_weight: float = 1.0
 
+    # ---- held-out validation views and the Gaussian budget (spotlessgs.training.validation / .budget) ----------------
+    # Hold out every k-th training view (by position in the training split, never a test view) as a validation view
+    # that is not fitted; 0 = fit every training view.
+    validation_every: int = 0
+    # The validation views rejoin the fitted views once densification ends (step densify_until); False = they stay
+    # held out for the whole run (model selection proxies).
+    validation_rejoin: bool = False
+    # Gaussian budget: stop densifying when the validation PSNR stops improving and prune Gaussians whose removal does
+    # not change the renders (needs validation_every > 0).
+    gaussian_budget: bool = False
+    # Budget: densification stops after this many validation checks (one per densify_every) without a gain of at least
+    # budget_min_gain_db over the best earlier value (the count restarts after an opacity reset).
+    budget_patience: int = 3
+    budget_min_gain_db: float = 0.05
+    # Budget: at each densification step, prune the least-contributing Gaussians whose summed contribution (alpha ·
+    # transmittance summed over pixels of the contribution views) is at most this fraction of all Gaussians' total.
+    budget_prune_fraction: float = 0.01
+    # Budget: number of fitted views (evenly spaced) over which contributions are summed.
+    budget_contribution_views: int = 16
+
     # Write a checkpoint every this many steps (and at the end).
     checkpoint_every: int = 500
     # Log metrics every this many steps.
@@ -82,6 +102,19 @@ class TrainConfig:
     raster_backend: str = "auto"
     # Device: "auto" (CUDA when present), "cpu" or "cuda".
     device: str = "auto"
+
+    def __post_init__(self) -> None:
+        if self.validation_every < 0 or self.validation_every == 1:
+            raise ValueError(f"TrainConfig: validation_every must be 0 (off) or >= 2, got {self.validation_every}")
+        if self.gaussian_budget and self.validation_every == 0:
+            raise ValueError("TrainConfig: gaussian_budget needs held-out validation views (set validation_every >= 2)")
+        if self.budget_patience < 1:
+            raise ValueError(f"TrainConfig: budget_patience must be >= 1, got {self.budget_patience}")
+        if not 0.0 <= self.budget_prune_fraction < 1.0:
+            raise ValueError(f"TrainConfig: budget_prune_fraction must be in [0, 1), got {self.budget_prune_fraction}")
+        if self.budget_contribution_views < 1:
+            raise ValueError(
+                f"TrainConfig: budget_contribution_views must be >= 1, got {self.budget_contribution_views}")
 
     def replace(self, **changes: Any) -> "TrainConfig":
         """A copy with some fields changed (unknown names are an error)."""

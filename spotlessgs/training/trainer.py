@@ -31,6 +31,11 @@ from spotlessgs.training.config import TrainConfig
 from spotlessgs.training.data import TrainingViews, initial_point_cloud, load_training_views
 from spotlessgs.training.losses import photometric_loss
 from spotlessgs.training.strategy import DensifyConfig, DensifyStrategy
+from spotlessgs.training.warm_start import warm_start_scene
+from spotlessgs.training.budget import BudgetConfig, BudgetStrategy, budget_report
+from spotlessgs.training.validation import (
+    ViewSplit, evenly_spaced, gaussian_contributions, split_training_views, validation_psnr,
+)
 
 log = logging.getLogger(__name__)
 
@@ -50,10 +55,14 @@ class TrainResult:
     num_gaussians: int
     final_loss: float
     test_psnr: float | None
+    # Spotlight-lit PSNR of the held-out validation views (validation_every > 0 and the views never fitted), else None.
+    validation_psnr: float | None = None
 
 
-def model_config(variant: str, config: TrainConfig) -> ModelConfig:
-    """The variant's ModelConfig with the CPU/GPU-dependent BRDF width of ``config``."""
+def model_config(variant: str | ModelConfig, config: TrainConfig) -> ModelConfig:
+    """The variant's ModelConfig (a preset name or a ModelConfig) with the CPU/GPU-dependent BRDF width of ``config``."""
+    if isinstance(variant, ModelConfig):
+        return dataclasses.replace(variant, brdf_hidden=config.brdf_hidden)
     if variant not in MODEL_VARIANTS:
         raise ValueError(f"unknown model {variant!r}; choose one of {sorted(MODEL_VARIANTS)}")
     return dataclasses.replace(MODEL_VARIANTS[variant], brdf_hidden=config.brdf_hidden)
@@ -72,7 +81,7 @@ def resolve_device(name: str) -> torch.device:
 
 
 def build_scene(
-    views: TrainingViews, variant: str, config: TrainConfig, seed: int,
+    views: TrainingViews, variant: str | ModelConfig, config: TrainConfig, seed: int,
     light_prior: Sequence[float] | None = None,
 ) -> RelightableScene:
     """Initial Gaussians from the dataset's points and the variant's light/BRDF modules."""
@@ -88,7 +97,7 @@ def build_scene(
     light_init: dict[str, Any] = {}
     if cfg.calibrated:
         if views.light is None:
-            raise ValueError(f"{views.dataset.root}: model {variant!r} is calibrated but the dataset has no light truth")
+            raise ValueError(f"{views.dataset.root}: model {cfg.name!r} is calibrated but the dataset has no light truth")
         light_init = {
             "light_rotation": views.light.rotation_in_camera,
             "light_translation": views.light.position_in_camera,
@@ -141,6 +150,46 @@ def view_order(seed: int, epoch: int, train: Sequence[int]) -> list[int]:
     return [train[i] for i in perm.tolist()]
 
 
+def fitted_view(seed: int, step: int, train: Sequence[int], split: ViewSplit, config: TrainConfig) -> int:
+    """The view fitted at ``step``: the training views in a seeded order per epoch, without the held-out validation
+    views (until densify_until when they rejoin). Stateless, so resuming needs no saved state."""
+    if not split.validation:
+        epoch, pos = divmod(step, len(train))
+        return view_order(seed, epoch, train)[pos]
+    if config.validation_rejoin and step >= config.densify_until:
+        epoch, pos = divmod(step - config.densify_until, len(train))
+        return view_order(seed, epoch, train)[pos]
+    epoch, pos = divmod(step, len(split.fit))
+    return view_order(seed, epoch, split.fit)[pos]
+
+
+# ---- hooks of the Gaussian budget (spotlessgs.training.budget) ---------------------------------------------------
+
+
+def make_strategy(
+    config: TrainConfig, extent: float, seed: int, device: torch.device, scene: RelightableScene,
+    views: TrainingViews, split: ViewSplit,
+) -> DensifyStrategy:
+    """The default densification strategy, or the Gaussian budget's when ``config.gaussian_budget``."""
+    generator = torch_generator(seed, "densify", device=str(device))
+    if not config.gaussian_budget:
+        return DensifyStrategy(densify_config(config), extent, generator)
+    c2ws, viewmats, K = views.c2w.to(device), views.viewmats.to(device), views.K.to(device)
+    images = views.images.to(device)
+    contribution_views = evenly_spaced(split.fit, config.budget_contribution_views)
+
+    def validate(_gaussians: GaussianParams) -> float:
+        return validation_psnr(scene, c2ws, viewmats, K, images, split.validation, views.width, views.height,
+                               config.raster_backend, config.num_threads)
+
+    def contributions(g: GaussianParams) -> torch.Tensor:
+        return gaussian_contributions(g.means, g.quats, g.scales, g.opacities, viewmats, K, views.width,
+                                      views.height, contribution_views, config.raster_backend, config.num_threads)
+
+    budget = BudgetConfig(config.budget_patience, config.budget_min_gain_db, config.budget_prune_fraction)
+    return BudgetStrategy(densify_config(config), budget, extent, generator, validate, contributions)
+
+
 def densify_config(config: TrainConfig) -> DensifyConfig:
     return DensifyConfig(
         densify_from=config.densify_from, densify_until=config.densify_until, densify_every=config.densify_every,
@@ -165,7 +214,9 @@ def _payload(step: int, scene: RelightableScene, opts, strategy: DensifyStrategy
 
 def restore_scene(ckpt: dict[str, Any], run_info: dict[str, Any], config: TrainConfig) -> RelightableScene:
     """Rebuild the model of a checkpoint (modules with the same structure, then their saved values)."""
-    cfg = model_config(run_info["model"], config)
+    # a run of an arbitrary ModelConfig (``spotless train --model auto``) stores the config itself
+    saved = run_info.get("model_config")
+    cfg = model_config(ModelConfig(**saved) if saved is not None else run_info["model"], config)
     gaussians = GaussianParams(ckpt["gaussians"])
     light_init: dict[str, Any] = {}
     if cfg.calibrated:  # the structure needs a cone; the fitted values are overwritten by the saved state
@@ -197,34 +248,43 @@ def _check_finite(scene: RelightableScene, step: int, ckpt: Path) -> None:
 def train(
     data_dir: str | Path,
     run_dir: str | Path,
-    variant: str = "spotless",
+    variant: str | ModelConfig = "spotless",
     config: TrainConfig = TrainConfig(),
     seed: int = 0,
     resume: bool = False,
     light_prior: Sequence[float] | None = None,
     progress: bool = True,
     stop_after: int | None = None,
+    init_from: str | Path | None = None,
 ) -> TrainResult:
     """Train (or resume) a model of ``variant`` on the dataset in ``data_dir``; writes everything to ``run_dir``.
 
     Args:
         data_dir: dataset folder (ours, nerfstudio or COLMAP).
         run_dir: the run folder.
-        variant: ``3dgs``, ``darkgs``, ``darkgs-calibrated``, ``darkgs+sh``, ``darkgs+brdf`` or ``spotless``.
+        variant: ``3dgs``, ``darkgs``, ``darkgs-calibrated``, ``darkgs+sh``, ``darkgs+brdf`` or ``spotless``, or
+            any ModelConfig (stored in run.json as ``model_config``; ``model`` is then its name).
         config: training settings.
         seed: the command seed.
         resume: continue from the run's last checkpoint (settings must match).
         light_prior: (3,) prior light translation in camera coordinates (m): adds weight · ‖t − prior‖.
         progress: show a progress bar.
         stop_after: stop (with a checkpoint) after this many total steps, as if interrupted (tests, time budgets).
+        init_from: start from the Gaussians and spotlight of this run's checkpoint (model selection's shared warm
+            start, see spotlessgs.training.warm_start) instead of the point cloud.
     """
     data_dir, run_dir = Path(data_dir).resolve(), Path(run_dir)
     if config.num_threads:
         torch.set_num_threads(config.num_threads)
     device = resolve_device(config.device)
     ckpt_file = checkpoint_path(run_dir)
-    run_info = {"data_dir": str(data_dir), "model": variant, "seed": seed, "preset": config.preset,
+    run_info = {"data_dir": str(data_dir), "model": variant.name if isinstance(variant, ModelConfig) else variant,
+                "seed": seed, "preset": config.preset,
                 "light_prior": None if light_prior is None else [float(v) for v in light_prior]}
+    if init_from is not None:
+        run_info["init_from"] = str(Path(init_from).resolve())
+    if isinstance(variant, ModelConfig):
+        run_info["model_config"] = dataclasses.asdict(model_config(variant, config))
     resolved = {"train": dataclasses.asdict(config), "run": run_info}
     if ckpt_file.is_file() and not resume:
         raise FileExistsError(f"{run_dir} already holds a training run; pass --resume to continue it or use a new --out")
@@ -236,15 +296,16 @@ def train(
     views = load_training_views(data_dir, config.image_width, config.linear_input, config.saturation_threshold)
     if not views.train:
         raise ValueError(f"{data_dir}: the split has no training views")
+    split = split_training_views(views.train, config.validation_every)
     extent = views.scene_extent()
     images, saturated = views.images.to(device), views.saturated.to(device)
     c2ws, viewmats, K = views.c2w.to(device), views.viewmats.to(device), views.K.to(device)
 
     start = 0
-    strategy = DensifyStrategy(densify_config(config), extent, torch_generator(seed, "densify", device=str(device)))
     if resume and ckpt_file.is_file():
         ckpt = load_checkpoint(run_dir)
         scene = restore_scene(ckpt, run_info, config).to(device)
+        strategy = make_strategy(config, extent, seed, device, scene, views, split)
         opts = build_optimizers(scene, config, extent)
         for k, o in opts.items():
             o.load_state_dict(ckpt["optimizers"][k])
@@ -254,7 +315,11 @@ def train(
         log.info("resuming %s at step %d", run_dir, start)
     else:
         run_dir.mkdir(parents=True, exist_ok=True)
-        scene = build_scene(views, variant, config, seed, light_prior).to(device)
+        scene = build_scene(views, variant, config, seed, light_prior)
+        if init_from is not None:
+            scene = warm_start_scene(scene, load_checkpoint(Path(init_from)), str(init_from))
+        scene = scene.to(device)
+        strategy = make_strategy(config, extent, seed, device, scene, views, split)
         opts = build_optimizers(scene, config, extent)
         write_json(run_dir / "run.json", run_info)
         write_json(run_dir / "config.json", {**resolved, "model_config": dataclasses.asdict(scene.config),
@@ -265,15 +330,14 @@ def train(
     from tqdm import tqdm
 
     end = config.iterations if stop_after is None else min(stop_after, config.iterations)
-    bar = tqdm(range(start, end), initial=start, total=config.iterations, desc=f"train {variant}",
+    bar = tqdm(range(start, end), initial=start, total=config.iterations, desc=f"train {scene.config.name}",
                disable=not progress, unit="it")
     metrics_file = open(run_dir / "metrics.jsonl", "a", encoding="utf-8")
     t0 = time.perf_counter()
     loss_value = float("nan")
     try:
         for step in bar:
-            epoch, pos = divmod(step, len(views.train))
-            k = view_order(seed, epoch, views.train)[pos]
+            k = fitted_view(seed, step, views.train, split, config)
             opts["means"].param_groups[0]["lr"] = means_lr(config, step, extent)
             out = scene.render(c2ws[k], viewmats[k], K, views.width, views.height,
                                backend=config.raster_backend, num_threads=config.num_threads)
@@ -312,17 +376,27 @@ def train(
     seconds = time.perf_counter() - t0
     steps_done = max(end - start, 0)
     test_psnr = evaluate_reconstruction(scene, views, config) if end == config.iterations else None
+    val_psnr = None
+    if end == config.iterations and split.validation and not config.validation_rejoin:
+        scene.eval()
+        val_psnr = validation_psnr(scene, views.c2w.to(device), views.viewmats.to(device), views.K.to(device),
+                                   views.images.to(device), split.validation, views.width, views.height,
+                                   config.raster_backend, config.num_threads)
     result = TrainResult(run_dir, end, seconds, 1000.0 * seconds / max(steps_done, 1), len(scene.gaussians),
-                         loss_value, test_psnr)
+                         loss_value, test_psnr, val_psnr)
     if end == config.iterations:
         from spotlessgs.light_report import write_light_report
 
         write_light_report(scene, views, run_dir)
         write_json(run_dir / "train_summary.json", {
             "steps": result.steps, "seconds_this_session": seconds, "ms_per_step": result.ms_per_step,
-            "num_gaussians": result.num_gaussians, "final_loss": loss_value,
+            "num_gaussians": result.num_gaussians,
+            "final_loss": loss_value if math.isfinite(loss_value) else None,  # None: resumed a finished run
             "test_psnr_reconstruction": test_psnr, "device": str(device),
+            "validation_views": split.validation, "validation_psnr": val_psnr,
         })
+        if isinstance(strategy, BudgetStrategy):
+            write_json(run_dir / "gaussian_budget.json", budget_report(strategy, len(scene.gaussians), config))
     return result
 
 

@@ -1,0 +1,172 @@
+"""The Gaussian budget: grow the model only while held-out error improves, and prune what does not change the renders.
+
+:class:`BudgetStrategy` is a :class:`~spotlessgs.training.strategy.DensifyStrategy` (same clone/split/prune/reset
+schedule and the same ``max_gaussians`` cap) with two additions, both at densification steps:
+
+1. **Growth stop.** Before densifying, the validation PSNR (held-out training views under the learned spotlight) is
+   measured. Growth (clone/split) stops for good once ``patience`` consecutive checks bring no gain of at least
+   ``min_gain_db`` over the best earlier value. An opacity reset lowers every opacity and so the PSNR for a while:
+   the history restarts after each reset.
+2. **Contribution pruning.** Each Gaussian's total blending weight Σ_views Σ_pixels α T over (a subset of) the fitted
+   views is computed (:func:`~spotlessgs.training.validation.gaussian_contributions`). The Gaussians are sorted by it
+   and the least-contributing ones are pruned as long as their summed weight stays within ``prune_fraction`` of the
+   total: together they cannot move the renders by more than that share of the blended colour.
+
+Pruning also runs once more at ``densify_until`` (the last chance to remove Gaussians before the model is fixed).
+The strategy needs two callables from the trainer, so it does not depend on the data layout:
+``validate(gaussians) -> float`` (validation PSNR, dB) and ``contributions(gaussians) -> (N,) tensor``.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable
+from dataclasses import dataclass
+
+import torch
+
+from spotlessgs.models.gaussians import GaussianParams
+from spotlessgs.training.strategy import DensifyConfig, DensifyStrategy
+
+
+@dataclass(frozen=True)
+class BudgetConfig:
+    """Growth-stop and pruning settings of the Gaussian budget (TrainConfig ``budget_*`` fields)."""
+
+    # Validation checks without a gain of at least min_gain_db before growth stops.
+    patience: int = 3
+    # Smallest validation PSNR gain (dB) over the best earlier check that counts as an improvement.
+    min_gain_db: float = 0.05
+    # Share of the total blending weight that the pruned (least-contributing) Gaussians may carry together.
+    prune_fraction: float = 0.01
+
+    def __post_init__(self) -> None:
+        if self.patience < 1:
+            raise ValueError(f"BudgetConfig: patience must be >= 1, got {self.patience}")
+        if not math.isfinite(self.min_gain_db) or self.min_gain_db < 0:
+            raise ValueError(f"BudgetConfig: min_gain_db must be finite and >= 0, got {self.min_gain_db}")
+        if not 0.0 <= self.prune_fraction < 1.0:
+            raise ValueError(f"BudgetConfig: prune_fraction must be in [0, 1), got {self.prune_fraction}")
+
+
+def negligible_mask(contributions: torch.Tensor, fraction: float) -> torch.Tensor:
+    """(N,) bool: the least-contributing Gaussians whose summed contribution is at most ``fraction`` of the total.
+
+    Args:
+        contributions: (N,) non-negative blending weights.
+        fraction: in [0, 1). Gaussians with zero contribution are always in the mask (they never show), except that
+            at least one Gaussian (the largest contributor) is always kept.
+    """
+    if contributions.dim() != 1:
+        raise ValueError(f"negligible_mask: contributions must be (N,), got shape {tuple(contributions.shape)}")
+    if not 0.0 <= fraction < 1.0:
+        raise ValueError(f"negligible_mask: fraction must be in [0, 1), got {fraction}")
+    c = contributions.detach().double().clamp_min(0.0)
+    mask = torch.zeros(len(c), dtype=torch.bool, device=c.device)
+    if len(c) == 0:
+        return mask
+    order = torch.argsort(c, stable=True)
+    cumulative = torch.cumsum(c[order], 0)
+    mask[order] = cumulative <= fraction * float(c.sum())
+    mask[torch.argmax(c)] = False
+    return mask
+
+
+class BudgetStrategy(DensifyStrategy):
+    """Densification with a growth stop on held-out error and contribution-based pruning (see the module docstring).
+
+    Args:
+        config: the densification schedule and the ``max_gaussians`` cap.
+        budget: growth-stop and pruning settings.
+        scene_extent: scene radius (m); generator: for split children.
+        validate: gaussians → validation PSNR (dB) of the current model.
+        contributions: gaussians → (N,) blending weights over the fitted views.
+    """
+
+    def __init__(
+        self, config: DensifyConfig, budget: BudgetConfig, scene_extent: float, generator: torch.Generator,
+        validate: Callable[[GaussianParams], float], contributions: Callable[[GaussianParams], torch.Tensor],
+    ) -> None:
+        super().__init__(config, scene_extent, generator)
+        self.budget = budget
+        self.validate = validate
+        self.contributions = contributions
+        self.history: list[float] = []  # validation PSNR at each check since the last opacity reset
+        self.growth_stopped_at: int | None = None  # step at which growth stopped (None = still growing)
+        self.checks: list[dict] = []  # every check: step, validation PSNR, Gaussians, decision (for the run folder)
+
+    def state_dict(self) -> dict:
+        return {**super().state_dict(), "history": list(self.history), "growth_stopped_at": self.growth_stopped_at,
+                "checks": list(self.checks)}
+
+    def load_state_dict(self, state: dict) -> None:
+        super().load_state_dict(state)
+        self.history = list(state["history"])
+        self.growth_stopped_at = state["growth_stopped_at"]
+        self.checks = list(state["checks"])
+
+    def plateaued(self) -> bool:
+        """True when the last ``patience`` checks gained less than ``min_gain_db`` over the best check before them."""
+        p = self.budget.patience
+        if len(self.history) <= p:
+            return False
+        best_before = max(self.history[:-p])
+        return max(self.history[-p:]) < best_before + self.budget.min_gain_db
+
+    def step_post_backward(self, step, gaussians, optimizers, means2d_grad, radii, width, height) -> dict[str, int]:
+        cfg = self.config
+        s = step + 1
+        if s > cfg.densify_until:
+            return {"cloned": 0, "split": 0, "pruned": 0, "reset": 0}
+        at_densify = cfg.densify_from <= s < cfg.densify_until and s % cfg.densify_every == 0
+        if at_densify and self.growth_stopped_at is None:
+            psnr = float(self.validate(gaussians))
+            self.history.append(psnr)
+            stop = self.plateaued()
+            self.checks.append({"step": s, "validation_psnr": psnr, "gaussians": len(gaussians), "growth_stopped": stop})
+            if stop:
+                self.growth_stopped_at = s
+        if self.growth_stopped_at is None:
+            changes = super().step_post_backward(step, gaussians, optimizers, means2d_grad, radii, width, height)
+        else:  # no more growth: keep the transparent-Gaussian pruning and the opacity resets of the schedule
+            changes = {"cloned": 0, "split": 0, "pruned": 0, "reset": 0}
+            if at_densify:
+                prune = gaussians.opacities.detach() < cfg.prune_opacity
+                prune[torch.argmax(gaussians.opacities.detach())] = False
+                if prune.any():
+                    changes["pruned"] = int(prune.sum())
+                    self._keep(gaussians, optimizers, ~prune)
+            if cfg.opacity_reset_every > 0 and s % cfg.opacity_reset_every == 0:
+                self._reset_opacity(gaussians, optimizers)
+                self.last_reset_step = s
+                changes["reset"] = 1
+        if changes.get("reset"):
+            self.history = []
+        # right after an opacity reset every Gaussian is faint and the weights say little: no pruning at that step
+        if (at_densify or s == cfg.densify_until) and not changes.get("reset"):
+            changes["pruned_negligible"] = self._prune_negligible(gaussians, optimizers)
+        return changes
+
+    def _prune_negligible(self, gaussians: GaussianParams, optimizers) -> int:
+        """Remove the Gaussians of :func:`negligible_mask`; the gradient statistics restart (base class) on resize."""
+        mask = negligible_mask(self.contributions(gaussians), self.budget.prune_fraction)
+        n = int(mask.sum())
+        if n:
+            self._keep(gaussians, optimizers, ~mask)
+        return n
+
+
+def budget_report(strategy: BudgetStrategy, final_gaussians: int, config) -> dict:
+    """What the budget decided, for ``RUN/gaussian_budget.json``: every validation check, when growth stopped, the
+    final count and the cap. ``config`` is the run's TrainConfig."""
+    return {
+        "final_gaussians": int(final_gaussians),
+        "max_gaussians": int(config.max_gaussians),
+        "growth_stopped_at": strategy.growth_stopped_at,
+        "densify_until": int(config.densify_until),
+        "settings": {"patience": strategy.budget.patience, "min_gain_db": strategy.budget.min_gain_db,
+                     "prune_fraction": strategy.budget.prune_fraction,
+                     "validation_every": int(config.validation_every),
+                     "contribution_views": int(config.budget_contribution_views)},
+        "checks": list(strategy.checks),
+    }

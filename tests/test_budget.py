@@ -1,0 +1,265 @@
+"""The Gaussian budget: held-out view split, per-Gaussian contributions (against a one-hot reference), the pruning
+rule, the growth stop, the cap, and a tiny end-to-end run on a synthetic dataset (no Blender)."""
+
+from __future__ import annotations
+
+import json
+import math
+
+import numpy as np
+import pytest
+import torch
+
+from spotlessgs.models.gaussians import GaussianParams
+from spotlessgs.training.budget import BudgetConfig, BudgetStrategy, negligible_mask
+from spotlessgs.training.config import TrainConfig, preset
+from spotlessgs.training.strategy import DensifyConfig, DensifyStrategy
+from spotlessgs.training.validation import evenly_spaced, gaussian_contributions, split_training_views
+
+
+@pytest.fixture(autouse=True, scope="module")
+def _one_torch_thread():
+    old = torch.get_num_threads()
+    torch.set_num_threads(1)
+    yield
+    torch.set_num_threads(old)
+
+
+# ---- held-out views ---------------------------------------------------------------------------------------------
+
+
+def test_every_kth_training_view_is_held_out_and_never_a_test_view():
+    train = [1, 2, 3, 4, 5, 6, 7, 8, 9, 10]  # 0 and 11 are test views
+    split = split_training_views(train, 4)
+    assert split.validation == [4, 8]
+    assert split.fit == [1, 2, 3, 5, 6, 7, 9, 10]
+    assert split_training_views(train, 0).fit == train and split_training_views(train, 0).validation == []
+
+
+@pytest.mark.parametrize("every, match", [(1, "0 \\(off\\) or >= 2"), (-3, "0 \\(off\\) or >= 2"),
+                                          (20, "holds out no view")])
+def test_bad_validation_split_is_rejected(every, match):
+    with pytest.raises(ValueError, match=match):
+        split_training_views(list(range(10)), every)
+
+
+def test_evenly_spaced_subset():
+    assert evenly_spaced([5, 6, 7, 8, 9, 10], 3) == [5, 7, 9]
+    assert evenly_spaced([1, 2], 5) == [1, 2]
+
+
+# ---- contributions ----------------------------------------------------------------------------------------------
+
+
+def _camera(width=24, height=18):
+    K = torch.tensor([[20.0, 0, width / 2], [0, 20.0, height / 2], [0, 0, 1]])
+    return torch.eye(4)[None], K, width, height
+
+
+def test_contributions_equal_the_one_hot_channel_sums_of_a_plain_render():
+    from spotlessgs.rasterizer import rasterize
+
+    g = torch.Generator().manual_seed(3)
+    n = 5
+    means = torch.cat([torch.rand(n, 2, generator=g) * 0.6 - 0.3, 2.0 + torch.rand(n, 1, generator=g)], 1)
+    quats = torch.nn.functional.normalize(torch.randn(n, 4, generator=g), dim=1)
+    scales = 0.05 + 0.1 * torch.rand(n, 3, generator=g)
+    opacities = torch.tensor([0.9, 0.5, 0.2, 0.05, 0.7])
+    viewmats, K, w, h = _camera()
+    got = gaussian_contributions(means, quats, scales, opacities, viewmats, K, w, h, [0, 0], backend="torch")
+    # reference: channel i of a render with one-hot features is Σ_px α_i T_i; two identical views double it
+    ref = rasterize(means, quats, scales, opacities, torch.eye(n), viewmats[0], K, w, h, backend="torch")
+    expected = 2.0 * ref.image.sum(dim=(0, 1))
+    torch.testing.assert_close(got, expected, rtol=1e-4, atol=1e-5)
+    assert float(got.min()) > 0.0
+
+
+def test_negligible_mask_removes_the_smallest_within_the_fraction_and_keeps_the_largest():
+    c = torch.tensor([50.0, 0.0, 1.0, 2.0, 47.0])  # total 100
+    # 3 % of 100: 0 + 1 + 2 = 3 fits, the next (47) does not
+    assert negligible_mask(c, 0.03).tolist() == [False, True, True, True, False]
+    assert negligible_mask(c, 0.02).tolist() == [False, True, True, False, False]
+    assert negligible_mask(c, 0.0).tolist() == [False, True, False, False, False]  # zero weight never shows
+    assert negligible_mask(torch.zeros(3), 0.5).tolist() == [True, False, True] or \
+        int(negligible_mask(torch.zeros(3), 0.5).sum()) == 2  # all zero: one is kept
+
+
+@pytest.mark.parametrize("contrib, fraction, match", [(torch.ones(2, 2), 0.1, "must be \\(N,\\)"),
+                                                      (torch.ones(3), 1.0, "in \\[0, 1\\)")])
+def test_negligible_mask_rejects_bad_input(contrib, fraction, match):
+    with pytest.raises(ValueError, match=match):
+        negligible_mask(contrib, fraction)
+
+
+@pytest.mark.parametrize("kwargs, match", [({"patience": 0}, "patience"), ({"min_gain_db": -1.0}, "min_gain_db"),
+                                           ({"prune_fraction": 1.0}, "prune_fraction")])
+def test_budget_config_rejects_bad_values(kwargs, match):
+    with pytest.raises(ValueError, match=match):
+        BudgetConfig(**kwargs)
+
+
+@pytest.mark.parametrize("kwargs, match", [
+    ({"gaussian_budget": True}, "needs held-out validation views"),
+    ({"validation_every": 1}, "validation_every"),
+    ({"budget_patience": 0}, "budget_patience"),
+    ({"budget_prune_fraction": -0.1}, "budget_prune_fraction"),
+    ({"budget_contribution_views": 0}, "budget_contribution_views"),
+])
+def test_train_config_rejects_bad_budget_settings(kwargs, match):
+    with pytest.raises(ValueError, match=match):
+        TrainConfig(**kwargs)
+
+
+# ---- the strategy -----------------------------------------------------------------------------------------------
+
+
+def _gaussians(n=8):
+    xyz = np.stack([np.linspace(-0.3, 0.3, n), np.zeros(n), np.full(n, 2.0)], 1)
+    g = GaussianParams.from_point_cloud(xyz, np.full((n, 3), 128, np.uint8))
+    with torch.no_grad():
+        g.params["log_scales"].fill_(math.log(0.001))
+        g.params["opacity_logits"].fill_(2.0)
+    return g
+
+
+def _optimizers(g):
+    return {name: torch.optim.Adam([p], lr=1e-3) for name, p in g.params.items()}
+
+
+def _drive(strategy, g, opts, steps):
+    """Every Gaussian has a large screen gradient at every step (all would be cloned)."""
+    log = []
+    for step in range(steps):
+        n = len(g)
+        grad = torch.full((n, 2), 1.0)
+        log.append(strategy.step_post_backward(step, g, opts, grad, torch.ones(n, dtype=torch.int32), 32, 32))
+    return log
+
+
+def test_growth_stops_after_patience_checks_without_gain_and_cap_holds():
+    cfg = DensifyConfig(densify_from=10, densify_until=100, densify_every=10, grad_threshold=1e-4,
+                        opacity_reset_every=0, max_gaussians=200, prune_opacity=0.0)
+    psnrs = iter([20.0, 21.0, 21.02, 21.01, 20.9, 25.0, 25.0, 25.0, 25.0])
+    seen = []
+
+    def validate(g):
+        seen.append(len(g))
+        return next(psnrs)
+
+    g = _gaussians()
+    strategy = BudgetStrategy(cfg, BudgetConfig(patience=3, min_gain_db=0.05, prune_fraction=0.0), 1.0,
+                              torch.Generator().manual_seed(0), validate, lambda gg: torch.ones(len(gg)))
+    log = _drive(strategy, g, _optimizers(g), 100)
+    # checks at 10, 20, 30, 40, 50: after 50 the last three (21.02, 21.01, 20.9) gained < 0.05 over 21.0 -> stop
+    assert strategy.growth_stopped_at == 50
+    assert [c["step"] for c in strategy.checks] == [10, 20, 30, 40, 50]
+    grown_after = sum(c["cloned"] + c["split"] for c in log[50:])
+    assert grown_after == 0 and len(seen) == 5  # no more growth, and no more validation renders
+    assert len(g) <= cfg.max_gaussians
+    # the default strategy under the same gradients grows to the cap
+    g2 = _gaussians()
+    _drive(DensifyStrategy(cfg, 1.0, torch.Generator().manual_seed(0)), g2, _optimizers(g2), 100)
+    assert len(g2) == cfg.max_gaussians and len(g) < len(g2)
+    state = strategy.state_dict()
+    again = BudgetStrategy(cfg, strategy.budget, 1.0, torch.Generator(), validate, lambda gg: torch.ones(len(gg)))
+    again.load_state_dict(state)
+    assert again.growth_stopped_at == 50 and again.checks == strategy.checks
+
+
+def test_negligible_gaussians_are_pruned_with_their_optimizer_state():
+    cfg = DensifyConfig(densify_from=10, densify_until=20, densify_every=10, grad_threshold=1e9,  # no growth
+                        opacity_reset_every=0, max_gaussians=100, prune_opacity=0.0)
+    weights = torch.tensor([100.0, 0.2, 30.0, 0.3, 40.0, 0.1, 25.0, 0.0])  # total 195.6
+
+    def contributions(g):
+        return weights[: len(g)] if len(g) == len(weights) else torch.ones(len(g))
+
+    g = _gaussians()
+    keep_means = g.means.detach()[[0, 2, 4, 6]].clone()
+    opts = _optimizers(g)
+    strategy = BudgetStrategy(cfg, BudgetConfig(patience=5, prune_fraction=0.01), 1.0, torch.Generator(),
+                              lambda gg: 20.0, contributions)
+    log = _drive(strategy, g, opts, 10)
+    assert log[9]["pruned_negligible"] == 4  # 0 + 0.1 + 0.2 + 0.3 = 0.6 ≤ 1.956; adding 25 would not fit
+    torch.testing.assert_close(g.means.detach(), keep_means)
+    for name, p in g.params.items():
+        assert opts[name].param_groups[0]["params"][0] is p and opts[name].state.get(p) is None or \
+            opts[name].state[p]["exp_avg"].shape[0] == 4
+
+
+# ---- end to end on a synthetic dataset ---------------------------------------------------------------------------
+
+
+@pytest.fixture(scope="module")
+def box_room(tmp_path_factory):
+    from evaluation.synthetic import render_room_sequence, write_dataset_folder
+
+    root = tmp_path_factory.mktemp("budget-data") / "box"
+    write_dataset_folder(render_room_sequence(num_frames=14, width=40, height=30, seed=2), root, with_depth=False)
+    return root
+
+
+def _tiny(**overrides):
+    base = dict(iterations=90, image_width=40, num_threads=1, densify_from=20, densify_until=80, densify_every=10,
+                opacity_reset_every=0, log_every=10, checkpoint_every=45, init_points=600, max_gaussians=900,
+                brdf_hidden=8)
+    base.update(overrides)
+    return preset("tiny", **base)
+
+
+def test_budget_run_writes_its_decisions_respects_the_cap_and_resumes_exactly(box_room, tmp_path):
+    from spotlessgs.training.checkpoint import load_checkpoint
+    from spotlessgs.training.trainer import train
+
+    cfg = _tiny(gaussian_budget=True, validation_every=4, validation_rejoin=True, max_gaussians=700,
+                budget_patience=2)
+    full = train(box_room, tmp_path / "full", "darkgs+sh", cfg, seed=1, progress=False)
+    assert full.num_gaussians <= 700
+    report = json.loads((tmp_path / "full" / "gaussian_budget.json").read_text())
+    assert report["final_gaussians"] == full.num_gaussians and report["max_gaussians"] == 700
+    assert [c["step"] for c in report["checks"]][:1] == [20] and all(math.isfinite(c["validation_psnr"])
+                                                                     for c in report["checks"])
+    summary = json.loads((tmp_path / "full" / "train_summary.json").read_text())
+    assert summary["validation_views"] == [4, 8, 13] and summary["validation_psnr"] is None  # 14 frames: test 0, 11; rejoined: not held out
+    # interrupted and resumed: identical parameters (the budget state is in the checkpoint)
+    train(box_room, tmp_path / "split", "darkgs+sh", cfg, seed=1, progress=False, stop_after=45)
+    train(box_room, tmp_path / "split", "darkgs+sh", cfg, seed=1, progress=False, resume=True)
+    a, b = load_checkpoint(tmp_path / "full"), load_checkpoint(tmp_path / "split")
+    for name in a["gaussians"]:
+        torch.testing.assert_close(a["gaussians"][name], b["gaussians"][name])
+
+
+def test_cli_gaussian_budget_flag_holds_out_views_and_respects_max_gaussians(box_room, tmp_path):
+    from click.testing import CliRunner
+
+    from spotlessgs.cli import main
+
+    out = tmp_path / "run"
+    res = CliRunner().invoke(main, ["train", "--data", str(box_room), "--out", str(out), "--model", "darkgs",
+                                    "--preset", "tiny", "--iterations", "60", "--width", "32", "--threads", "1",
+                                    "--max-gaussians", "350", "--gaussian-budget", "-q"])
+    assert res.exit_code == 0, res.output
+    train_cfg = json.loads((out / "config.json").read_text())["train"]
+    assert train_cfg["gaussian_budget"] and train_cfg["validation_every"] == 8 and train_cfg["validation_rejoin"]
+    assert json.loads((out / "train_summary.json").read_text())["num_gaussians"] <= 350
+    assert (out / "gaussian_budget.json").is_file()
+
+
+def test_budget_plot_draws_every_point_and_rejects_bad_input(tmp_path):
+    from PIL import Image
+
+    from spotlessgs.training.budget_plot import BudgetPoint, plot_budget
+
+    points = [BudgetPoint("bedroom", "default", 20000, 18.0, 3.0), BudgetPoint("bedroom", "budget", 9000, 17.9, 6.0),
+              BudgetPoint("storage_room", "default", 20000, 15.0, 2.5),
+              BudgetPoint("storage_room", "budget", 12000, 14.9, 4.0)]
+    path = plot_budget(points, tmp_path / "budget.png")
+    with Image.open(path) as img:
+        assert img.format == "PNG" and img.size[0] > 500
+    assert [p.name for p in tmp_path.iterdir()] == ["budget.png"]  # atomic: no temporary file left
+    with pytest.raises(ValueError, match="no points"):
+        plot_budget([], tmp_path / "x.png")
+    with pytest.raises(ValueError, match="gaussians must be >= 1"):
+        BudgetPoint("r", "s", 0, 1.0, 1.0)
+    with pytest.raises(ValueError, match="relit_fps is not finite"):
+        BudgetPoint("r", "s", 5, 1.0, math.inf)
