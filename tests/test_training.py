@@ -345,3 +345,16 @@ def test_random_initialisation_in_the_frusta_when_a_dataset_has_no_points(tmp_pa
         v = intr.fy * cam[:, 1] / cam[:, 2] + intr.cy
         inside_any |= (cam[:, 2] > 0) & (u >= 0) & (u <= 32) & (v >= 0) & (v <= 24)
     assert inside_any.all()
+
+
+def test_overriding_iterations_scales_the_densification_schedule():
+    from spotlessgs.training.config import PRESETS, preset
+
+    quick = PRESETS["quick"]
+    short = preset("quick", iterations=1000)
+    assert short.densify_until == round(quick.densify_until / 3) < 1000
+    assert short.opacity_reset_every == round(quick.opacity_reset_every / 3)
+    assert short.densify_every == round(quick.densify_every / 3)
+    # an explicitly given schedule field is kept as given
+    assert preset("quick", iterations=1000, densify_until=900).densify_until == 900
+    assert preset("quick").densify_until == quick.densify_until

@@ -140,8 +140,23 @@ PRESETS: dict[str, TrainConfig] = {
 }
 
 
+#: Step-count fields of the densification schedule, scaled with the iteration count (see :func:`preset`).
+SCHEDULE_FIELDS = ("densify_from", "densify_until", "densify_every", "opacity_reset_every")
+
+
 def preset(name: str, **overrides: Any) -> TrainConfig:
-    """The named preset with some fields changed."""
+    """The named preset with some fields changed.
+
+    Overriding ``iterations`` scales the densification schedule (``SCHEDULE_FIELDS`` not overridden themselves) by
+    the same factor, as gsplat's ``steps_scaler`` does: with 1000 instead of 3000 iterations densification stops at
+    step 667, not 2000, and opacities are not reset at the very last step.
+    """
     if name not in PRESETS:
         raise ValueError(f"unknown preset {name!r}; choose one of {sorted(PRESETS)}")
-    return PRESETS[name].replace(**overrides)
+    base = PRESETS[name]
+    if "iterations" in overrides and overrides["iterations"] != base.iterations:
+        factor = overrides["iterations"] / base.iterations
+        for field in SCHEDULE_FIELDS:
+            if field not in overrides and getattr(base, field) > 0:
+                overrides[field] = max(1, round(getattr(base, field) * factor))
+    return base.replace(**overrides)
