@@ -84,12 +84,12 @@ class SpotLight(nn.Module):
         super().__init__()
         if gamma <= 0 or tau <= 0:
             raise ValueError(f"SpotLight: gamma and tau must be > 0, got gamma={gamma}, tau={tau}")
-        self.rotvec = nn.Parameter(torch.as_tensor(_rotvec_from(rotation), dtype=torch.float32))
+        self.rotvec = nn.Parameter(torch.tensor(np.array(_rotvec_from(rotation)), dtype=torch.float32))
         if translation is None:
             t = torch.zeros(3)
         else:
             raw = translation.detach().cpu() if isinstance(translation, torch.Tensor) else translation
-            t = torch.as_tensor(np.asarray(raw, dtype=np.float64), dtype=torch.float32)
+            t = torch.tensor(np.array(raw, dtype=np.float64), dtype=torch.float32)  # a copy: inputs may be read-only
         if t.shape != (3,):
             raise ValueError(f"SpotLight: translation must have shape (3,), got {tuple(t.shape)}")
         self.translation = nn.Parameter(t.clone())
