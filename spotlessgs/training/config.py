@@ -68,7 +68,7 @@ class TrainConfig:
     init_points: int | None = 12_000
 
     # Hidden width of the learned BRDF MLP (paper 256; it dominates CPU shading time).
-    brdf_hidden: int = 64
+    brdf_hidden: int = 32
     # Weight of the light-translation prior ‖t - t_prior‖ (used only when a prior is given).
     light_prior_weight: float = 1.0
 
