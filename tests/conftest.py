@@ -24,3 +24,24 @@ def pytest_collection_modifyitems(config, items):
             item.add_marker(pytest.mark.skip(reason="bpy is not installed (pip install -e '.[sim]')"))
         if "gpu" in item.keywords and not has_gpu:
             item.add_marker(pytest.mark.skip(reason="no CUDA GPU"))
+
+
+@pytest.fixture(scope="module")
+def one_torch_thread():
+    """One torch thread for a test module: the test machines are shared, and contended OpenMP threads slow small
+    ops up to 100x. Modules opt in with ``pytestmark = pytest.mark.usefixtures("one_torch_thread")``."""
+    import torch
+
+    old = torch.get_num_threads()
+    torch.set_num_threads(1)
+    yield
+    torch.set_num_threads(old)
+
+
+def synthetic_box_dataset(tmp_path_factory, name: str, seed: int):
+    """A tiny ray-cast posed dataset (14 frames, 40x30, no Blender) in a fresh folder; returns its path."""
+    from evaluation.synthetic import render_room_sequence, write_dataset_folder
+
+    root = tmp_path_factory.mktemp(name) / "box"
+    write_dataset_folder(render_room_sequence(num_frames=14, width=40, height=30, seed=seed), root, with_depth=False)
+    return root

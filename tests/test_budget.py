@@ -10,6 +10,7 @@ import numpy as np
 import pytest
 import torch
 
+from conftest import synthetic_box_dataset
 from spotlessgs.models.gaussians import GaussianParams
 from spotlessgs.training.budget import BudgetConfig, BudgetStrategy, negligible_mask
 from spotlessgs.training.config import TrainConfig, preset
@@ -17,12 +18,7 @@ from spotlessgs.training.strategy import DensifyConfig, DensifyStrategy
 from spotlessgs.training.validation import evenly_spaced, gaussian_contributions, split_training_views
 
 
-@pytest.fixture(autouse=True, scope="module")
-def _one_torch_thread():
-    old = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(old)
+pytestmark = pytest.mark.usefixtures("one_torch_thread")
 
 
 # ---- held-out views ---------------------------------------------------------------------------------------------
@@ -192,11 +188,7 @@ def test_negligible_gaussians_are_pruned_with_their_optimizer_state():
 
 @pytest.fixture(scope="module")
 def box_room(tmp_path_factory):
-    from evaluation.synthetic import render_room_sequence, write_dataset_folder
-
-    root = tmp_path_factory.mktemp("budget-data") / "box"
-    write_dataset_folder(render_room_sequence(num_frames=14, width=40, height=30, seed=2), root, with_depth=False)
-    return root
+    return synthetic_box_dataset(tmp_path_factory, "budget-data", seed=2)
 
 
 def _tiny(**overrides):

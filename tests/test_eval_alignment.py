@@ -11,13 +11,7 @@ from evaluation.alignment import GainAccumulator, apply_gain, exposure_gain
 from evaluation.metrics import psnr
 from spotlessgs.io.colorspace import linear_to_srgb, srgb_to_linear
 
-@pytest.fixture(autouse=True, scope="module")
-def _one_torch_thread():
-    """One torch thread: the test machines are shared, and contended OpenMP threads slow small ops 100×."""
-    old = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(old)
+pytestmark = pytest.mark.usefixtures("one_torch_thread")
 
 
 

@@ -22,13 +22,7 @@ GOLDEN = [
     ("chelsea.png", "astronaut.png", 8.80606866019934, 0.10544457748758294),
 ]
 
-@pytest.fixture(autouse=True, scope="module")
-def _one_torch_thread():
-    """One torch thread: the test machines are shared, and contended OpenMP threads slow small ops 100×."""
-    old = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(old)
+pytestmark = pytest.mark.usefixtures("one_torch_thread")
 
 
 

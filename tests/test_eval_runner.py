@@ -24,13 +24,7 @@ TOP_KEYS = {"psnr", "ssim", "lpips", "psnr_aligned", "ssim_aligned", "lpips_alig
 QUIET = EvalConfig(progress=False, num_threads=1)  # no progress bars, one torch thread
 SFM_KEYS = {"reprojection_error_px", "observations_per_image", "registered_images", "total_images", "points3d"}
 
-@pytest.fixture(autouse=True, scope="module")
-def _one_torch_thread():
-    """One torch thread: the test machines are shared, and contended OpenMP threads slow small ops 100×."""
-    old = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(old)
+pytestmark = pytest.mark.usefixtures("one_torch_thread")
 
 
 

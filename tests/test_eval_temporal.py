@@ -19,13 +19,7 @@ from evaluation.temporal import (
 )
 from spotlessgs.io.cameras import opengl_to_opencv_c2w
 
-@pytest.fixture(autouse=True, scope="module")
-def _one_torch_thread():
-    """One torch thread: the test machines are shared, and contended OpenMP threads slow small ops 100×."""
-    old = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(old)
+pytestmark = pytest.mark.usefixtures("one_torch_thread")
 
 
 

@@ -10,6 +10,7 @@ import pytest
 import torch
 from click.testing import CliRunner
 
+from conftest import synthetic_box_dataset
 from spotlessgs.models.shading import ModelConfig
 from spotlessgs.training.config import preset
 from spotlessgs.training.selection import (
@@ -18,12 +19,7 @@ from spotlessgs.training.selection import (
 )
 
 
-@pytest.fixture(autouse=True, scope="module")
-def _one_torch_thread():
-    old = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(old)
+pytestmark = pytest.mark.usefixtures("one_torch_thread")
 
 
 def _result(degree, brdf, psnr):
@@ -103,11 +99,7 @@ def test_table_lists_every_candidate_and_marks_the_choice():
 
 @pytest.fixture(scope="module")
 def box_room(tmp_path_factory):
-    from evaluation.synthetic import render_room_sequence, write_dataset_folder
-
-    root = tmp_path_factory.mktemp("selection-data") / "box"
-    write_dataset_folder(render_room_sequence(num_frames=14, width=40, height=30, seed=4), root, with_depth=False)
-    return root
+    return synthetic_box_dataset(tmp_path_factory, "selection-data", seed=4)
 
 
 def _tiny(**overrides):
