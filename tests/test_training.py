@@ -232,6 +232,38 @@ def test_nan_stops_training_and_keeps_the_last_good_checkpoint(bedroom, tmp_path
 
 
 @pytest.mark.blender
+def test_a_nan_parameter_never_reaches_a_checkpoint(bedroom, tmp_path, monkeypatch):
+    """A NaN in a parameter no render uses (darkgs ignores the vanilla SH colour) is caught before the next save."""
+    import spotlessgs.training.trainer as trainer_mod
+    from spotlessgs.training.checkpoint import load_checkpoint
+
+    scenes = []
+    real_build, real_loss = trainer_mod.build_optimizers, trainer_mod.photometric_loss
+
+    def capture(scene, config, extent):
+        scenes.append(scene)
+        return real_build(scene, config, extent)
+
+    calls = {"n": 0}
+
+    def poison_after_step_24(pred, target, saturated, lam):
+        calls["n"] += 1
+        if calls["n"] == 25:
+            with torch.no_grad():
+                scenes[0].gaussians.params["shN"][0, 0, 0] = float("nan")
+        return real_loss(pred, target, saturated, lam)
+
+    monkeypatch.setattr(trainer_mod, "build_optimizers", capture)
+    monkeypatch.setattr(trainer_mod, "photometric_loss", poison_after_step_24)
+    cfg = _tiny(iterations=40, image_width=40, checkpoint_every=20, densify_from=1000)
+    with pytest.raises(trainer_mod.TrainingDivergedError, match=r"step 39: parameter 'shN'.*last good checkpoint"):
+        trainer_mod.train(bedroom, tmp_path / "run", "darkgs", cfg, seed=0, progress=False)
+    ckpt = load_checkpoint(tmp_path / "run")
+    assert ckpt["step"] == 20
+    assert all(torch.isfinite(t).all() for t in ckpt["gaussians"].values())
+
+
+@pytest.mark.blender
 def test_calibrated_darkgs_uses_the_true_light_and_export_writes_a_3dgs_ply(bedroom, tmp_path):
     from plyfile import PlyData
 

@@ -120,4 +120,6 @@ def eval_sh(coeffs: torch.Tensor, dirs: torch.Tensor, degree: int) -> torch.Tens
     if coeffs.shape[-2] < n:
         raise ValueError(f"eval_sh: degree {degree} needs {n} coefficient rows, got coeffs of shape {tuple(coeffs.shape)}")
     basis = sh_basis(dirs, degree)  # (..., n)
+    if coeffs.ndim == 2:  # shared by all directions: one matrix product
+        return basis @ coeffs[:n]
     return (basis.unsqueeze(-1) * coeffs[..., :n, :]).sum(dim=-2)

@@ -117,7 +117,7 @@ def build_optimizers(scene: RelightableScene, config: TrainConfig, extent: float
         "shN": config.lr_shN,
     }
     opts: dict[str, torch.optim.Optimizer] = {
-        name: torch.optim.Adam([p], lr=lrs[name], eps=1e-15) for name, p in scene.gaussians.params.items()
+        name: torch.optim.Adam([p], lr=lrs[name], eps=1e-15, fused=True) for name, p in scene.gaussians.params.items()
     }
     app = scene.appearance
     groups = []
@@ -133,7 +133,7 @@ def build_optimizers(scene: RelightableScene, config: TrainConfig, extent: float
     if brdf_params:
         groups.append({"params": brdf_params, "lr": config.lr_brdf})
     if groups:
-        opts["appearance"] = torch.optim.Adam(groups, eps=1e-15)
+        opts["appearance"] = torch.optim.Adam(groups, eps=1e-15, fused=True)
     return opts
 
 
@@ -357,7 +357,6 @@ def train(
                 o.zero_grad(set_to_none=True)
             changes = strategy.step_post_backward(step, scene.gaussians, opts, out.means2d_grad(), out.radii,
                                                   views.width, views.height)
-            _check_finite(scene, step, ckpt_file)
             s = step + 1
             if s % config.log_every == 0 or s == end:
                 elapsed = time.perf_counter() - t0
@@ -369,6 +368,9 @@ def train(
                 bar.set_postfix(loss=f"{loss_value:.4f}", psnr=f"{rec['psnr']:.2f}", n=len(scene.gaussians),
                                 ms=f"{rec['ms_per_step']:.0f}")
             if s % config.checkpoint_every == 0 or s == end:
+                # A NaN parameter of a visible Gaussian already shows in the next render (checked every step);
+                # this check, before every save, keeps any other one out of the checkpoint.
+                _check_finite(scene, step, ckpt_file)
                 save_checkpoint(run_dir, _payload(s, scene, opts, strategy))
     finally:
         metrics_file.close()
