@@ -26,6 +26,10 @@ Construction (all in the world frame: metres, z up):
    ``max_shift`` away, and (a)-(b) are repeated around it (``max_tries`` full-noise draws, halved noise, no noise).
    Only when no such point exists does sampling fail, naming the room (``label``) and the frame. The rotation noise
    is always drawn with the full ``rot_sigma`` (rotations never make a pose inadmissible).
+
+Furniture against the walls can reach into the nominal loop (the shipped bedroom's wardrobe does at the default 0.6 m
+margin). :func:`clearing_margin` finds the smallest larger margin whose loop clears it; using it is the caller's choice
+because it changes the poses of a room.
 """
 
 from __future__ import annotations
@@ -155,6 +159,46 @@ def trajectory_rectangle(
     if abs(eroded.area - (bx1 - bx0) * (by1 - by0)) <= 1e-9 * max(eroded.area, 1.0):
         return float(bx0), float(by0), float(bx1), float(by1)
     return largest_inscribed_rectangle(eroded, grid_steps)
+
+
+def clearing_margin(
+    floor_polygon: np.ndarray,
+    floor_z: float,
+    ceiling_z: float,
+    obstacles: list[tuple[np.ndarray, np.ndarray]],
+    config: TrajectoryConfig,
+    step: float = 0.05,
+    min_buffer: float = 0.01,
+) -> float:
+    """The smallest wall margin ``config.margin + k * step`` (k = 0, 1, ...) whose nominal loop clears the furniture.
+
+    Opt-in (the sampler itself never changes the margin): the whole path rectangle, at the nominal camera height, must
+    lie at least ``max(config.pos_sigma, min_buffer)`` inside the admissible region (:mod:`simulator.free_space`), so
+    that no nominal centre sits inside a grown obstacle box and most noise draws are admissible at once. Returns
+    ``config.margin`` itself when its loop already clears.
+
+    Raises:
+        ValueError: when every margin up to the one that leaves no room for a rectangle fails.
+    """
+    from shapely.geometry import box
+
+    if not (math.isfinite(step) and step > 0):
+        raise ValueError(f"clearing_margin step must be finite and > 0, got {step!r}")
+    space = FreeSpace(floor_polygon, floor_z, ceiling_z, obstacles, config.clearance)
+    clear = space.free_slice(floor_z + config.height).buffer(-max(config.pos_sigma, min_buffer))
+    k = 0
+    while True:
+        margin = round(config.margin + k * step, 9)  # 0.6 + 6 * 0.05 is 0.9, not 0.8999999999999999
+        try:
+            rect = trajectory_rectangle(floor_polygon, margin, config.grid_steps)
+        except ValueError as err:
+            raise ValueError(
+                f"no wall margin from {config.margin} m in steps of {step} m gives a camera loop that clears the "
+                f"furniture by {max(config.pos_sigma, min_buffer)} m ({err})"
+            ) from None
+        if box(*rect).exterior.within(clear):
+            return float(margin)
+        k += 1
 
 
 def rectangle_path(

@@ -12,7 +12,15 @@ from shapely.geometry import Point, Polygon
 from simulator.free_space import FreeSpace
 from simulator.front3d import LoadOptions, load_house
 from simulator.lighting import GroundTruthLighting, with_ground_truth_lighting
-from simulator.trajectory import RecoveryConfig, TrajectoryConfig, nominal_trajectory, sample_trajectory
+from simulator.trajectory import (
+    RecoveryConfig,
+    TrajectoryConfig,
+    clearing_margin,
+    nominal_trajectory,
+    rectangle_path,
+    sample_trajectory,
+    trajectory_rectangle,
+)
 from spotlessgs.io.cameras import axis_angle_to_matrix
 from spotlessgs.io.seeding import numpy_rng
 
@@ -264,3 +272,54 @@ def test_free_space_reasons_slices_and_nearest_points():
         FreeSpace(SQUARE, 0.0, 2.5, [], -0.1)
     with pytest.raises(ValueError, match=r"ceiling_z \(0.0\) must be above floor_z \(0.0\)"):
         FreeSpace(SQUARE, 0.0, 0.0, [], 0.1)
+
+
+def _clearance_of_loop(room, boxes, cfg, margin):
+    """Least horizontal distance (m) from the path rectangle (sampled every 5 mm) to the walls grown by the clearance
+    and to the grown footprints of the boxes that reach the camera height; plain numpy, rectangular rooms only."""
+    rect = trajectory_rectangle(room.floor_polygon, margin)
+    perimeter = 2 * (rect[2] - rect[0] + rect[3] - rect[1])
+    xy, _ = rectangle_path(rect, int(perimeter / 0.005))
+    (x0, y0), (x1, y1) = room.floor_polygon.min(axis=0), room.floor_polygon.max(axis=0)
+    walls = np.min([xy[:, 0] - x0, x1 - xy[:, 0], xy[:, 1] - y0, y1 - xy[:, 1]], axis=0) - cfg.clearance
+    z = room.floor_z + cfg.height
+    least = walls.min()
+    for lo, hi in boxes:
+        lo, hi = np.asarray(lo) - cfg.clearance, np.asarray(hi) + cfg.clearance
+        if lo[2] <= z <= hi[2]:
+            outside = np.maximum(np.maximum(lo[:2] - xy, xy - hi[:2]), 0.0)
+            least = min(least, np.linalg.norm(outside, axis=1).min())
+    return least
+
+
+def test_clearing_margin_of_the_bedroom(rooms):
+    # The default 0.6 m loop runs through the wardrobe; 0.9 m is the first margin (0.05 m steps) clearing it by sigma.
+    room, boxes = rooms["bedroom"]
+    cfg = TrajectoryConfig()
+    margin = clearing_margin(room.floor_polygon, room.floor_z, room.ceiling_z, boxes, cfg)
+    assert margin == 0.9
+    assert _clearance_of_loop(room, boxes, cfg, 0.6) == 0.0  # nominal centres inside (grown) furniture
+    assert _clearance_of_loop(room, boxes, cfg, 0.85) < cfg.pos_sigma
+    assert _clearance_of_loop(room, boxes, cfg, 0.9) >= cfg.pos_sigma
+    for n_frames in (40, 316):
+        wider = TrajectoryConfig(n_frames=n_frames, margin=margin)
+        args = (room.floor_polygon, room.floor_z, room.ceiling_z, boxes, wider)
+        poses = sample_trajectory(*args, numpy_rng(0, "trajectory"))
+        _assert_admissible_loop(room, boxes, poses, wider)
+        assert _plain_rejection_sampler(*args, numpy_rng(0, "trajectory"))[1] is None  # no recovery was needed
+
+
+def test_clearing_margin_synthetic_cases():
+    # A low cabinet reaching y = 0.52 (0.67 grown by the clearance 0.15) under the 0.5 m loop of a 4 x 4 room: the
+    # loop must keep pos_sigma = 0.05 from it, y0 >= 0.72, so the margin grows from 0.5 to 0.75.
+    cabinet = [_box(1.6, 0.0, 2.6, 0.52, z=(0.0, 1.6))]
+    cfg = TrajectoryConfig(height=1.5, margin=0.5, clearance=0.15, pos_sigma=0.05)
+    assert clearing_margin(SQUARE, 0.0, 3.0, cabinet, cfg) == 0.75
+    assert clearing_margin(SQUARE, 0.0, 3.0, cabinet, TrajectoryConfig(height=1.8, margin=0.5)) == 0.5  # above it
+    assert clearing_margin(SQUARE, 0.0, 3.0, [], cfg) == 0.5
+    blocker = [_box(-1.0, -1.0, 10.0, 10.0)]
+    with pytest.raises(ValueError, match=r"no wall margin from 0.5 m in steps of 0.05 m gives a camera loop that "
+                                         r"clears the furniture by 0.05 m \(the room is too small for a margin"):
+        clearing_margin(SQUARE, 0.0, 3.0, blocker, cfg)
+    with pytest.raises(ValueError, match=r"clearing_margin step must be finite and > 0, got 0.0"):
+        clearing_margin(SQUARE, 0.0, 3.0, [], cfg, step=0.0)
