@@ -325,7 +325,7 @@ def _recover_frame(
             f"{_prefix(label)}frame {index}: no admissible camera pose near {np.round(nominal, 3).tolist()} after "
             f"{config.max_tries} tries (last rejection: {last_reason}) nor {recovery.extra_tries} more, and no "
             f"admissible position lies within {recovery.max_shift} m of it at its height (nominal position: "
-            f"{nominal_reason}); increase the margin or reduce the clearance"
+            f"{nominal_reason}); increase the margin (clearing_margin finds one) or reduce the clearance"
         )
     shift = float(np.hypot(*(centre[:2] - nominal[:2])))
     placed, _ = _draw_admissible(centre, config.pos_sigma, config.rot_sigma, config.max_tries, space, rng)
