@@ -13,19 +13,37 @@ Construction (all in the world frame: metres, z up):
    the camera looks along -z.
 4. **Noise.** Position += N(0, pos_sigma^2 I_3); rotation := R @ exp([w]x) with w ~ N(0, rot_sigma^2 I_3) an axis-angle
    vector in the camera frame.
-5. **Rejection.** A noisy pose is redrawn (up to ``max_tries`` times) when its camera centre is closer than
-   ``clearance`` to a wall (outside the polygon eroded by ``clearance``), to the floor or ceiling, or inside an
-   obstacle box grown by ``clearance``. Only the camera centre is tested, not the view frustum.
+5. **Rejection.** A noisy pose is redrawn (up to ``max_tries`` times) when its camera centre is not admissible
+   (:mod:`simulator.free_space`): closer than ``clearance`` to a wall (outside the polygon eroded by ``clearance``), to
+   the floor or ceiling, or inside an obstacle box grown by ``clearance``. Only the camera centre is tested, not the
+   view frustum.
+6. **Recovery** (:class:`RecoveryConfig`), only for a frame whose ``max_tries`` draws were all rejected, so every
+   loop that the plain rejection sampler places is unchanged (same seed, same poses). In order:
+   (a) ``extra_tries`` more draws with the full noise around the nominal centre; (b) if the nominal centre is itself
+   admissible: rounds of ``max_tries`` draws with the position noise halved each round, then the nominal centre
+   without position noise; (c) otherwise the centre moves to the nearest admissible point at the same height that is
+   at least ``max(pos_sigma, min_buffer)`` (else ``min_buffer``) inside the admissible region and at most
+   ``max_shift`` away, and (a)-(b) are repeated around it (``max_tries`` full-noise draws, halved noise, no noise).
+   Only when no such point exists does sampling fail, naming the room (``label``) and the frame. The rotation noise
+   is always drawn with the full ``rot_sigma`` (rotations never make a pose inadmissible).
+
+Furniture against the walls can reach into the nominal loop (the shipped bedroom's wardrobe does at the default 0.6 m
+margin). :func:`clearing_margin` finds the smallest larger margin whose loop clears it; using it is the caller's choice
+because it changes the poses of a room.
 """
 
 from __future__ import annotations
 
+import logging
 import math
 from dataclasses import dataclass
 
 import numpy as np
 
+from simulator.free_space import FreeSpace, floor_polygon_shape
 from spotlessgs.io.cameras import axis_angle_to_matrix
+
+log = logging.getLogger(__name__)
 
 
 @dataclass(frozen=True)
@@ -55,16 +73,28 @@ class TrajectoryConfig:
             raise ValueError("TrajectoryConfig.max_tries and grid_steps must be >= 1")
 
 
-def _polygon(floor_polygon: np.ndarray):
-    from shapely.geometry import Polygon
+@dataclass(frozen=True)
+class RecoveryConfig:
+    """How a frame is placed when its ``max_tries`` noise draws were all rejected (module docstring, step 6).
 
-    pts = np.asarray(floor_polygon, dtype=np.float64)
-    if pts.ndim != 2 or pts.shape[1] != 2 or pts.shape[0] < 3 or not np.isfinite(pts).all():
-        raise ValueError(f"floor polygon must be a finite (K >= 3, 2) array, got shape {pts.shape}")
-    poly = Polygon(pts)
-    if not poly.is_valid or poly.area <= 0:
-        raise ValueError("floor polygon is self-intersecting or has zero area")
-    return poly
+    Kept apart from :class:`TrajectoryConfig` on purpose: it only acts where the plain sampler fails, and leaving it
+    out of the render settings keeps the settings fingerprint of existing datasets unchanged.
+    """
+
+    extra_tries: int = 400  # further full-noise draws around the nominal centre before anything else
+    shrink_steps: int = 4  # rounds of max_tries draws with the position noise halved each round (sigma/2 .. /2^k)
+    max_shift: float = 1.0  # farthest an inadmissible nominal centre may be moved (horizontally), metres
+    min_buffer: float = 0.01  # least distance between a moved centre and the inadmissible region, metres
+
+    def __post_init__(self) -> None:
+        if self.extra_tries < 0 or self.shrink_steps < 0:
+            raise ValueError(
+                f"RecoveryConfig.extra_tries and shrink_steps must be >= 0, got {self.extra_tries}, {self.shrink_steps}"
+            )
+        for name in ("max_shift", "min_buffer"):
+            value = getattr(self, name)
+            if not (math.isfinite(value) and value > 0):
+                raise ValueError(f"RecoveryConfig.{name} must be finite and > 0, got {value!r}")
 
 
 def largest_inscribed_rectangle(polygon, grid_steps: int = 64) -> tuple[float, float, float, float]:
@@ -119,7 +149,7 @@ def trajectory_rectangle(
     """The path rectangle ``(x0, y0, x1, y1)`` for a floor polygon (K, 2) and a wall margin (see module docstring)."""
     from shapely.geometry import JOIN_STYLE
 
-    poly = _polygon(floor_polygon)
+    poly = floor_polygon_shape(floor_polygon)
     eroded = poly.buffer(-margin, join_style=JOIN_STYLE.mitre) if margin > 0 else poly
     if eroded.is_empty or eroded.area <= 0:
         raise ValueError(f"the room is too small for a margin of {margin} m: nothing is left of its floor polygon")
@@ -129,6 +159,46 @@ def trajectory_rectangle(
     if abs(eroded.area - (bx1 - bx0) * (by1 - by0)) <= 1e-9 * max(eroded.area, 1.0):
         return float(bx0), float(by0), float(bx1), float(by1)
     return largest_inscribed_rectangle(eroded, grid_steps)
+
+
+def clearing_margin(
+    floor_polygon: np.ndarray,
+    floor_z: float,
+    ceiling_z: float,
+    obstacles: list[tuple[np.ndarray, np.ndarray]],
+    config: TrajectoryConfig,
+    step: float = 0.05,
+    min_buffer: float = 0.01,
+) -> float:
+    """The smallest wall margin ``config.margin + k * step`` (k = 0, 1, ...) whose nominal loop clears the furniture.
+
+    Opt-in (the sampler itself never changes the margin): the whole path rectangle, at the nominal camera height, must
+    lie at least ``max(config.pos_sigma, min_buffer)`` inside the admissible region (:mod:`simulator.free_space`), so
+    that no nominal centre sits inside a grown obstacle box and most noise draws are admissible at once. Returns
+    ``config.margin`` itself when its loop already clears.
+
+    Raises:
+        ValueError: when every margin up to the one that leaves no room for a rectangle fails.
+    """
+    from shapely.geometry import box
+
+    if not (math.isfinite(step) and step > 0):
+        raise ValueError(f"clearing_margin step must be finite and > 0, got {step!r}")
+    space = FreeSpace(floor_polygon, floor_z, ceiling_z, obstacles, config.clearance)
+    clear = space.free_slice(floor_z + config.height).buffer(-max(config.pos_sigma, min_buffer))
+    k = 0
+    while True:
+        margin = round(config.margin + k * step, 9)  # 0.6 + 6 * 0.05 is 0.9, not 0.8999999999999999
+        try:
+            rect = trajectory_rectangle(floor_polygon, margin, config.grid_steps)
+        except ValueError as err:
+            raise ValueError(
+                f"no wall margin from {config.margin} m in steps of {step} m gives a camera loop that clears the "
+                f"furniture by {max(config.pos_sigma, min_buffer)} m ({err})"
+            ) from None
+        if box(*rect).exterior.within(clear):
+            return float(margin)
+        k += 1
 
 
 def rectangle_path(
@@ -182,20 +252,94 @@ def nominal_trajectory(floor_polygon: np.ndarray, floor_z: float, config: Trajec
     return poses
 
 
-def _rejection_reason(position: np.ndarray, free_area, prepared_free, z_lo: float, z_hi: float,
-                      boxes_lo: np.ndarray, boxes_hi: np.ndarray) -> str | None:
-    """Why a camera centre (3,) is not allowed, or None when it is."""
-    from shapely.geometry import Point
+def _draw_admissible(
+    centre: np.ndarray, pos_sigma: float, rot_sigma: float, tries: int, space: FreeSpace, rng: np.random.Generator
+) -> tuple[tuple[np.ndarray, np.ndarray] | None, str | None]:
+    """Up to ``tries`` noise draws around ``centre`` (3,): position noise (3), then rotation noise (3), per draw.
 
-    if not (z_lo <= position[2] <= z_hi):
-        return f"height {position[2]:.3f} m outside [{z_lo:.3f}, {z_hi:.3f}]"
-    if free_area is None or not prepared_free.contains(Point(position[0], position[1])):
-        return "too close to a wall or outside the room"
-    if len(boxes_lo):
-        inside = np.all((position >= boxes_lo) & (position <= boxes_hi), axis=1)
-        if inside.any():
-            return f"inside obstacle box {int(np.argmax(inside))}"
-    return None
+    Returns:
+        ((position (3,), axis-angle (3,)) of the first admissible draw, or None; the last rejection reason).
+    """
+    reason = None
+    for _ in range(tries):
+        position = centre + rng.normal(0.0, pos_sigma, 3)
+        rotvec = rng.normal(0.0, rot_sigma, 3)
+        reason = space.rejection_reason(position)
+        if reason is None:
+            return (position, rotvec), None
+    return None, reason
+
+
+def _shrinking_draws(
+    centre: np.ndarray, config: TrajectoryConfig, recovery: RecoveryConfig, space: FreeSpace, rng: np.random.Generator
+) -> tuple[tuple[np.ndarray, np.ndarray], str]:
+    """Draws around an admissible ``centre`` (3,) with the position noise halved each round, then no position noise.
+
+    Returns:
+        ((position (3,), axis-angle (3,)), how it was placed).
+    """
+    for k in range(1, recovery.shrink_steps + 1):
+        sigma = config.pos_sigma / 2**k
+        placed, _ = _draw_admissible(centre, sigma, config.rot_sigma, config.max_tries, space, rng)
+        if placed is not None:
+            return placed, f"position noise reduced to {sigma:.4g} m"
+    return (centre.copy(), rng.normal(0.0, config.rot_sigma, 3)), "no position noise"
+
+
+def _recover_frame(
+    index: int,
+    nominal: np.ndarray,
+    last_reason: str | None,
+    config: TrajectoryConfig,
+    recovery: RecoveryConfig,
+    space: FreeSpace,
+    rng: np.random.Generator,
+    label: str | None,
+) -> tuple[np.ndarray, np.ndarray]:
+    """Place frame ``index`` whose ``max_tries`` draws around ``nominal`` (3,) were all rejected (module step 6).
+
+    Returns:
+        (position (3,), axis-angle rotation noise (3,)).
+
+    Raises:
+        ValueError: when the nominal centre is inadmissible and no admissible point lies within ``max_shift``.
+    """
+    placed, _ = _draw_admissible(nominal, config.pos_sigma, config.rot_sigma, recovery.extra_tries, space, rng)
+    if placed is not None:
+        log.info("%sframe %d: placed after more than %d noise draws", _prefix(label), index, config.max_tries)
+        return placed
+    nominal_reason = space.rejection_reason(nominal)
+    if nominal_reason is None:
+        placed, how = _shrinking_draws(nominal, config, recovery, space, rng)
+        log.info("%sframe %d: placed with %s", _prefix(label), index, how)
+        return placed
+    # Prefer a centre one noise sigma inside the admissible region (most draws around it fit), else min_buffer.
+    buffers = dict.fromkeys((max(config.pos_sigma, recovery.min_buffer), recovery.min_buffer))  # ordered, unique
+    centre = None
+    for buffer in buffers:
+        centre = space.nearest_admissible(nominal, buffer, recovery.max_shift)
+        if centre is not None:
+            break
+    if centre is None:
+        raise ValueError(
+            f"{_prefix(label)}frame {index}: no admissible camera pose near {np.round(nominal, 3).tolist()} after "
+            f"{config.max_tries} tries (last rejection: {last_reason}) nor {recovery.extra_tries} more, and no "
+            f"admissible position lies within {recovery.max_shift} m of it at its height (nominal position: "
+            f"{nominal_reason}); increase the margin (clearing_margin finds one) or reduce the clearance"
+        )
+    shift = float(np.hypot(*(centre[:2] - nominal[:2])))
+    placed, _ = _draw_admissible(centre, config.pos_sigma, config.rot_sigma, config.max_tries, space, rng)
+    how = "full noise"
+    if placed is None:
+        placed, how = _shrinking_draws(centre, config, recovery, space, rng)
+    log.info("%sframe %d: nominal centre %s, moved %.3f m to the nearest admissible point, %s",
+             _prefix(label), index, nominal_reason, shift, how)
+    return placed
+
+
+def _prefix(label: str | None) -> str:
+    """``"label: "`` for log lines and errors, or nothing without a label."""
+    return f"{label}: " if label else ""
 
 
 def sample_trajectory(
@@ -205,6 +349,9 @@ def sample_trajectory(
     obstacles: list[tuple[np.ndarray, np.ndarray]],
     config: TrajectoryConfig,
     rng: np.random.Generator,
+    *,
+    recovery: RecoveryConfig = RecoveryConfig(),
+    label: str | None = None,
 ) -> np.ndarray:
     """Sample the noisy camera path of one room.
 
@@ -214,18 +361,20 @@ def sample_trajectory(
         ceiling_z: ceiling height, metres.
         obstacles: furniture boxes ``(lo (3,), hi (3,))`` that camera centres must keep ``clearance`` away from.
         config: path settings.
-        rng: the stage's random generator (draws happen frame by frame: position noise (3), then rotation noise (3)).
+        rng: the stage's random generator (draws happen frame by frame: position noise (3), then rotation noise (3),
+            per try).
+        recovery: how frames whose ``max_tries`` draws were all rejected are placed (module docstring, step 6).
+        label: names the room in log lines and errors (e.g. ``"scenes/bedroom/house.json room Bedroom-1"``).
 
     Returns:
-        (N, 4, 4) float64 camera-to-world matrices, OpenGL camera axes (x right, y up, looking along -z).
+        (N, 4, 4) float64 camera-to-world matrices, OpenGL camera axes (x right, y up, looking along -z). Every camera
+        centre is admissible (:class:`simulator.free_space.FreeSpace` with ``config.clearance``).
 
     Raises:
-        ValueError: for invalid rooms, or when some frame has no admissible noise draw within ``max_tries``
-            (the message names the frame, its nominal position and the last rejection reason).
+        ValueError: for invalid rooms, or when some frame's nominal centre is inadmissible and no admissible point
+            lies within ``recovery.max_shift`` of it (the message names the label, the frame, its nominal position
+            and the rejection reasons).
     """
-    from shapely.geometry import JOIN_STYLE
-    from shapely.prepared import prep
-
     if not (math.isfinite(floor_z) and math.isfinite(ceiling_z) and ceiling_z > floor_z):
         raise ValueError(f"ceiling_z ({ceiling_z}) must be above floor_z ({floor_z})")
     z_lo, z_hi = floor_z + config.clearance, ceiling_z - config.clearance
@@ -236,29 +385,15 @@ def sample_trajectory(
             f"to the floor or the ceiling (room height {ceiling_z - floor_z:.3f} m)"
         )
     poses = nominal_trajectory(floor_polygon, floor_z, config)
-    poly = _polygon(floor_polygon)
-    free_area = poly.buffer(-config.clearance, join_style=JOIN_STYLE.mitre) if config.clearance > 0 else poly
-    free_area = None if free_area.is_empty else free_area
-    prepared_free = None if free_area is None else prep(free_area)
-    boxes_lo = np.array([np.asarray(lo, float) for lo, _ in obstacles]).reshape(-1, 3) - config.clearance
-    boxes_hi = np.array([np.asarray(hi, float) for _, hi in obstacles]).reshape(-1, 3) + config.clearance
-    if len(obstacles) and not (np.isfinite(boxes_lo).all() and np.isfinite(boxes_hi).all()):
-        raise ValueError("obstacle boxes must be finite")
+    space = FreeSpace(floor_polygon, floor_z, ceiling_z, obstacles, config.clearance)
 
     out = poses.copy()
     for i in range(config.n_frames):
-        reason = None
-        for _ in range(config.max_tries):
-            position = poses[i, :3, 3] + rng.normal(0.0, config.pos_sigma, 3)
-            rotvec = rng.normal(0.0, config.rot_sigma, 3)
-            reason = _rejection_reason(position, free_area, prepared_free, z_lo, z_hi, boxes_lo, boxes_hi)
-            if reason is None:
-                out[i, :3, 3] = position
-                out[i, :3, :3] = poses[i, :3, :3] @ axis_angle_to_matrix(rotvec)
-                break
-        else:
-            raise ValueError(
-                f"frame {i}: no admissible camera pose near {np.round(poses[i, :3, 3], 3).tolist()} after "
-                f"{config.max_tries} tries (last rejection: {reason}); increase the margin or reduce the clearance"
-            )
+        nominal = poses[i, :3, 3]
+        placed, reason = _draw_admissible(nominal, config.pos_sigma, config.rot_sigma, config.max_tries, space, rng)
+        if placed is None:
+            placed = _recover_frame(i, nominal, reason, config, recovery, space, rng, label)
+        position, rotvec = placed
+        out[i, :3, 3] = position
+        out[i, :3, :3] = poses[i, :3, :3] @ axis_angle_to_matrix(rotvec)
     return out
