@@ -184,6 +184,7 @@ def plan_poses(scene_path: Path, config: RenderConfig, load: LoadOptions):
         scene.furniture_boxes(room),
         traj_cfg,
         numpy_rng(config.seed, "trajectory"),
+        label=f"{scene_path} room {room.instance_id}",
     )
     return scene, room, objects, poses
 
