@@ -389,7 +389,8 @@ def test_runtime_table_has_model_chosen_gaussians_and_selection_time():
     assert rows["CLAHE"][2:5] == [None, None, None] and rows["Cycle-GAN"][4] == 30.0
     assert all(len(r) == len(t.columns) for r in t.rows)
     md = t.markdown()
-    assert "| bedroom-uneven | SpotlessGS auto (selection + budget) | auto-sh1-lambert | 60 | 14.0 | 4.0 | 5.0 | 150.0 |" in md
+    assert ("| bedroom-uneven | SpotlessGS auto (selection + budget) | auto-sh1-lambert | 60 | 14.0 | 4.0 | 5.0 | "
+            "150.0 |") in md
 
 
 def test_auto_against_spotless_notes():

@@ -156,8 +156,9 @@ PRESETS: dict[str, ReproduceConfig] = {
     # Model selection's proxies: 20 steps each (a shared base and five candidates: 120 steps, under one tiny run).
     "tiny": ReproduceConfig(
         preset="tiny", frames=12, width=96, height=72, samples=4, train_preset="tiny", train_iterations=150,
-        train_width=64, curve_fractions=(0.5,), selection_min_proxy_iterations=20, gan_rooms=("office", "living_room"), gan_frames=6, gan_width=96,
-        gan_height=72, gan_samples=4, cyclegan_preset="tiny", cyclegan_steps=None, sfm_matcher="exhaustive",
+        train_width=64, curve_fractions=(0.5,), selection_min_proxy_iterations=20, gan_rooms=("office", "living_room"),
+        gan_frames=6, gan_width=96, gan_height=72, gan_samples=4, cyclegan_preset="tiny", cyclegan_steps=None,
+        sfm_matcher="exhaustive",
     ),
     # README main job: about half an hour on a 2-core CPU.
     "quick": ReproduceConfig(),

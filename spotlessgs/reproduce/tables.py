@@ -29,7 +29,8 @@ from spotlessgs.reproduce import paper
 LABELS = {
     "input": "Input (spotlight-lit)", "3dgs": "3DGS", "darkgs": "DarkGS", "darkgs-calibrated": "DarkGS (calibrated)",
     "darkgs+sh": "DarkGS + SH light", "darkgs+brdf": "DarkGS + MLP BRDF", "spotless": "SpotlessGS (ours)",
-    "auto": "SpotlessGS auto (selection + budget)", "clahe": "CLAHE", "msrcr": "MSRCR (Retinex)", "cyclegan": "Cycle-GAN",
+    "auto": "SpotlessGS auto (selection + budget)", "clahe": "CLAHE", "msrcr": "MSRCR (Retinex)",
+    "cyclegan": "Cycle-GAN",
 }
 ABLATION_LABELS = {"darkgs": "DarkGS (baseline)", "darkgs+sh": "+ SH light", "darkgs+brdf": "+ MLP BRDF",
                    "spotless": "+ SH + MLP (ours)", "auto": "auto: selected SH degree / BRDF + Gaussian budget"}
