@@ -410,6 +410,10 @@ def test_auto_against_spotless_notes():
     assert count.status == "disagrees" and count.text.endswith("125 vs SpotlessGS 100 Gaussians: 25.0 % more.")
     ds["methods"]["auto"]["metrics"]["psnr_aligned"] = 16.25  # exactly at the tolerance counts as within
     assert check_auto_vs_spotless("bedroom-uneven", ds)[0].status == "agrees"
+    ds["methods"]["auto"]["metrics"]["psnr_aligned"] = 16.78  # better than the fixed model
+    better = check_auto_vs_spotless("bedroom-uneven", ds)[0]
+    assert better.status == "agrees"
+    assert "+0.28 dB, no loss, at least as good as SpotlessGS (selection allowed 0.25 dB" in better.text
     del ds["methods"]["auto"]["selection"]
     ds["methods"]["spotless"]["decisions"]["Gaussians"] = None
     psnr, count = check_auto_vs_spotless("bedroom-uneven", ds)
