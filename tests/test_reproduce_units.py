@@ -15,7 +15,8 @@ from spotlessgs.reproduce.executor import StageFailedError, execute, threads_per
 from spotlessgs.reproduce.pipeline import build_graph, check_or_record_config
 from spotlessgs.reproduce.stages import Stage, StageGraph, is_done, marker_path, read_marker, resolve
 from spotlessgs.reproduce.tables import (
-    all_tables, agreement_notes, best_darkgs, check_at_least, check_order, check_sfm, format_cell, table1, table3,
+    all_tables, agreement_notes, best_darkgs, check_at_least, check_auto_vs_spotless, check_order, check_sfm,
+    format_cell, model_chosen_cell, model_summary, runtime_table, table1, table2, table3, table4,
 )
 from spotlessgs.reproduce.tasks import curve_milestones
 
@@ -75,6 +76,9 @@ def test_presets_are_valid_and_distinct():
     assert tiny.frames < quick.frames < paper.frames == 316
     assert not set(tiny.gan_rooms) & set(tiny.scenes)
     assert quick.gan_domains() == (("office",), ("living_room",))
+    for config in (tiny, quick, paper):  # the automatic mode is trained in every preset
+        assert config.methods[-1] == "auto" and len(config.methods) == 7
+    assert tiny.selection_min_proxy_iterations == 20 and quick.selection_min_proxy_iterations is None
 
 
 def test_config_errors():
@@ -94,6 +98,10 @@ def test_config_errors():
         ReproduceConfig(methods=("3dgs", "3dgs"))
     with pytest.raises(ValueError, match="unknown ReproduceConfig field"):
         preset("tiny", bogus=1)
+    with pytest.raises(ValueError, match="selection_min_proxy_iterations must be at least 1"):
+        ReproduceConfig(selection_min_proxy_iterations=0)
+    with pytest.raises(ValueError, match=r"methods: unknown \['autox'\]"):
+        ReproduceConfig(methods=("autox",))
     with pytest.raises(FileNotFoundError, match="shipped room 'bedroom' not found"):
         ReproduceConfig(scenes_dir=Path("/nonexistent")).scene_file("bedroom")
 
@@ -140,8 +148,12 @@ def test_pipeline_graph_shape(tmp_path):
     config = preset("tiny")
     graph = build_graph(config, tmp_path)
     names = set(graph.stages)
-    # 2 renders + 6 trainings per dataset (2 datasets), 2 GAN renders, the GAN, 3 baselines on the uneven set, report
-    assert len(names) == 2 + 12 + 2 + 1 + 3 + 1
+    # 2 renders + 7 trainings per dataset (2 datasets), 2 GAN renders, the GAN, 3 baselines on the uneven set, report
+    assert len(names) == 2 + 14 + 2 + 1 + 3 + 1
+    auto = graph["train/bedroom-uneven/auto"]
+    assert auto.kwargs["variant"] == "auto" and auto.kwargs["selection_min_proxy_iterations"] == 20
+    assert auto.output == tmp_path / "runs" / "bedroom-uneven" / "auto" and auto.clean_on_retry
+    assert "selection_min_proxy_iterations" not in graph["train/bedroom-uneven/spotless"].kwargs
     assert graph["train/bedroom-saturated/spotless"].deps == ("render/bedroom-saturated",)
     assert set(graph["baseline2d/bedroom-uneven/cyclegan"].deps) == {"render/bedroom-uneven", "cyclegan/train"}
     assert graph["cyclegan/train"].kwargs["uneven_dirs"][0].endswith("gan-office/images")
@@ -285,15 +297,23 @@ def _collected():
         "darkgs+sh": _metrics(16.0, 0.65, 0.40, _sfm(0.6, 420.0, 12)),
         "darkgs+brdf": _metrics(15.2, 0.62, 0.41, _sfm(0.7, 405.0, 12)),
         "spotless": _metrics(16.5, 0.66, 0.39, _sfm(0.5, 450.0, 12)),
+        "auto": _metrics(16.4, 0.65, 0.40, _sfm(0.55, 440.0, 12)),
     }
     fps = {"3dgs": 200.0, "darkgs": 300.0, "darkgs-calibrated": 290.0, "darkgs+sh": 120.0, "darkgs+brdf": 90.0,
-           "spotless": 80.0}
-    entries = {m: {"metrics": v, "train": {"seconds": 10.0, "ms_per_step": 5.0, "num_gaussians": 100,
-                                           "peak_rss_mb": 500.0, "device": "cpu"},
+           "spotless": 80.0, "auto": 150.0}
+    gaussians = {"3dgs": 110, "darkgs": 120, "darkgs-calibrated": 130, "darkgs+sh": 140, "darkgs+brdf": 150,
+                 "spotless": 100, "auto": 60}
+    entries = {m: {"metrics": v, "train": {"seconds": 10.0, "selection_seconds": 0.0, "ms_per_step": 5.0,
+                                           "num_gaussians": gaussians[m], "peak_rss_mb": 500.0, "device": "cpu"},
                    "relight": {"fps": fps[m], "peak_rss_mb": 300.0},
                    "curve": [{"step": 5, "train_seconds": 5.0, "psnr_aligned": v["psnr_aligned"] - 1},
-                             {"step": 10, "train_seconds": 10.0, "psnr_aligned": v["psnr_aligned"]}]}
+                             {"step": 10, "train_seconds": 10.0, "psnr_aligned": v["psnr_aligned"]}],
+                   "decisions": {"model chosen": m, "Gaussians": gaussians[m]}}
                for m, v in methods.items()}
+    entries["auto"]["decisions"]["model chosen"] = "auto-sh1-lambert"
+    entries["auto"]["train"].update(seconds=14.0, selection_seconds=4.0)
+    entries["auto"]["selection"] = {"chosen": "auto-sh1-lambert", "best": "auto-sh3-mlp", "tolerance_db": 0.25,
+                                    "seconds": 4.0}
     base = {"clahe": _metrics(12.0, sfm=_sfm(1.0, 200.0, 10)), "msrcr": _metrics(12.5, sfm=_sfm(1.1, 190.0, 9)),
             "cyclegan": _metrics(13.0, sfm=_sfm(1.2, 150.0, 8))}
     return {"datasets": {"bedroom-uneven": {
@@ -315,13 +335,92 @@ def test_table1_rows_and_paper_numbers():
     t = table1(_collected())
     ours = [r for r in t.rows if r[0] == "bedroom-uneven"]
     assert [r[1] for r in ours] == ["Input (spotlight-lit)", "3DGS", "DarkGS (best: calibrated light)",
-                                    "SpotlessGS (ours)"]
+                                    "SpotlessGS (ours)", "SpotlessGS auto (selection + budget)"]
     assert ours[2][t.columns.index("PSNR (aligned)")] == 15.5
+    assert t.columns[-2:] == ["Model chosen", "Gaussians"]
+    # what each run needed: nothing for the inputs, the winning DarkGS run's model, auto's decision
+    assert [r[-2:] for r in ours] == [[None, None], ["3dgs (no light)", 110],
+                                      ["darkgs-calibrated (const+lambert +calibrated)", 130],
+                                      ["spotless (sh3+mlp)", 100], ["auto-sh1-lambert", 60]]
     paper_rows = {r[1]: r for r in t.rows if r[0] == "paper (synthetic)"}
     assert paper_rows["SpotlessGS (ours)"][2:5] == [12.67, 0.727, 0.381]
     assert paper_rows["3DGS"][2:5] == [6.04, 0.391, 0.424]
     md = t.markdown()
-    assert "| bedroom-uneven | SpotlessGS (ours) | 15.50 | 0.560 | 0.490 | 16.50 | 0.660 | 0.390 |" in md
+    assert ("| bedroom-uneven | SpotlessGS (ours) | 15.50 | 0.560 | 0.490 | 16.50 | 0.660 | 0.390 | "
+            "spotless (sh3+mlp) | 100 |") in md
+    assert ("| bedroom-uneven | SpotlessGS auto (selection + budget) | 15.40 | 0.550 | 0.500 | 16.40 | 0.650 | 0.400 | "
+            "auto-sh1-lambert | 60 |") in md
+    assert "| paper (synthetic) | SpotlessGS (ours) | 12.67 | 0.727 | 0.381 | n/a | n/a | n/a | n/a | n/a |" in md
+
+
+def test_model_chosen_cells_describe_light_and_brdf():
+    assert {m: model_summary(m) for m in ("3dgs", "darkgs", "darkgs-calibrated", "darkgs+sh", "darkgs+brdf",
+                                          "spotless")} == {
+        "3dgs": "no light", "darkgs": "const+lambert", "darkgs-calibrated": "const+lambert +calibrated",
+        "darkgs+sh": "sh3+lambert", "darkgs+brdf": "const+mlp", "spotless": "sh3+mlp"}
+    assert model_summary("auto-sh2-mlp") == "sh2+mlp" and model_summary("auto-sh0-lambert") == "sh0+lambert"
+    assert model_summary("auto-sh4-mlp") is None and model_summary("my-model") is None
+    assert model_chosen_cell("spotless") == "spotless (sh3+mlp)"
+    assert model_chosen_cell("auto-sh2-mlp") == "auto-sh2-mlp"  # the candidate's name already says it
+    assert model_chosen_cell("my-model") == "my-model" and model_chosen_cell(None) is None
+
+
+def test_auto_rows_in_tables_two_to_four():
+    c = _collected()
+    t2 = table2(c)
+    auto2 = next(r for r in t2.rows if r[1] == "auto: selected SH degree / BRDF + Gaussian budget")
+    assert auto2[t2.columns.index("PSNR (aligned)")] == 16.4 and auto2[-2:] == ["auto-sh1-lambert", 60]
+    t3 = table3(c)
+    auto3 = next(r for r in t3.rows if r[1] == "SpotlessGS auto (selection + budget)")
+    assert auto3[2:5] == [0.55, 440.0, 12]
+    t4 = table4(c)
+    assert [r[1] for r in t4.rows if r[0] == "bedroom-uneven"][-2:] == ["SpotlessGS (ours)",
+                                                                       "SpotlessGS auto (selection + budget)"]
+
+
+def test_runtime_table_has_model_chosen_gaussians_and_selection_time():
+    t = runtime_table(_collected())
+    assert t.columns[:6] == ["Dataset", "Method", "Model chosen", "Gaussians", "Training time (s)",
+                             "of which selection (s)"]
+    rows = {r[1]: r for r in t.rows if r[0] == "bedroom-uneven"}
+    assert rows["SpotlessGS auto (selection + budget)"][2:7] == ["auto-sh1-lambert", 60, 14.0, 4.0, 5.0]
+    assert rows["SpotlessGS (ours)"][2:7] == ["spotless (sh3+mlp)", 100, 10.0, None, 5.0]  # no selection: n/a
+    assert rows["DarkGS + SH light"][2:4] == ["darkgs+sh (sh3+lambert)", 140]
+    assert rows["CLAHE"][2:5] == [None, None, None] and rows["Cycle-GAN"][4] == 30.0
+    assert all(len(r) == len(t.columns) for r in t.rows)
+    md = t.markdown()
+    assert ("| bedroom-uneven | SpotlessGS auto (selection + budget) | auto-sh1-lambert | 60 | 14.0 | 4.0 | 5.0 | "
+            "150.0 |") in md
+
+
+def test_auto_against_spotless_notes():
+    ds = _collected()["datasets"]["bedroom-uneven"]
+    psnr, count = check_auto_vs_spotless("bedroom-uneven", ds)
+    # 16.40 vs 16.50 dB: -0.10 dB, inside 0.25 dB; 60 vs 100 Gaussians: 40 % fewer
+    assert psnr.status == "agrees" and psnr.claim == ("Auto on bedroom-uneven: relit PSNR (aligned) within the "
+                                                      "selection tolerance of SpotlessGS")
+    assert psnr.text.startswith("auto (auto-sh1-lambert) 16.40 dB vs SpotlessGS 16.50 dB: -0.10 dB, within the 0.25 "
+                                "dB selection tolerance")
+    assert count.status == "agrees"
+    assert count.text == "auto (auto-sh1-lambert, Gaussian budget) 60 vs SpotlessGS 100 Gaussians: 40.0 % fewer."
+    ds["methods"]["auto"]["metrics"]["psnr_aligned"] = 16.2  # -0.30 dB: outside
+    ds["methods"]["auto"]["decisions"]["Gaussians"] = 125  # 25 % more
+    psnr, count = check_auto_vs_spotless("bedroom-uneven", ds)
+    assert psnr.status == "disagrees" and "-0.30 dB, outside the 0.25 dB selection tolerance" in psnr.text
+    assert count.status == "disagrees" and count.text.endswith("125 vs SpotlessGS 100 Gaussians: 25.0 % more.")
+    ds["methods"]["auto"]["metrics"]["psnr_aligned"] = 16.25  # exactly at the tolerance counts as within
+    assert check_auto_vs_spotless("bedroom-uneven", ds)[0].status == "agrees"
+    ds["methods"]["auto"]["metrics"]["psnr_aligned"] = 16.78  # better than the fixed model
+    better = check_auto_vs_spotless("bedroom-uneven", ds)[0]
+    assert better.status == "agrees"
+    assert "+0.28 dB, no loss, at least as good as SpotlessGS (selection allowed 0.25 dB" in better.text
+    del ds["methods"]["auto"]["selection"]
+    ds["methods"]["spotless"]["decisions"]["Gaussians"] = None
+    psnr, count = check_auto_vs_spotless("bedroom-uneven", ds)
+    assert psnr.status == "unknown" and psnr.text == "Cannot check, no value for selection tolerance."
+    assert count.status == "unknown" and count.text == "Cannot check: auto 125, SpotlessGS None Gaussians."
+    del ds["methods"]["spotless"]
+    assert check_auto_vs_spotless("bedroom-uneven", ds) == []
 
 
 def test_table3_handles_unregistered_sequences():
@@ -392,6 +491,7 @@ def test_agreement_notes_on_hand_made_results():
     assert notes["Table III ordering on bedroom-uneven (observations per image)"].status == "agrees"
     assert notes["Table IV on bedroom-uneven (psnr)"].status == "agrees"
     assert notes["Runtime ordering on bedroom-uneven (relit FPS)"].status == "agrees"
+    assert notes["Auto on bedroom-uneven: no more Gaussians than SpotlessGS"].status == "agrees"
 
 
 def test_format_cell():

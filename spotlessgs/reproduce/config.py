@@ -11,8 +11,10 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-# Every model the trainer knows; the tables read them by these names.
-METHODS_3D: tuple[str, ...] = ("3dgs", "darkgs", "darkgs-calibrated", "darkgs+sh", "darkgs+brdf", "spotless")
+# Every model the trainer knows; the tables read them by these names. "auto" is ``spotless train --model auto
+# --gaussian-budget``: the light/reflectance model chosen on held-out training views (spotlessgs.training.selection)
+# and densification that stops when held-out error stops improving (spotlessgs.training.budget).
+METHODS_3D: tuple[str, ...] = ("3dgs", "darkgs", "darkgs-calibrated", "darkgs+sh", "darkgs+brdf", "spotless", "auto")
 # Single-view 2D baselines (spotlessgs.baselines2d).
 METHODS_2D: tuple[str, ...] = ("clahe", "msrcr", "cyclegan")
 # Dataset variants of METHOD.md §8 (simulator spotlight presets).
@@ -51,6 +53,9 @@ class ReproduceConfig:
     # Training is interrupted at these fractions of the schedule to score the relit test views (the speed-against-
     # error curve); 1.0 is always included.
     curve_fractions: tuple[float, ...] = (0.25, 0.5, 0.75)
+    # Method "auto": the shortest proxy run of model selection (SelectionConfig.min_proxy_iterations; None keeps the
+    # selection default of 100 steps, which would make selection cost several times a 150-step tiny run).
+    selection_min_proxy_iterations: int | None = None
     # Single-view 2D baselines, run on the dataset variants in ``baseline_variants`` only.
     baselines: tuple[str, ...] = METHODS_2D
     baseline_variants: tuple[str, ...] = ("uneven",)
@@ -109,6 +114,9 @@ class ReproduceConfig:
         if self.frames < 2:
             raise ValueError(f"ReproduceConfig.frames must be at least 2 (one test view, one training view), "
                              f"got {self.frames}")
+        if self.selection_min_proxy_iterations is not None and self.selection_min_proxy_iterations < 1:
+            raise ValueError(f"ReproduceConfig.selection_min_proxy_iterations must be at least 1 (or None), "
+                             f"got {self.selection_min_proxy_iterations}")
         if any(not 0.0 < f < 1.0 for f in self.curve_fractions):
             raise ValueError(f"ReproduceConfig.curve_fractions must lie in (0, 1), got {self.curve_fractions}")
         if self.sfm_matcher not in ("sequential", "exhaustive"):
@@ -145,10 +153,12 @@ class ReproduceConfig:
 
 PRESETS: dict[str, ReproduceConfig] = {
     # Tests: one room, a dozen frames at 96x72, a 150-step trainer, a 60-step Cycle-GAN; a few minutes on 2 cores.
+    # Model selection's proxies: 20 steps each (a shared base and five candidates: 120 steps, under one tiny run).
     "tiny": ReproduceConfig(
         preset="tiny", frames=12, width=96, height=72, samples=4, train_preset="tiny", train_iterations=150,
-        train_width=64, curve_fractions=(0.5,), gan_rooms=("office", "living_room"), gan_frames=6, gan_width=96,
-        gan_height=72, gan_samples=4, cyclegan_preset="tiny", cyclegan_steps=None, sfm_matcher="exhaustive",
+        train_width=64, curve_fractions=(0.5,), selection_min_proxy_iterations=20, gan_rooms=("office", "living_room"),
+        gan_frames=6, gan_width=96, gan_height=72, gan_samples=4, cyclegan_preset="tiny", cyclegan_steps=None,
+        sfm_matcher="exhaustive",
     ),
     # README main job: about half an hour on a 2-core CPU.
     "quick": ReproduceConfig(),

@@ -16,7 +16,7 @@ from spotlessgs.reproduce.tables import LABELS, best_darkgs
 
 def qualitative_grid(path: Path, data_dir: Path, runs_dir: Path, methods: dict[str, Any], test_views: list[str],
                      max_rows: int = 3) -> list[str]:
-    """Write input / 3DGS / DarkGS (the better run) / ours / GT for up to ``max_rows`` test views.
+    """Write input / 3DGS / DarkGS (the better run) / ours / ours auto / GT for up to ``max_rows`` test views.
 
     Args:
         path: output PNG.
@@ -33,7 +33,8 @@ def qualitative_grid(path: Path, data_dir: Path, runs_dir: Path, methods: dict[s
         raise ValueError(f"{data_dir}: no test views for the qualitative grid")
     darkgs, _ = best_darkgs(methods)
     columns: list[tuple[str, Path]] = [("Input", data_dir / "images")]
-    for key, title in (("3dgs", "3DGS"), (darkgs, LABELS.get(darkgs or "", "DarkGS")), ("spotless", "Ours")):
+    for key, title in (("3dgs", "3DGS"), (darkgs, LABELS.get(darkgs or "", "DarkGS")), ("spotless", "Ours"),
+                       ("auto", "Ours (auto)")):
         if key and key in methods:
             columns.append((title, runs_dir / key / "relit"))
     columns.append(("Ground truth", data_dir / "gt"))

@@ -5,7 +5,8 @@ Output folder layout::
     OUT/reproduce.json                    the resolved config (a rerun with another config is refused)
     OUT/datasets/<room>-<variant>/        rendered test datasets (simulator)
     OUT/datasets/gan-<room>/              other rooms' renders for the Cycle-GAN
-    OUT/runs/<room>-<variant>/<method>/   training runs (+ relit/, eval/, curve/)
+    OUT/runs/<room>-<variant>/<method>/   training runs (+ relit/, eval/, curve/; auto: model_selection.json,
+                                          selection/ and gaussian_budget.json)
     OUT/cyclegan/                         the Cycle-GAN checkpoint
     OUT/baselines2d/<room>-<variant>/<method>/  enhanced images and their evaluation
     OUT/.stages/...                       done-markers with each stage's summary
@@ -21,6 +22,7 @@ from spotlessgs.io.atomic import write_json
 from spotlessgs.reproduce.config import ReproduceConfig
 from spotlessgs.reproduce.executor import RunReport, execute
 from spotlessgs.reproduce.stages import Stage, StageGraph
+from spotlessgs.reproduce.tasks import AUTO_METHOD
 
 CONFIG_FILE = "reproduce.json"
 TASKS = "spotlessgs.reproduce.tasks"
@@ -67,12 +69,14 @@ def build_graph(config: ReproduceConfig, out: Path) -> StageGraph:
         ds = dataset_id(room, variant)
         for method in config.methods:
             run_dir = out / "runs" / ds / method
+            selection = ({"selection_min_proxy_iterations": config.selection_min_proxy_iterations}
+                         if method == AUTO_METHOD else {})
             stages.append(Stage(
                 f"train/{ds}/{method}", f"{TASKS}:train_method", deps=(f"render/{ds}",), output=run_dir,
                 kwargs={"data_dir": str(out / "datasets" / ds), "run_dir": str(run_dir), "variant": method,
                         "train_preset": config.train_preset, "iterations": config.train_iterations,
                         "image_width": config.train_width, "curve_fractions": tuple(config.curve_fractions),
-                        **common}))
+                        **selection, **common}))
     for room, variant in config.datasets():
         if variant not in config.baseline_variants:
             continue

@@ -29,12 +29,14 @@ def load_config(out: Path) -> ReproduceConfig:
 
 
 def collect(out: Path, config: ReproduceConfig) -> dict[str, Any]:
-    """Every finished stage's summary, arranged per dataset (the structure documented in :mod:`tables`).
+    """Every finished stage's summary, arranged per dataset (the structure documented in :mod:`tables`), with what
+    each 3D run needed (``decisions``: spotlessgs.training.selection.run_decisions of its run folder).
 
     Raises:
         FileNotFoundError: a stage the report needs has not finished (named).
     """
     from spotlessgs.reproduce.pipeline import dataset_id
+    from spotlessgs.training.selection import run_decisions
 
     collected: dict[str, Any] = {"datasets": {}, "cyclegan": None}
     if "cyclegan" in config.baselines:
@@ -47,6 +49,7 @@ def collect(out: Path, config: ReproduceConfig) -> dict[str, Any]:
             marker = read_marker(out, f"train/{ds}/{method}")
             entry["methods"][method] = marker["result"]
             entry["methods"][method]["stage"] = {"seconds": marker["seconds"], "peak_rss_mb": marker["peak_rss_mb"]}
+            entry["methods"][method]["decisions"] = run_decisions(out / "runs" / ds / method)
             if entry["input"] is None:
                 entry["input"] = marker["result"]["metrics"].get("input")
         if variant in config.baseline_variants:
@@ -118,7 +121,7 @@ def write_report(out: Path) -> dict[str, Any]:
         test_views = [f.name for f in read_dataset(data_dir).test_frames if f.gt_path is not None]
         rel = f"figures/qualitative_{ds}.png"
         qualitative_grid(out / rel, data_dir, out / "runs" / ds, collected["datasets"][ds]["methods"], test_views)
-        figures[f"Qualitative comparison, {ds} (input / 3DGS / DarkGS / ours / ground truth)"] = rel
+        figures[f"Qualitative comparison, {ds} (input / 3DGS / DarkGS / ours / ours auto / ground truth)"] = rel
     speed_error_plot(out / "figures" / "speed_vs_error.png", collected)
     figures["Test PSNR (exposure-aligned) against training time; one point per curve milestone"] = \
         "figures/speed_vs_error.png"

@@ -5,9 +5,13 @@ Input (``collected``, built by :mod:`spotlessgs.reproduce.report`)::
     {"datasets": {DS: {"room", "variant",
                        "input": {psnr, ssim, lpips, *_aligned, tmp_psnr, tmp_ssim, sfm: {...}},
                        "methods": {METHOD: {"metrics": {same keys, sfm}, "train": {...}, "relight": {...},
-                                            "curve": [...]}},
+                                            "curve": [...], "selection": {...} (auto only),
+                                            "decisions": {"model chosen": str, "Gaussians": int | None}}},
                        "baselines2d": {METHOD: {"metrics": {...}, "runtime": {...}}}}},
      "cyclegan": {seconds, steps, ...} or None}
+
+``decisions`` is spotlessgs.training.selection.run_decisions of the method's run folder (what the run needed: the
+model it trained, the auto decision for ``auto``, and its final Gaussian count).
 
 The DarkGS row is the better of ``darkgs`` (light learned jointly) and ``darkgs-calibrated`` (true light pose) on
 exposure-aligned PSNR, as the paper reports the better of the two; the row says which won.
@@ -16,6 +20,7 @@ exposure-aligned PSNR, as the paper reports the better of the two; the row says 
 from __future__ import annotations
 
 import math
+import re
 from dataclasses import dataclass, field
 from typing import Any, Sequence
 
@@ -24,10 +29,13 @@ from spotlessgs.reproduce import paper
 LABELS = {
     "input": "Input (spotlight-lit)", "3dgs": "3DGS", "darkgs": "DarkGS", "darkgs-calibrated": "DarkGS (calibrated)",
     "darkgs+sh": "DarkGS + SH light", "darkgs+brdf": "DarkGS + MLP BRDF", "spotless": "SpotlessGS (ours)",
-    "clahe": "CLAHE", "msrcr": "MSRCR (Retinex)", "cyclegan": "Cycle-GAN",
+    "auto": "SpotlessGS auto (selection + budget)", "clahe": "CLAHE", "msrcr": "MSRCR (Retinex)",
+    "cyclegan": "Cycle-GAN",
 }
 ABLATION_LABELS = {"darkgs": "DarkGS (baseline)", "darkgs+sh": "+ SH light", "darkgs+brdf": "+ MLP BRDF",
-                   "spotless": "+ SH + MLP (ours)"}
+                   "spotless": "+ SH + MLP (ours)", "auto": "auto: selected SH degree / BRDF + Gaussian budget"}
+# The columns that say what each 3D run needed (from run_decisions).
+DECISION_COLUMNS = ["Model chosen", "Gaussians"]
 
 
 @dataclass
@@ -116,6 +124,50 @@ def method_rows(ds: dict[str, Any], names: Sequence[str]) -> list[tuple[str, str
     return rows
 
 
+def model_summary(name: str) -> str | None:
+    """Light and reflectance of a model name in a few characters: ``sh3+mlp`` (SH light of degree 3, learned BRDF),
+    ``const+lambert`` (DarkGS constant ambient), ``no light`` (3DGS), ``+calibrated`` for a given light pose. Names
+    are the trainer's variants (spotlessgs.models.shading.MODEL_VARIANTS) or auto candidates ``auto-sh<d>-<brdf>``;
+    None for any other name."""
+    from spotlessgs.models.shading import MODEL_VARIANTS
+
+    if name in MODEL_VARIANTS:
+        cfg = MODEL_VARIANTS[name]
+        if cfg.light_model == "none":
+            return "no light"
+        ambient = f"sh{cfg.sh_degree}" if cfg.ambient == "sh" else "const" if cfg.ambient == "constant" else "none"
+        return f"{ambient}+{cfg.brdf}" + (" +calibrated" if cfg.calibrated else "")
+    match = _AUTO_NAME.match(name)
+    return f"sh{match.group(1)}+{match.group(2)}" if match else None
+
+
+_AUTO_NAME = re.compile(r"^auto-sh([0-3])-(lambert|mlp)$")
+
+
+def model_chosen_cell(chosen: str | None) -> str | None:
+    """The "Model chosen" cell: run_decisions' name with its :func:`model_summary` (``spotless (sh3+mlp)``); an auto
+    candidate's name already says it (``auto-sh1-lambert``); None stays None."""
+    if chosen is None:
+        return None
+    summary = model_summary(chosen)
+    return chosen if summary is None or chosen.startswith("auto-") else f"{chosen} ({summary})"
+
+
+def decision_cells(ds: dict[str, Any], key: str) -> list[Any]:
+    """["Model chosen", "Gaussians"] cells of a table row: from the run's ``decisions``; ``darkgs`` means the better
+    DarkGS run; rows without a 3D run (inputs, 2D baselines) get [None, None]."""
+    methods = ds.get("methods", {})
+    entry = best_darkgs(methods)[1] if key == "darkgs" else methods.get(key)
+    decisions = _get(entry, "decisions") or {}
+    return [model_chosen_cell(decisions.get("model chosen")), decisions.get("Gaussians")]
+
+
+DECISION_NOTE = ("Model chosen / Gaussians: what each run needed, from its run folder "
+                 "(spotlessgs.training.selection.run_decisions): the trained model (in brackets: SH light degree or "
+                 "DarkGS constant ambient, + Lambertian or MLP BRDF) or, for auto, the candidate that model selection "
+                 "chose; the final number of Gaussians.")
+
+
 METRIC_COLUMNS = ["PSNR", "SSIM", "LPIPS", "PSNR (aligned)", "SSIM (aligned)", "LPIPS (aligned)"]
 METRIC_KEYS = ["psnr", "ssim", "lpips", "psnr_aligned", "ssim_aligned", "lpips_aligned"]
 _DIGITS = {"PSNR": 2, "PSNR (aligned)": 2, "Tmp PSNR": 2}
@@ -123,17 +175,19 @@ _DIGITS = {"PSNR": 2, "PSNR (aligned)": 2, "Tmp PSNR": 2}
 
 def _metric_table(key: str, title: str, collected: dict, names: Sequence[str], labels: dict[str, str] | None,
                   paper_rows: dict[str, dict], paper_title: str) -> Table:
-    table = Table(key, title, ["Dataset", "Method"] + METRIC_COLUMNS, digits=dict(_DIGITS))
+    table = Table(key, title, ["Dataset", "Method"] + METRIC_COLUMNS + DECISION_COLUMNS, digits=dict(_DIGITS))
     for ds_name, ds in collected["datasets"].items():
         for name, label, metrics in method_rows(ds, names):
             if labels and name in labels and name != "darkgs":
                 label = labels[name]
-            table.rows.append([ds_name, label] + [_get(metrics, k) for k in METRIC_KEYS])
+            table.rows.append([ds_name, label] + [_get(metrics, k) for k in METRIC_KEYS] + decision_cells(ds, name))
     for name, vals in paper_rows.items():
         label = (labels or LABELS).get(name, LABELS.get(name, name))
-        table.rows.append([paper_title, label, vals["psnr"], vals["ssim"], vals["lpips"], None, None, None])
+        table.rows.append([paper_title, label, vals["psnr"], vals["ssim"], vals["lpips"], None, None, None, None,
+                           None])
     table.notes.append("PSNR in dB on the test views (every 11th frame) against the evenly lit ground truth; "
                        "'aligned' applies one least-squares exposure gain per sequence first (METHOD.md §7).")
+    table.notes.append(DECISION_NOTE)
     table.notes.append(f"Paper rows: {paper.SOURCE}; the paper reports no aligned figures.")
     return table
 
@@ -141,13 +195,13 @@ def _metric_table(key: str, title: str, collected: dict, names: Sequence[str], l
 def table1(collected: dict) -> Table:
     """Table I: relighting quality of 3DGS, DarkGS and SpotlessGS (and the inputs) per dataset."""
     return _metric_table("table1", "Table I — relighting quality", collected,
-                         ["input", "3dgs", "darkgs", "spotless"], None, paper.TABLE1, "paper (synthetic)")
+                         ["input", "3dgs", "darkgs", "spotless", "auto"], None, paper.TABLE1, "paper (synthetic)")
 
 
 def table2(collected: dict) -> Table:
     """Table II: ablation from DarkGS to SpotlessGS."""
     return _metric_table("table2", "Table II — ablation (SH light, MLP BRDF)", collected,
-                         ["darkgs", "darkgs+sh", "darkgs+brdf", "spotless"], ABLATION_LABELS, paper.TABLE2,
+                         ["darkgs", "darkgs+sh", "darkgs+brdf", "spotless", "auto"], ABLATION_LABELS, paper.TABLE2,
                          "paper (synthetic)")
 
 
@@ -156,7 +210,7 @@ def table3(collected: dict) -> Table:
     columns = ["Dataset", "Sequence", "Reproj. error (px)", "Obs. per image", "Registered images", "ATE RMSE (m)"]
     table = Table("table3", "Table III — SfM (COLMAP) on original vs relit sequences", columns,
                   digits={"Obs. per image": 2})
-    names = ["input", "3dgs", "darkgs", "darkgs+sh", "darkgs+brdf", "spotless", "clahe", "msrcr", "cyclegan"]
+    names = ["input", "3dgs", "darkgs", "darkgs+sh", "darkgs+brdf", "spotless", "auto", "clahe", "msrcr", "cyclegan"]
     any_sfm = False
     for ds_name, ds in collected["datasets"].items():
         for name, label, metrics in method_rows(ds, names):
@@ -189,7 +243,7 @@ def table4(collected: dict) -> Table:
     for ds_name, ds in collected["datasets"].items():
         if not ds.get("baselines2d"):
             continue
-        for name, label, metrics in method_rows(ds, ["input", "clahe", "msrcr", "cyclegan", "spotless"]):
+        for name, label, metrics in method_rows(ds, ["input", "clahe", "msrcr", "cyclegan", "spotless", "auto"]):
             table.rows.append([ds_name, label] + [_get(metrics, k) for k in keys])
     for name, vals in paper.TABLE4.items():
         table.rows.append(["paper (synthetic)", LABELS[name], vals["psnr"], vals["ssim"], None, None,
@@ -202,27 +256,36 @@ def table4(collected: dict) -> Table:
 
 
 def runtime_table(collected: dict) -> Table:
-    """Training time, relit FPS and peak memory per method (and the 2D baselines' per-folder times)."""
-    columns = ["Dataset", "Method", "Training time (s)", "ms / step", "Gaussians", "Relit FPS",
-               "Peak memory relit (MB)", "RSS after imports (MB)", "Peak memory training (MB)", "Device"]
+    """What each method needed and cost: model chosen, Gaussians, training time (auto: with its model selection),
+    relit FPS and peak memory per 3D method (and the 2D baselines' per-folder times)."""
+    columns = ["Dataset", "Method"] + DECISION_COLUMNS + [
+        "Training time (s)", "of which selection (s)", "ms / step", "Relit FPS", "Peak memory relit (MB)",
+        "RSS after imports (MB)", "Peak memory training (MB)", "Device"]
     table = Table("runtime", "Runtime", columns,
-                  digits={"Training time (s)": 1, "ms / step": 1, "Relit FPS": 1, "Peak memory relit (MB)": 0,
-                          "RSS after imports (MB)": 0, "Peak memory training (MB)": 0})
+                  digits={"Training time (s)": 1, "of which selection (s)": 1, "ms / step": 1, "Relit FPS": 1,
+                          "Peak memory relit (MB)": 0, "RSS after imports (MB)": 0, "Peak memory training (MB)": 0})
     for ds_name, ds in collected["datasets"].items():
         for name, entry in ds.get("methods", {}).items():
             train, relit = entry.get("train", {}), entry.get("relight", {})
-            table.rows.append([ds_name, LABELS[name], train.get("seconds"), train.get("ms_per_step"),
-                               train.get("num_gaussians"), relit.get("fps"), relit.get("peak_rss_mb"),
-                               relit.get("baseline_rss_mb"), train.get("peak_rss_mb"), train.get("device")])
+            selection_s = train.get("selection_seconds") if entry.get("selection") else None
+            table.rows.append([ds_name, LABELS[name]] + decision_cells(ds, name) + [
+                train.get("seconds"), selection_s, train.get("ms_per_step"), relit.get("fps"),
+                relit.get("peak_rss_mb"), relit.get("baseline_rss_mb"), train.get("peak_rss_mb"), train.get("device")])
         for name, entry in ds.get("baselines2d", {}).items():
             rt = entry.get("runtime", {})
             train_s = _get(collected, "cyclegan", "seconds") if name == "cyclegan" else None
-            table.rows.append([ds_name, LABELS[name], train_s, None, None, rt.get("fps"), None, None, None, "cpu"])
+            table.rows.append([ds_name, LABELS[name], None, None, train_s, None, None, rt.get("fps"), None, None, None,
+                               "cpu"])
     for name, vals in paper.RUNTIME.items():
         mem = None if vals["memory_gb"] is None else 1000.0 * vals["memory_gb"]
-        table.rows.append(["paper (RTX 3070)", LABELS[name], None, None, None, vals["fps"], mem, None, None, "cuda"])
+        table.rows.append(["paper (RTX 3070)", LABELS[name], None, None, None, None, None, vals["fps"], mem, None,
+                           None, "cuda"])
+    table.notes.append(DECISION_NOTE)
     table.notes.append("Training time: wall time of the training loop (sum over the segments between the curve "
-                       "milestones). Relit FPS: render_run over every view at the dataset's resolution. Peak memory "
+                       "milestones); for auto it adds the wall time of its model selection (shared base run, every "
+                       "candidate's proxy run and their held-out scoring: 'of which selection'), and its ms / step is "
+                       "that of the final model's training loop alone. Relit FPS: render_run over every view at the "
+                       "dataset's resolution. Peak memory "
                        "relit: ru_maxrss of a fresh process that loads the run and renders every relit view (it "
                        "includes the Python/torch runtime: 'RSS after imports' is that process's resident memory "
                        "right after its imports; torch's import has a transient peak of its own); peak memory "
@@ -327,6 +390,44 @@ def check_at_least(claim: str, ours: dict[str, Any], reference: dict[str, Any], 
     return Agreement(claim, "agrees", body + " — at least as good on every compared figure.")
 
 
+def check_auto_vs_spotless(ds_name: str, ds: dict[str, Any]) -> list[Agreement]:
+    """Two notes on what the automatic mode (``auto``) gave up and saved against the fixed SpotlessGS model on one
+    dataset: its exposure-aligned relit test PSNR within the selection's tolerance of SpotlessGS's (the tolerance
+    model selection allowed on held-out training views), and its Gaussian count (reduction in %). Empty when either
+    run is absent."""
+    methods = ds.get("methods", {})
+    if "auto" not in methods or "spotless" not in methods:
+        return []
+    auto, spotless = methods["auto"], methods["spotless"]
+    chosen = _get(auto, "decisions", "model chosen") or "n/a"
+    notes = []
+    claim = f"Auto on {ds_name}: relit PSNR (aligned) within the selection tolerance of SpotlessGS"
+    a, b = _get(auto, "metrics", "psnr_aligned"), _get(spotless, "metrics", "psnr_aligned")
+    tolerance = _get(auto, "selection", "tolerance_db")
+    if not (_finite(a) and _finite(b) and _finite(tolerance)):
+        missing = [n for n, v in (("auto PSNR", a), ("SpotlessGS PSNR", b), ("selection tolerance", tolerance))
+                   if not _finite(v)]
+        notes.append(Agreement(claim, "unknown", f"Cannot check, no value for {', '.join(missing)}."))
+    else:
+        diff = a - b
+        within = diff >= -tolerance
+        verdict = ("no loss, at least as good as SpotlessGS" if diff >= 0 else
+                   f"{'within' if within else 'outside'} the {tolerance:g} dB selection tolerance")
+        notes.append(Agreement(claim, "agrees" if within else "disagrees", (
+            f"auto ({chosen}) {a:.2f} dB vs SpotlessGS {b:.2f} dB: {diff:+.2f} dB, {verdict} (selection allowed "
+            f"{tolerance:g} dB on the spotlight-lit PSNR of held-out training views; this is the relit test views).")))
+    claim = f"Auto on {ds_name}: no more Gaussians than SpotlessGS"
+    ga, gb = _get(auto, "decisions", "Gaussians"), _get(spotless, "decisions", "Gaussians")
+    if not (_finite(ga) and _finite(gb)) or gb <= 0:
+        notes.append(Agreement(claim, "unknown", f"Cannot check: auto {ga}, SpotlessGS {gb} Gaussians."))
+    else:
+        change = 100.0 * (gb - ga) / gb
+        notes.append(Agreement(claim, "agrees" if ga <= gb else "disagrees", (
+            f"auto ({chosen}, Gaussian budget) {ga} vs SpotlessGS {gb} Gaussians: "
+            + (f"{change:.1f} % fewer." if change >= 0 else f"{-change:.1f} % more."))))
+    return notes
+
+
 def agreement_notes(collected: dict) -> list[Agreement]:
     """Every check of our figures against the paper's ordering and the acceptance claims."""
     notes: list[Agreement] = []
@@ -384,6 +485,7 @@ def agreement_notes(collected: dict) -> list[Agreement]:
                                          True, "dB" if "psnr" in metric else "",
                                          paper_vals(paper.TABLE4, ["spotless", "cyclegan"], metric),
                                          2 if "psnr" in metric else 3))
+        notes.extend(check_auto_vs_spotless(ds_name, ds))
         fps = {names[k]: _get(ds, "methods", k, "relight", "fps") for k in ("3dgs", "spotless")}
         fps["DarkGS"] = _get(best_darkgs(ds.get("methods", {}))[1], "relight", "fps")
         notes.append(check_order(f"Runtime ordering on {ds_name} (relit FPS)", fps, ["DarkGS", "3DGS", "SpotlessGS"],

@@ -123,40 +123,92 @@ def curve_milestones(iterations: int, fractions: Sequence[float]) -> list[int]:
     return sorted(s for s in steps if s <= iterations)
 
 
-def train_method(data_dir: str, run_dir: str, variant: str, train_preset: str, iterations: int | None,
-                 image_width: int | None, curve_fractions: Sequence[float], sfm: bool, sfm_matcher: str, lpips: bool,
-                 seed: int, threads: int) -> dict[str, Any]:
-    """Train one model, scoring its relit test views at each curve milestone; relight every view; evaluate the run.
+AUTO_METHOD = "auto"
 
-    Returns:
-        ``metrics`` (evaluate_run's results without per-image lists), ``train`` (steps, seconds: the sum of the
-        training loops' wall time, ms_per_step, gaussians, peak_rss_mb of the process while training), ``relight``
-        (render_run's summary of all views + ``peak_rss_mb`` and ``baseline_rss_mb`` of the fresh process that loaded
-        the model and rendered them), ``curve`` (one point per milestone: step,
-        train_seconds, psnr/ssim raw and aligned on the test views).
-    """
-    from evaluation.runner import evaluate_run
+
+def method_train_config(variant: str, train_preset: str, iterations: int | None, image_width: int | None,
+                        threads: int):
+    """The TrainConfig of one method: the trainer preset with the run's overrides; for ``auto`` also the fields of
+    ``spotless train --gaussian-budget`` (spotlessgs.cli.budget_overrides), so that the reproduction trains exactly
+    what the command line does."""
     from spotlessgs.training.config import preset as train_config
-    from spotlessgs.training.trainer import train
 
-    data, run = Path(data_dir), Path(run_dir)
     overrides: dict[str, Any] = {"num_threads": threads}
     if iterations is not None:
         overrides["iterations"] = iterations
     if image_width is not None:
         overrides["image_width"] = image_width
-    config = train_config(train_preset, **overrides)
+    if variant == AUTO_METHOD:
+        from spotlessgs.cli import budget_overrides
+
+        overrides.update(budget_overrides(True))
+    return train_config(train_preset, **overrides)
+
+
+def select_auto_model(data: Path, run: Path, config, seed: int,
+                      min_proxy_iterations: int | None) -> tuple[Any, dict[str, Any]]:
+    """Model selection of ``spotless train --model auto`` (spotlessgs.training.selection.select_model) into ``run``.
+
+    Returns:
+        (the chosen ModelConfig, a summary: ``chosen``, ``best``, ``tolerance_db``, ``candidates`` (name, SH degree,
+        BRDF, validation PSNR of each scored candidate) and ``seconds``, the wall time of the whole selection: the
+        shared base run, every proxy run, their data loading and held-out scoring).
+    """
+    from spotlessgs.models.shading import ModelConfig
+    from spotlessgs.training.selection import SelectionConfig, select_model
+
+    selection = SelectionConfig() if min_proxy_iterations is None else SelectionConfig(
+        min_proxy_iterations=min_proxy_iterations)
+    start = time.perf_counter()
+    decision = select_model(data, run, config, seed=seed, selection=selection, resume=True, progress=False)
+    seconds = time.perf_counter() - start
+    summary = {"chosen": decision["chosen"], "best": decision["best"], "tolerance_db": decision["tolerance_db"],
+               "candidates": [{k: c[k] for k in ("name", "sh_degree", "brdf", "validation_psnr")}
+                              for c in decision["candidates"]],
+               "seconds": seconds}
+    return ModelConfig(**decision["chosen_model"]), summary
+
+
+def train_method(data_dir: str, run_dir: str, variant: str, train_preset: str, iterations: int | None,
+                 image_width: int | None, curve_fractions: Sequence[float], sfm: bool, sfm_matcher: str, lpips: bool,
+                 seed: int, threads: int, selection_min_proxy_iterations: int | None = None) -> dict[str, Any]:
+    """Train one model, scoring its relit test views at each curve milestone; relight every view; evaluate the run.
+
+    ``variant`` ``auto`` first selects the model (:func:`select_auto_model`, with ``selection_min_proxy_iterations``)
+    and then trains the chosen model with the Gaussian budget; its curve has the same milestones, each point's
+    training time counting the selection first (the curve starts at the selection's cost).
+
+    Returns:
+        ``metrics`` (evaluate_run's results without per-image lists), ``train`` (steps, seconds: the sum of the
+        training loops' wall time plus, for ``auto``, the selection's wall time ``selection_seconds``; ms_per_step of
+        the training loops alone, gaussians, peak_rss_mb of the process while training), ``selection`` (``auto``
+        only, see select_auto_model), ``relight`` (render_run's summary of all views + ``peak_rss_mb`` and
+        ``baseline_rss_mb`` of the fresh process that loaded the model and rendered them), ``curve`` (one point per
+        milestone: step, train_seconds, psnr/ssim raw and aligned on the test views).
+    """
+    from evaluation.runner import evaluate_run
+    from spotlessgs.training.trainer import train
+
+    data, run = Path(data_dir), Path(run_dir)
+    config = method_train_config(variant, train_preset, iterations, image_width, threads)
+    model: Any = variant
+    selection = None
+    selection_seconds = 0.0
+    if variant == AUTO_METHOD:
+        model, selection = select_auto_model(data, run, config, seed, selection_min_proxy_iterations)
+        selection_seconds = selection["seconds"]
     milestones = curve_milestones(config.iterations, curve_fractions)
     curve: list[dict[str, Any]] = []
-    train_seconds = 0.0
+    loop_seconds = 0.0
     result = None
     for step in milestones:
-        result = train(data, run, variant, config, seed=seed, resume=True, progress=False, stop_after=step)
-        train_seconds += result.seconds
+        result = train(data, run, model, config, seed=seed, resume=True, progress=False, stop_after=step)
+        loop_seconds += result.seconds
         if step < config.iterations:
             curve_dir = run / "curve" / f"step_{step:06d}"
             relight_views(run, "test", curve_dir)
-            curve.append({"step": step, "train_seconds": train_seconds, **score_test_views(data, curve_dir, threads)})
+            curve.append({"step": step, "train_seconds": selection_seconds + loop_seconds,
+                          **score_test_views(data, curve_dir, threads)})
     train_peak = peak_rss_mb()
     summary = json.loads((run / "train_summary.json").read_text(encoding="utf-8"))
 
@@ -164,19 +216,24 @@ def train_method(data_dir: str, run_dir: str, variant: str, train_preset: str, i
 
     results = evaluate_run(run, _eval_config(sfm, sfm_matcher, lpips, seed, threads), out_dir=run / "eval")
     metrics = compact_metrics(results)
+    train_seconds = selection_seconds + loop_seconds
     curve.append({"step": config.iterations, "train_seconds": train_seconds,
                   **{k: metrics[k] for k in ("psnr", "ssim", "psnr_aligned", "ssim_aligned")}})
-    return {
+    out = {
         "variant": variant,
         "metrics": metrics,
         "train": {"steps": result.steps if result else 0, "seconds": train_seconds,
-                  "ms_per_step": 1000.0 * train_seconds / max(config.iterations, 1),
+                  "selection_seconds": selection_seconds,
+                  "ms_per_step": 1000.0 * loop_seconds / max(config.iterations, 1),
                   "num_gaussians": summary["num_gaussians"],
                   "test_psnr_reconstruction": summary["test_psnr_reconstruction"], "device": summary["device"],
                   "peak_rss_mb": train_peak},
         "relight": relit,
         "curve": curve,
     }
+    if selection is not None:
+        out["selection"] = selection
+    return out
 
 
 # ---------------------------------------------------------------------------------------------------------------------
