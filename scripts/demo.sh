@@ -6,7 +6,7 @@ cd "$(dirname "$0")/.."
 ROOM=${ROOM:-bedroom}
 DATA=data/$ROOM
 RUN=runs/$ROOM
-THREADS=${THREADS:-1}
+THREADS=${THREADS:-$(nproc)}
 
 spotless-sim render --scene "scenes/$ROOM/house.json" --out "$DATA" --frames 60 --width 160 --height 120 --samples 16
 if [ ! -f "$RUN/train_summary.json" ]; then

@@ -35,8 +35,7 @@ class ReproduceConfig:
     scenes: tuple[str, ...] = ("bedroom",)
     # Dataset variants rendered for every test room.
     variants: tuple[str, ...] = VARIANTS
-    # Frames along the camera loop of a test room (every 11th is a test view; the shipped bedroom admits no camera
-    # loop of 40-48 frames with seed 0: its path corner hits an obstacle, so quick uses 36).
+    # Frames along the camera loop of a test room (every 11th is a test view).
     frames: int = 36
     # Rendered image size of the test rooms (pixels).
     width: int = 160
@@ -163,8 +162,7 @@ PRESETS: dict[str, ReproduceConfig] = {
     # README main job: about half an hour on a 2-core CPU.
     "quick": ReproduceConfig(),
     # The paper's scale (GPU): 316 frames at 640x480 (the Cycle-GAN's 256x256 crops need images at least that big),
-    # the trainer's paper schedule. The living room: the shipped bedroom admits no 316-frame loop (frame 314 hits an
-    # obstacle).
+    # the trainer's paper schedule, on the living room (the L-shaped room; the bedroom and office train the Cycle-GAN).
     "paper": ReproduceConfig(
         preset="paper", scenes=("living_room",), gan_rooms=("office", "bedroom"), frames=316, width=640, height=480,
         samples=64, train_preset="paper", train_iterations=None,
