@@ -13,6 +13,7 @@ from click.testing import CliRunner
 from conftest import synthetic_box_dataset
 from spotlessgs.models.shading import ModelConfig
 from spotlessgs.training.config import preset
+from spotlessgs.training.validation import holdout_blocks
 from spotlessgs.training.selection import (
     SELECTION_FILE, CandidateResult, SelectionConfig, appearance_parameters, candidate_model, choose, cost_rank,
     format_selection_table, proxy_config, run_decisions, selection_config,
@@ -46,9 +47,11 @@ def test_cost_order_puts_lambert_before_mlp_then_lower_degree_first():
     assert ranked == ["auto-sh0-lambert", "auto-sh1-lambert", "auto-sh2-lambert", "auto-sh3-lambert",
                       "auto-sh0-mlp", "auto-sh1-mlp", "auto-sh2-mlp", "auto-sh3-mlp"]
     # and the measured parameter counts agree with that order within each BRDF: (d+1)^2 * 3 SH coefficients
-    lam = [appearance_parameters(candidate_model(d, "lambert")) for d in range(4)]
+    lam = [appearance_parameters(candidate_model(d, "lambert"), 32) for d in range(4)]
     assert [b - lam[0] for b in lam] == [3 * ((d + 1) ** 2 - 1) for d in range(4)]
-    assert appearance_parameters(candidate_model(0, "mlp")) > lam[3]
+    # the MLP of the given width: 117·h + h + h·h + h + h + 1 weights and biases on top of the SH-0 model
+    assert appearance_parameters(candidate_model(0, "mlp"), 32) - lam[0] == 117 * 32 + 32 + 32 * 32 + 32 + 32 + 1
+    assert appearance_parameters(candidate_model(0, "mlp"), 8) < appearance_parameters(candidate_model(0, "mlp"), 32)
 
 
 def test_candidates_are_spotlight_models_with_an_sh_light():
@@ -66,6 +69,7 @@ def test_candidates_are_spotlight_models_with_an_sh_light():
     ({"proxy_fraction": 1.5}, "proxy_fraction"), ({"min_proxy_iterations": 0}, "min_proxy_iterations"),
     ({"validation_every": 1}, "validation_every"), ({"search": "random"}, "search"),
     ({"sh_degrees": (0, 5)}, "sh_degrees"), ({"sh_degrees": ()}, "sh_degrees"),
+    ({"holdout": "pixels"}, "holdout must be"), ({"holdout_fraction": 1.0}, "holdout_fraction"),
 ])
 def test_selection_config_rejects_bad_values(kwargs, match):
     with pytest.raises(ValueError, match=match):
@@ -74,8 +78,11 @@ def test_selection_config_rejects_bad_values(kwargs, match):
 
 def test_proxy_schedule_is_a_fraction_without_densification():
     full = preset("quick")
-    proxy = proxy_config(full, SelectionConfig(proxy_fraction=0.1, validation_every=5))
+    proxy = proxy_config(full, SelectionConfig(proxy_fraction=0.1, holdout="views", validation_every=5))
     assert proxy.iterations == 300 and proxy.validation_every == 5 and not proxy.validation_rejoin
+    assert proxy.validation_blocks == 0
+    blocks = proxy_config(full, SelectionConfig(holdout_fraction=0.2))  # default: held-out pixel blocks
+    assert blocks.validation_blocks == 0.2 and blocks.validation_every == 0
     assert proxy_config(full, SelectionConfig()).iterations == 150  # default: 5 % of 3000 per candidate
     assert proxy_config(full, SelectionConfig(), 0.1).iterations == 300  # the shared base run
     assert proxy.densify_until == 0 and proxy.opacity_reset_every == 0 and not proxy.gaussian_budget
@@ -137,27 +144,33 @@ def test_train_model_auto_writes_the_decision_prints_the_table_and_trains_the_ch
     assert res.exit_code == 0, res.output
     decision = json.loads((out / SELECTION_FILE).read_text())
     names = [c["name"] for c in decision["candidates"]]
-    # coordinate search: the four Lambert degrees, then the MLP at the chosen degree
-    assert names[:4] == [f"auto-sh{d}-lambert" for d in range(4)] and names[4].endswith("-mlp") and len(names) == 5
+    # coordinate search: Lambert and MLP at SH degree 0, then the four degrees with the winning BRDF
+    phases = [c["phase"] for c in decision["candidates"]]
+    assert phases == ["reflectance"] * 2 + ["light"] * 4
+    assert names[:2] == ["auto-sh0-lambert", "auto-sh0-mlp"]
+    reflectance, light = decision["candidates"][:2], decision["candidates"][2:]
+    lam, mlp = (c["validation_psnr"] for c in reflectance)
+    brdf = "lambert" if lam >= max(lam, mlp) - 0.3 else "mlp"
+    assert names[2:] == [f"auto-sh{d}-{brdf}" for d in range(4)]
     assert decision["settings"]["proxy_iterations"] == 100 and decision["tolerance_db"] == 0.3
-    best = max(c["validation_psnr"] for c in decision["candidates"])
-    chosen = next(c for c in decision["candidates"] if c["name"] == decision["chosen"])
+    assert decision["settings"]["reflectance_proxy_iterations"] == 100  # 15 % of 300 < the 100-step minimum
+    best = max(c["validation_psnr"] for c in light)
+    chosen = next(c for c in light if c["name"] == decision["chosen"])
     assert chosen["validation_psnr"] >= best - 0.3
-    cheaper = [c for c in decision["candidates"]
-               if cost_rank(candidate_model(c["sh_degree"], c["brdf"])) < cost_rank(candidate_model(
-                   chosen["sh_degree"], chosen["brdf"]))]
-    assert all(c["validation_psnr"] < best - 0.3 for c in cheaper)
+    assert all(c["validation_psnr"] < best - 0.3 for c in light if c["sh_degree"] < chosen["sh_degree"])
     assert decision["chosen"] in res.output and "val PSNR" in res.output
     info = json.loads((out / "run.json").read_text())
     assert info["model"] == decision["chosen"] and ModelConfig(**info["model_config"]).name == decision["chosen"]
     summary = json.loads((out / "train_summary.json").read_text())
     assert summary["steps"] == 300 and summary["num_gaussians"] <= 400
-    assert not (out / "selection" / names[0] / "checkpoints").exists()  # proxies keep metrics, not checkpoints
-    assert not (out / "selection" / "base" / "checkpoints").exists()
+    assert not list((out / "selection").glob("*/checkpoints"))  # proxies keep metrics, not checkpoints
     assert decision["base"]["steps"] == 100
-    for name in names:  # every candidate started from the shared base run
+    for name in names[:2]:  # the reflectance phase starts from the shared base run ...
         assert json.loads((out / "selection" / name / "run.json").read_text())["init_from"] == \
             str((out / "selection" / "base").resolve())
+    for name in names[2:]:  # ... the light phase from its winner
+        assert json.loads((out / "selection" / f"{name}-light" / "run.json").read_text())["init_from"] == \
+            str((out / "selection" / f"auto-sh0-{brdf}").resolve())
     # same folder again: refused without --resume; with --resume the decision is reused
     again = CliRunner().invoke(main, args)
     assert again.exit_code != 0 and "--resume" in str(again.exception)
@@ -210,3 +223,82 @@ def test_warm_start_copies_gaussians_light_and_the_leading_sh_block():
         warm_start_scene(dst, {"gaussians": {}}, "x.pt")
     with pytest.raises(ValueError, match="needs a spotlight"):
         warm_start_scene(scene("3dgs", 3, 0), ckpt, "x.pt")
+    # a learned BRDF is carried over to a model with the same network (the light phase continues its winner) ...
+    mlp_src = scene(candidate_model(0, "mlp"), 5, 3)
+    with torch.no_grad():
+        mlp_src.appearance.brdf.mlp[-1].bias.fill_(0.7)
+    mlp_ckpt = {"gaussians": {k: v.detach() for k, v in mlp_src.gaussians.params.items()},
+                "appearance": mlp_src.modules_.state_dict()}
+    carried = warm_start_scene(scene(candidate_model(3, "mlp"), 3, 4), mlp_ckpt)
+    for (name, a), b in zip(carried.appearance.brdf.state_dict().items(), mlp_src.appearance.brdf.state_dict().values()):
+        torch.testing.assert_close(a, b, msg=name)
+    # ... but not to a network of another width
+    narrow = scene(dataclasses.replace(candidate_model(0, "mlp"), brdf_hidden=8), 3, 5)
+    fresh_bias = narrow.appearance.brdf.mlp[-1].bias.detach().clone()
+    torch.testing.assert_close(warm_start_scene(narrow, mlp_ckpt).appearance.brdf.mlp[-1].bias.detach(), fresh_bias)
+
+
+# ---- held-out pixel blocks ----------------------------------------------------------------------------------------
+
+
+def test_holdout_blocks_are_whole_blocks_in_the_stated_fraction_and_seeded():
+    masks = holdout_blocks(3, 30, 40, 0.25, 8, seed=5)
+    assert masks.shape == (3, 30, 40) and masks.dtype == torch.bool
+    grid = torch.zeros(3, 4, 5, dtype=torch.bool)  # ceil(30/8) x ceil(40/8) blocks, the last row cut to 6 pixels
+    for by in range(4):
+        for bx in range(5):
+            block = masks[:, 8 * by:8 * by + 8, 8 * bx:8 * bx + 8]
+            assert bool((block == block[:, :1, :1]).all()), "a block is either held out or not, as a whole"
+            grid[:, by, bx] = block[:, 0, 0]
+    assert grid.sum(dim=(1, 2)).tolist() == [5, 5, 5]  # round(0.25 * 20 blocks) per view
+    assert not torch.equal(grid[0], grid[1])  # each view draws its own blocks
+    assert torch.equal(masks, holdout_blocks(3, 30, 40, 0.25, 8, seed=5))
+    assert not torch.equal(masks, holdout_blocks(3, 30, 40, 0.25, 8, seed=6))
+    assert holdout_blocks(1, 4, 4, 0.01, 8, seed=0).all()  # at least one block per view
+
+
+@pytest.mark.parametrize("kwargs, match", [({"fraction": 0.0}, "fraction"), ({"fraction": 1.0}, "fraction"),
+                                           ({"block": 0}, "block")])
+def test_holdout_blocks_reject_bad_settings(kwargs, match):
+    args = {"views": 2, "height": 8, "width": 8, "fraction": 0.5, "block": 4, "seed": 0, **kwargs}
+    with pytest.raises(ValueError, match=match):
+        holdout_blocks(**args)
+
+
+def test_trainconfig_holds_out_views_or_blocks_not_both():
+    with pytest.raises(ValueError, match="not both"):
+        preset("tiny", validation_every=3, validation_blocks=0.1)
+    with pytest.raises(ValueError, match="validation_blocks"):
+        preset("tiny", validation_blocks=1.5)
+
+
+def test_held_out_pixels_never_influence_training_only_the_validation_score(box_room, tmp_path):
+    """Two datasets that differ only in the held-out pixels (white in one) train to identical models, while the
+    validation PSNR, computed on exactly those pixels, drops for the altered one."""
+    import shutil
+
+    import numpy as np
+    from PIL import Image
+
+    from spotlessgs.training.checkpoint import load_checkpoint
+    from spotlessgs.training.data import load_training_views
+    from spotlessgs.training.trainer import train
+
+    cfg = _tiny(iterations=30, image_width=None, densify_from=10, densify_until=25, checkpoint_every=30,
+                validation_blocks=0.3, validation_block=4)
+    views = load_training_views(box_room)
+    masks = holdout_blocks(len(views.names), views.height, views.width, 0.3, 4, seed=0).numpy()
+    altered = tmp_path / "altered"
+    shutil.copytree(box_room, altered)
+    for k, name in enumerate(views.names):
+        path = altered / "images" / name
+        img = np.array(Image.open(path))
+        img[masks[k]] = 255
+        Image.fromarray(img).save(path)
+
+    results = [train(data, tmp_path / f"run{i}", "darkgs", cfg, seed=0, progress=False)
+               for i, data in enumerate((box_room, altered))]
+    a, b = (load_checkpoint(tmp_path / f"run{i}") for i in range(2))
+    for key, tensor in a["gaussians"].items():
+        torch.testing.assert_close(b["gaussians"][key], tensor, rtol=0, atol=0, msg=key)
+    assert results[0].validation_psnr > results[1].validation_psnr + 3.0

@@ -34,11 +34,12 @@ def test_no_ambient_room_gets_sh_degree_0(dark_bedroom, tmp_path):
     torch.set_num_threads(1)
     try:
         decision = select_model(dark_bedroom, tmp_path / "run", preset("tiny", iterations=1000, num_threads=1), 0,
-                                SelectionConfig(validation_every=3))
+                                SelectionConfig())
     finally:
         torch.set_num_threads(old)
     assert decision == json.loads((tmp_path / "run" / SELECTION_FILE).read_text())
-    assert [c["name"] for c in decision["candidates"]][:4] == [f"auto-sh{d}-lambert" for d in range(4)]
-    assert len(decision["candidates"]) == 5 and all(math.isfinite(c["validation_psnr"])
+    light = [c for c in decision["candidates"] if c["phase"] == "light"]
+    assert [c["sh_degree"] for c in light] == [0, 1, 2, 3]
+    assert len(decision["candidates"]) == 6 and all(math.isfinite(c["validation_psnr"])
                                                     for c in decision["candidates"])
     assert decision["chosen_model"]["sh_degree"] == 0

@@ -76,6 +76,11 @@ class TrainConfig:
     # Hold out every k-th training view (by position in the training split, never a test view) as a validation view
     # that is not fitted; 0 = fit every training view.
     validation_every: int = 0
+    # Instead of whole views: hold out this fraction of the validation_block×validation_block pixel blocks of every
+    # fitted view (seeded; never fitted, scored as the validation PSNR); 0 = off. Model selection uses it.
+    validation_blocks: float = 0.0
+    # Block side in pixels of the training resolution; None = 1/20 of the image width (at least 2).
+    validation_block: int | None = None
     # The validation views rejoin the fitted views once densification ends (step densify_until); False = they stay
     # held out for the whole run (model selection proxies).
     validation_rejoin: bool = False
@@ -106,6 +111,13 @@ class TrainConfig:
     def __post_init__(self) -> None:
         if self.validation_every < 0 or self.validation_every == 1:
             raise ValueError(f"TrainConfig: validation_every must be 0 (off) or >= 2, got {self.validation_every}")
+        if not 0.0 <= self.validation_blocks < 1.0:
+            raise ValueError(f"TrainConfig: validation_blocks must be in [0, 1), got {self.validation_blocks}")
+        if self.validation_blocks > 0 and self.validation_every > 0:
+            raise ValueError("TrainConfig: hold out whole views (validation_every) or pixel blocks "
+                             "(validation_blocks), not both")
+        if self.validation_block is not None and self.validation_block < 1:
+            raise ValueError(f"TrainConfig: validation_block must be >= 1, got {self.validation_block}")
         if self.gaussian_budget and self.validation_every == 0:
             raise ValueError("TrainConfig: gaussian_budget needs held-out validation views (set validation_every >= 2)")
         if self.budget_patience < 1:

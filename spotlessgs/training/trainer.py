@@ -34,7 +34,7 @@ from spotlessgs.training.strategy import DensifyConfig, DensifyStrategy
 from spotlessgs.training.warm_start import warm_start_scene
 from spotlessgs.training.budget import BudgetConfig, BudgetStrategy, budget_report
 from spotlessgs.training.validation import (
-    ViewSplit, evenly_spaced, gaussian_contributions, split_training_views, validation_psnr,
+    ViewSplit, evenly_spaced, gaussian_contributions, holdout_blocks, split_training_views, validation_psnr,
 )
 
 log = logging.getLogger(__name__)
@@ -55,7 +55,8 @@ class TrainResult:
     num_gaussians: int
     final_loss: float
     test_psnr: float | None
-    # Spotlight-lit PSNR of the held-out validation views (validation_every > 0 and the views never fitted), else None.
+    # Spotlight-lit PSNR of the held-out validation views (validation_every > 0 and the views never fitted) or of the
+    # held-out pixel blocks (validation_blocks > 0), else None.
     validation_psnr: float | None = None
 
 
@@ -299,6 +300,11 @@ def train(
     split = split_training_views(views.train, config.validation_every)
     extent = views.scene_extent()
     images, saturated = views.images.to(device), views.saturated.to(device)
+    held_out = None  # (V, H, W) bool pixel blocks never fitted (validation_blocks > 0)
+    if config.validation_blocks > 0:
+        block = config.validation_block or max(2, round(views.width / 20))
+        held_out = holdout_blocks(len(views.names), views.height, views.width, config.validation_blocks, block,
+                                  seed).to(device)
     c2ws, viewmats, K = views.c2w.to(device), views.viewmats.to(device), views.K.to(device)
 
     start = 0
@@ -344,7 +350,10 @@ def train(
             if not torch.isfinite(out.image).all():
                 raise TrainingDivergedError(f"step {step}: the render of view {views.names[k]} has NaN/Inf; "
                                             f"the last good checkpoint {ckpt_file} is intact")
-            loss, parts = photometric_loss(out.image, images[k], saturated[k], config.ssim_lambda)
+            target = images[k]
+            if held_out is not None:  # held-out pixels show the render itself: no error, no gradient there
+                target = torch.where(held_out[k][..., None], out.image.detach().clamp(0.0, 1.0), target)
+            loss, parts = photometric_loss(out.image, target, saturated[k], config.ssim_lambda)
             if prior is not None and scene.appearance.light is not None:
                 loss = loss + scene.appearance.light.light_prior_loss(prior, config.light_prior_weight)
             loss_value = float(loss.detach())
@@ -379,7 +388,12 @@ def train(
     steps_done = max(end - start, 0)
     test_psnr = evaluate_reconstruction(scene, views, config) if end == config.iterations else None
     val_psnr = None
-    if end == config.iterations and split.validation and not config.validation_rejoin:
+    if end == config.iterations and held_out is not None:
+        scene.eval()
+        val_psnr = validation_psnr(scene, views.c2w.to(device), views.viewmats.to(device), views.K.to(device),
+                                   views.images.to(device), views.train, views.width, views.height,
+                                   config.raster_backend, config.num_threads, pixel_masks=held_out)
+    elif end == config.iterations and split.validation and not config.validation_rejoin:
         scene.eval()
         val_psnr = validation_psnr(scene, views.c2w.to(device), views.viewmats.to(device), views.K.to(device),
                                    views.images.to(device), split.validation, views.width, views.height,

@@ -2,7 +2,10 @@
 
 Automatic model selection and the Gaussian budget need an error on views the model was not fitted to, computed from
 the uneven input images alone (a real user has no ground truth, and the test split stays untouched for evaluation).
-Every k-th training view (by position in the training split) is held out; the rest are fitted.
+Two held-out sets: every k-th training view (by position in the training split), or a seeded random fraction of the
+pixel blocks of every fitted view (:func:`holdout_blocks`): those pixels are never fitted, so their error measures how
+well the model predicts new observations of surfaces whose geometry the other views pin down — the appearance model,
+not the extrapolation of geometry to a new viewpoint.
 
 Also here: :func:`gaussian_contributions`, the total blending weight of every Gaussian over a set of views, which says
 how much removing a Gaussian can change the renders.
@@ -16,6 +19,7 @@ from dataclasses import dataclass
 
 import torch
 
+from spotlessgs.io.seeding import torch_generator
 from spotlessgs.models.relightable import RelightableScene
 from spotlessgs.rasterizer import rasterize
 
@@ -51,25 +55,52 @@ def split_training_views(train: Sequence[int], every: int) -> ViewSplit:
     return ViewSplit(fit, validation)
 
 
+def holdout_blocks(views: int, height: int, width: int, fraction: float, block: int, seed: int) -> torch.Tensor:
+    """(views, height, width) bool: a seeded random ``fraction`` of the ``block``×``block`` pixel blocks of each view
+    (at least one block per view; blocks at the right/bottom edge are cut to the image)."""
+    if not 0.0 < fraction < 1.0:
+        raise ValueError(f"holdout_blocks: fraction must be in (0, 1), got {fraction}")
+    if block < 1:
+        raise ValueError(f"holdout_blocks: block must be >= 1, got {block}")
+    rows, cols = -(-height // block), -(-width // block)
+    count = max(1, int(round(fraction * rows * cols)))
+    gen = torch_generator(seed, "holdout_blocks")
+    chosen = torch.zeros(views, rows * cols, dtype=torch.bool)
+    for v in range(views):
+        chosen[v, torch.randperm(rows * cols, generator=gen)[:count]] = True
+    grid = chosen.reshape(views, rows, cols)
+    return grid.repeat_interleave(block, 1).repeat_interleave(block, 2)[:, :height, :width].contiguous()
+
+
 @torch.no_grad()
 def validation_psnr(
     scene: RelightableScene, c2ws: torch.Tensor, viewmats: torch.Tensor, K: torch.Tensor, images: torch.Tensor,
     indices: Sequence[int], width: int, height: int, backend: str = "auto", num_threads: int | None = None,
+    pixel_masks: torch.Tensor | None = None,
 ) -> float:
     """PSNR (dB) of the spotlight-lit renders against the input images, from the mean squared error over ``indices``.
 
     Args:
         scene: the model; c2ws, viewmats: (V, 4, 4) cameras (OpenCV); K: (3, 3); images: (V, H, W, 3) linear inputs.
         indices: the views to render (non-empty).
-    The MSE is averaged over all pixels of all views before the log, so one easy view cannot hide a bad one.
+        pixel_masks: optional (V, H, W) bool: score only these pixels of each view (held-out blocks).
+    The squared error is averaged over all scored pixels of all views before the log, so one easy view cannot hide a
+    bad one.
     """
     if len(indices) == 0:
         raise ValueError("validation_psnr: no views given")
-    total = 0.0
+    total, count = 0.0, 0
     for k in indices:
         out = scene.render(c2ws[k], viewmats[k], K, width, height, backend=backend, num_threads=num_threads)
-        total += float(torch.mean((out.image.clamp(0, 1) - images[k]) ** 2))
-    mse = total / len(indices)
+        sq = (out.image.clamp(0, 1) - images[k]) ** 2
+        if pixel_masks is None:
+            total, count = total + float(sq.sum()), count + sq.numel()
+        else:
+            mask = pixel_masks[k].to(sq.device)
+            total, count = total + float(sq[mask].sum()), count + 3 * int(mask.sum())
+    if count == 0:
+        raise ValueError("validation_psnr: the masks select no pixel")
+    mse = total / count
     return float("inf") if mse <= 0 else -10.0 * math.log10(mse)
 
 

@@ -20,7 +20,9 @@ def warm_start_scene(scene: RelightableScene, checkpoint: dict[str, Any], source
 
     The spotlight state is copied whole. SH light coefficients (K_src, 3) are copied into the first rows of the new
     light's (K, 3) (a lower degree is the leading block of a higher one; extra rows stay 0, missing rows are dropped).
-    A constant ambient or a BRDF network is not copied (the candidate's own initial values are used).
+    A learned BRDF network is copied when the checkpoint has one of the same shape (model selection's second phase
+    continues the first phase's winner); a constant ambient, or a BRDF of another kind, is not copied (the
+    candidate's own initial values are used).
 
     Raises:
         ValueError: the checkpoint has no Gaussians, or the spotlight of one side is missing (names ``source``).
@@ -41,4 +43,9 @@ def warm_start_scene(scene: RelightableScene, checkpoint: dict[str, Any], source
         with torch.no_grad():
             app.lf_light.coeffs.zero_()
             app.lf_light.coeffs[:rows] = coeffs[:rows]
+    brdf_state = {k[len("brdf."):]: v for k, v in state.items() if k.startswith("brdf.")}
+    if brdf_state and app.brdf is not None:
+        own = app.brdf.state_dict()
+        if own.keys() == brdf_state.keys() and all(own[k].shape == brdf_state[k].shape for k in own):
+            app.brdf.load_state_dict(brdf_state)
     return new
