@@ -1,6 +1,7 @@
 # SpotlessGS on a CUDA machine: Blender (bpy) renders on the GPU, gsplat rasterizes on the GPU.
 #   docker build -t spotlessgs .
-#   docker run --gpus all -v "$PWD/out:/out" spotlessgs spotless-sim render --scene scenes/bedroom/house.json --out /out/bedroom
+#   docker run --gpus all -v "$PWD/out:/out" spotlessgs spotless reproduce --preset paper --out /out/paper --jobs 1
+# (the paper's tables in /out/paper/REPORT.md; rerunning the same line resumes).
 # It installs exactly what scripts/install.sh installs, plus the `gpu` extra (gsplat, JIT-compiled with nvcc).
 FROM nvidia/cuda:12.8.1-devel-ubuntu22.04
 
