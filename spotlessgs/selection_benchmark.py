@@ -1,0 +1,348 @@
+"""Acceptance measurements of automatic model selection and the Gaussian budget, rerunnable with one command.
+
+    python -m spotlessgs.selection_benchmark --data data/bedroom --data data/storage --out bench/selection
+
+Per dataset folder (room = folder name), under ``OUT/<room>/``:
+
+* ``auto/``: model selection (:func:`spotlessgs.training.selection.select_model`, its decision with every candidate
+  in ``auto/model_selection.json``, its wall time in ``selection_timing.json``), then the chosen model trained there
+  with the default strategy (as ``spotless train --model auto`` does);
+* ``spotless/``: the fixed SpotlessGS model, default strategy;
+* ``spotless-budget/``: SpotlessGS with the Gaussian budget (the fields of ``spotless train --gaussian-budget``).
+
+Each run is scored like :mod:`spotlessgs.benchmark`: every view relit in this process (relit FPS over all views), the
+test views scored against the ground truth raw and after one exposure gain (``psnr_aligned``, the figure the verdicts
+use). Writes ``OUT/selection_benchmark.json`` (numbers + provenance), ``OUT/selection_benchmark.md`` (a table per
+room and the verdicts) and ``OUT/budget.png``. Rerunning reuses finished runs (``train_summary.json`` present) and
+their scores (``selection_benchmark_row.json``); an interrupted run continues from its last checkpoint. Timings are
+wall clock on the machine that runs it: compare rows of one run.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import logging
+import math
+import time
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import click
+
+from spotlessgs.io.atomic import write_json, write_text
+from spotlessgs.io.provenance import provenance
+
+log = logging.getLogger(__name__)
+
+RESULTS_JSON = "selection_benchmark.json"
+RESULTS_MD = "selection_benchmark.md"
+PLOT = "budget.png"
+ROW_FILE = "selection_benchmark_row.json"
+TIMING_FILE = "selection_timing.json"
+# Run key -> folder under OUT/<room>/.
+RUN_FOLDERS = {"spotless": "spotless", "chosen": "auto", "budget": "spotless-budget"}
+# Acceptance bounds of the Gaussian budget: at least this many % fewer Gaussians than the default strategy, at most
+# this many dB lower exposure-aligned relit PSNR.
+BUDGET_MIN_REDUCTION_PCT = 30.0
+BUDGET_MAX_LOSS_DB = 0.2
+# Slack of the verdict comparisons (dB and %): a value exactly at a bound counts as within / met despite float
+# rounding (e.g. 20.1 - 20.3 = -0.2000000000000028).
+EPS = 1e-9
+
+
+@dataclass(frozen=True)
+class BenchmarkSettings:
+    """What the measurements depend on besides the data."""
+
+    # Trainer preset (spotlessgs.training.config.PRESETS).
+    preset: str = "quick"
+    # Override of the preset's iteration count (None = the preset's; the densification schedule scales with it).
+    iterations: int | None = None
+    # Override of the preset's training image width in pixels (None = the preset's).
+    image_width: int | None = None
+    # CPU threads for training, relighting and scoring.
+    threads: int = 1
+    # The command seed (training, selection holdout, view order).
+    seed: int = 0
+    # SelectionConfig.min_proxy_iterations override (None = the selection's default; small for tests).
+    min_proxy_iterations: int | None = None
+
+    def __post_init__(self) -> None:
+        if self.threads < 1:
+            raise ValueError(f"BenchmarkSettings: threads must be >= 1, got {self.threads}")
+        for name in ("iterations", "image_width", "min_proxy_iterations"):
+            value = getattr(self, name)
+            if value is not None and value < 1:
+                raise ValueError(f"BenchmarkSettings: {name} must be >= 1, got {value}")
+
+
+def train_config(settings: BenchmarkSettings, gaussian_budget: bool):
+    """The TrainConfig of a run: the preset with the settings' overrides, plus the fields of ``--gaussian-budget``
+    (spotlessgs.cli.budget_overrides) when ``gaussian_budget``."""
+    from spotlessgs.cli import budget_overrides
+    from spotlessgs.training.config import preset
+
+    overrides: dict[str, Any] = {"num_threads": settings.threads}
+    if settings.iterations is not None:
+        overrides["iterations"] = settings.iterations
+    if settings.image_width is not None:
+        overrides["image_width"] = settings.image_width
+    overrides.update(budget_overrides(gaussian_budget))
+    return preset(settings.preset, **overrides)
+
+
+def selection_config(settings: BenchmarkSettings):
+    """The SelectionConfig: defaults, with ``min_proxy_iterations`` from the settings when given."""
+    from spotlessgs.training.selection import SelectionConfig
+
+    if settings.min_proxy_iterations is None:
+        return SelectionConfig()
+    return SelectionConfig(min_proxy_iterations=settings.min_proxy_iterations)
+
+
+def check_has_ground_truth(data: Path) -> None:
+    """ValueError naming ``data`` when none of its test views has a ground-truth image (nothing to score)."""
+    from evaluation.dataset import read_dataset
+
+    if not any(f.gt_path is not None for f in read_dataset(data).test_frames):
+        raise ValueError(f"{data}: no test view has a ground-truth image; the selection benchmark scores relit test "
+                         "views against the ground truth")
+
+
+def run_selection(data: Path, room_dir: Path, settings: BenchmarkSettings) -> dict[str, Any]:
+    """Model selection into ``room_dir/auto`` (reused when already decided with the same settings).
+
+    Returns:
+        ``chosen``, ``chosen_model`` (ModelConfig fields), ``best``, ``tolerance_db``, ``candidates`` (every scored
+        candidate of the decision) and ``seconds``: wall time of the whole selection (None when the decision was made
+        by an earlier invocation that did not record it).
+    """
+    from spotlessgs.training.selection import SELECTION_FILE, select_model
+
+    auto_dir = room_dir / RUN_FOLDERS["chosen"]
+    timing = room_dir / TIMING_FILE
+    decided_before = (auto_dir / SELECTION_FILE).is_file()
+    start = time.perf_counter()
+    decision = select_model(data, auto_dir, train_config(settings, False), seed=settings.seed,
+                            selection=selection_config(settings), resume=True, progress=False)
+    if decided_before:
+        seconds = json.loads(timing.read_text())["seconds"] if timing.is_file() else None
+    else:
+        seconds = time.perf_counter() - start
+        write_json(timing, {"seconds": seconds})
+    return {**{k: decision[k] for k in ("chosen", "chosen_model", "best", "tolerance_db", "candidates")},
+            "seconds": seconds}
+
+
+def _check_same_settings(run_dir: Path, config, seed: int) -> None:
+    """ValueError when the existing run in ``run_dir`` was trained with other settings than ``config``/``seed``."""
+    old = json.loads((run_dir / "config.json").read_text())
+    wanted = json.loads(json.dumps(dataclasses.asdict(config)))
+    if old["train"] != wanted or old["run"]["seed"] != seed:
+        raise ValueError(f"{run_dir}: this run was trained with other settings; use a new --out")
+
+
+def measure_run(data: Path, run_dir: Path, model, config, settings: BenchmarkSettings, strategy: str) -> dict:
+    """Train (unless ``train_summary.json`` exists), relight every view and score the test views of one run.
+
+    Args:
+        model: variant name or ModelConfig; strategy: ``default`` or ``budget`` (a label for the tables).
+    Returns:
+        the row: model, strategy, steps, gaussians, train_seconds (the training loop's wall time of the session that
+        finished it), ms_per_step, relit_fps (every view, native resolution), relit_views, psnr / ssim /
+        psnr_aligned / ssim_aligned (dB / SSIM of the relit test views against the ground truth); also stored as
+        ``run_dir/selection_benchmark_row.json`` and reused from there.
+    """
+    from spotlessgs.reproduce.tasks import relight_views, score_test_views
+    from spotlessgs.training.trainer import train
+
+    summary_path, row_path = run_dir / "train_summary.json", run_dir / ROW_FILE
+    if summary_path.is_file():
+        _check_same_settings(run_dir, config, settings.seed)
+        if row_path.is_file():
+            return json.loads(row_path.read_text())
+    else:
+        log.info("training %s (%s, %s strategy)", run_dir, getattr(model, "name", model), strategy)
+        train(data, run_dir, model, config, seed=settings.seed, resume=True, progress=False)
+    summary = json.loads(summary_path.read_text())
+    log.info("relighting and scoring %s", run_dir)
+    relit = relight_views(run_dir, "all", run_dir / "relit")
+    scores = score_test_views(data, run_dir / "relit", settings.threads)
+    row = {"model": json.loads((run_dir / "run.json").read_text())["model"], "strategy": strategy,
+           "steps": summary["steps"], "gaussians": summary["num_gaussians"],
+           "train_seconds": summary["seconds_this_session"], "ms_per_step": summary["ms_per_step"],
+           "relit_fps": relit["fps"], "relit_views": relit["count"], **scores}
+    write_json(row_path, row)
+    return row
+
+
+def selection_verdict(chosen_psnr: float, spotless_psnr: float, tolerance_db: float) -> dict[str, Any]:
+    """Is the chosen model's relit PSNR (dB) at most ``tolerance_db`` below SpotlessGS's?
+
+    Returns ``delta_db`` (chosen − spotless), ``tolerance_db`` and ``within`` (delta ≥ −tolerance, at the bound
+    included).
+    """
+    _check_finite("selection_verdict", chosen_psnr=chosen_psnr, spotless_psnr=spotless_psnr, tolerance_db=tolerance_db)
+    if tolerance_db < 0:
+        raise ValueError(f"selection_verdict: tolerance_db must be >= 0, got {tolerance_db}")
+    delta = chosen_psnr - spotless_psnr
+    return {"delta_db": delta, "tolerance_db": tolerance_db, "within": delta >= -tolerance_db - EPS}
+
+
+def budget_verdict(default_gaussians: int, budget_gaussians: int, default_psnr: float, budget_psnr: float,
+                   min_reduction_pct: float = BUDGET_MIN_REDUCTION_PCT,
+                   max_loss_db: float = BUDGET_MAX_LOSS_DB) -> dict[str, Any]:
+    """Does the budget keep at least ``min_reduction_pct`` % fewer Gaussians than the default strategy while losing
+    at most ``max_loss_db`` dB of relit PSNR?
+
+    Returns ``reduction_pct`` (100 · (default − budget) / default; negative = more Gaussians), ``delta_db``
+    (budget − default), the bounds and ``met`` (both bounds hold, exactly at a bound included).
+    """
+    _check_finite("budget_verdict", default_psnr=default_psnr, budget_psnr=budget_psnr,
+                  min_reduction_pct=min_reduction_pct, max_loss_db=max_loss_db)
+    if default_gaussians < 1 or budget_gaussians < 1:
+        raise ValueError(f"budget_verdict: Gaussian counts must be >= 1, got default {default_gaussians}, "
+                         f"budget {budget_gaussians}")
+    reduction = 100.0 * (default_gaussians - budget_gaussians) / default_gaussians
+    delta = budget_psnr - default_psnr
+    met = reduction >= min_reduction_pct - EPS and delta >= -max_loss_db - EPS
+    return {"reduction_pct": reduction, "delta_db": delta, "min_reduction_pct": min_reduction_pct,
+            "max_loss_db": max_loss_db, "met": met}
+
+
+def _check_finite(where: str, **values: float) -> None:
+    for name, value in values.items():
+        if value is None or not math.isfinite(value):
+            raise ValueError(f"{where}: {name} is not a finite number, got {value}")
+
+
+def _signed(value: float, spec: str) -> str:
+    """``value`` formatted with an explicit sign, a true minus sign for negatives (−0.10, +0.10)."""
+    text = format(value, "+" + spec)
+    return "−" + text[1:] if text.startswith("-") else text
+
+
+def verdict_lines(selection: dict[str, Any], budget: dict[str, Any]) -> list[str]:
+    """The two verdict lines of a room, from :func:`selection_verdict` and :func:`budget_verdict`."""
+    return [f"choice vs spotless: {_signed(selection['delta_db'], '.2f')} dB (tolerance {selection['tolerance_db']:g} "
+            f"dB) — {'within' if selection['within'] else 'outside'}",
+            f"budget: {_signed(-budget['reduction_pct'], '.1f')}% Gaussians, {_signed(budget['delta_db'], '.2f')} dB "
+            f"(bound {budget['max_loss_db']:g} dB, at least {budget['min_reduction_pct']:g}% fewer) — "
+            f"{'met' if budget['met'] else 'missed'}"]
+
+
+def room_verdicts(room: dict[str, Any]) -> dict[str, Any]:
+    """Both verdicts of one room's measurements (exposure-aligned relit PSNR)."""
+    runs = room["runs"]
+    return {"selection": selection_verdict(runs["chosen"]["psnr_aligned"], runs["spotless"]["psnr_aligned"],
+                                           room["selection"]["tolerance_db"]),
+            "budget": budget_verdict(runs["spotless"]["gaussians"], runs["budget"]["gaussians"],
+                                     runs["spotless"]["psnr_aligned"], runs["budget"]["psnr_aligned"])}
+
+
+def measure_room(data: Path, room_dir: Path, settings: BenchmarkSettings) -> dict[str, Any]:
+    """Selection and the three runs of one dataset; returns ``data``, ``selection``, ``runs`` and ``verdicts``."""
+    from spotlessgs.models.shading import ModelConfig
+
+    check_has_ground_truth(data)
+    log.info("%s: model selection", room_dir.name)
+    selection = run_selection(data, room_dir, settings)
+    log.info("%s: chose %s", room_dir.name, selection["chosen"])
+    default, budget = train_config(settings, False), train_config(settings, True)
+    plan = {"spotless": ("spotless", default, "default"),
+            "chosen": (ModelConfig(**selection["chosen_model"]), default, "default"),
+            "budget": ("spotless", budget, "budget")}
+    runs = {key: measure_run(data, room_dir / RUN_FOLDERS[key], model, config, settings, strategy)
+            for key, (model, config, strategy) in plan.items()}
+    room = {"data": str(data), "selection": selection, "runs": runs}
+    room["verdicts"] = room_verdicts(room)
+    return room
+
+
+def markdown_report(rooms: dict[str, dict[str, Any]], settings: BenchmarkSettings) -> str:
+    """Per room: the selection, a table of the three runs and the verdict lines."""
+    def fmt(value, spec):
+        return "–" if value is None else format(value, spec)
+
+    lines = [f"Preset {settings.preset}, iterations {settings.iterations or 'of the preset'}, "
+             f"{settings.threads} thread(s), seed {settings.seed}. Relit PSNR of the test views against the ground "
+             "truth; aligned = after one exposure gain. Relit FPS over every view.", ""]
+    for name, room in rooms.items():
+        sel = room["selection"]
+        lines += [f"## {name}", "",
+                  f"Selection: chose {sel['chosen']} (best held-out PSNR: {sel['best']}, tolerance "
+                  f"{sel['tolerance_db']:g} dB) in {fmt(sel['seconds'], '.1f')} s, {len(sel['candidates'])} "
+                  "candidates.", "",
+                  "| run | model | strategy | Gaussians | train s | ms / step | relit PSNR | relit PSNR aligned | "
+                  "relit FPS |",
+                  "|---|---|---|---|---|---|---|---|---|"]
+        for key, r in room["runs"].items():
+            lines.append(f"| {key} | {r['model']} | {r['strategy']} | {r['gaussians']} | {r['train_seconds']:.1f} | "
+                         f"{r['ms_per_step']:.1f} | {r['psnr']:.2f} | {r['psnr_aligned']:.2f} | "
+                         f"{r['relit_fps']:.1f} |")
+        lines += [""] + [f"- {v}" for v in verdict_lines(room["verdicts"]["selection"], room["verdicts"]["budget"])]
+        lines.append("")
+    return "\n".join(lines)
+
+
+def budget_points(rooms: dict[str, dict[str, Any]]) -> list:
+    """BudgetPoints of the default and the budget SpotlessGS run of every room."""
+    from spotlessgs.training.budget_plot import BudgetPoint
+
+    return [BudgetPoint(name, strategy, int(r["gaussians"]), float(r["psnr_aligned"]), float(r["relit_fps"]))
+            for name, room in rooms.items()
+            for strategy, r in (("default", room["runs"]["spotless"]), ("budget", room["runs"]["budget"]))]
+
+
+def run_selection_benchmark(data_dirs: list[Path], out: Path, settings: BenchmarkSettings = BenchmarkSettings()
+                            ) -> dict[str, Any]:
+    """Measure every dataset; writes ``selection_benchmark.json`` / ``.md`` and ``budget.png`` to ``out``.
+
+    Returns the JSON's content: ``settings``, ``bounds``, ``rooms`` (room name -> :func:`measure_room`'s dict) and
+    ``provenance``.
+    """
+    from spotlessgs.training.budget_plot import plot_budget
+
+    if not data_dirs:
+        raise ValueError("run_selection_benchmark: no dataset folders given")
+    names = [Path(d).name for d in data_dirs]
+    duplicates = sorted({n for n in names if names.count(n) > 1})
+    if duplicates:
+        raise ValueError(f"run_selection_benchmark: dataset folders share the room name(s) {duplicates}; "
+                         "rooms are named by folder name")
+    rooms = {name: measure_room(Path(d).resolve(), out / name, settings) for name, d in zip(names, data_dirs)}
+    results = {"settings": dataclasses.asdict(settings),
+               "bounds": {"budget_min_reduction_pct": BUDGET_MIN_REDUCTION_PCT,
+                          "budget_max_loss_db": BUDGET_MAX_LOSS_DB},
+               "rooms": rooms, "provenance": provenance(seed=settings.seed)}
+    write_json(out / RESULTS_JSON, results)
+    write_text(out / RESULTS_MD, markdown_report(rooms, settings))
+    plot_budget(budget_points(rooms), out / PLOT, title="Gaussian budget: default vs budget strategy")
+    return results
+
+
+@click.command()
+@click.option("--data", "data_dirs", required=True, multiple=True,
+              type=click.Path(exists=True, file_okay=False, path_type=Path),
+              help="Dataset folder with ground truth (repeat for several rooms; room = folder name).")
+@click.option("--out", required=True, type=click.Path(file_okay=False, path_type=Path))
+@click.option("--preset", default="quick", show_default=True, type=click.Choice(["tiny", "quick", "paper"]))
+@click.option("--iterations", type=click.IntRange(1), default=None, help="Override the preset's iteration count.")
+@click.option("--width", "image_width", type=click.IntRange(8), default=None,
+              help="Override the training image width (pixels).")
+@click.option("--threads", default=1, show_default=True, type=click.IntRange(1))
+@click.option("--seed", default=0, show_default=True, type=int)
+@click.option("--min-proxy-iterations", type=click.IntRange(1), default=None,
+              help="Shortest selection proxy run (default: the selection's; small only for tests).")
+def main(data_dirs, out, preset, iterations, image_width, threads, seed, min_proxy_iterations):
+    """Measure automatic model selection and the Gaussian budget against SpotlessGS."""
+    logging.basicConfig(level=logging.INFO, format="%(levelname)s %(name)s: %(message)s")
+    settings = BenchmarkSettings(preset, iterations, image_width, threads, seed, min_proxy_iterations)
+    results = run_selection_benchmark(list(data_dirs), out, settings)
+    click.echo(markdown_report(results["rooms"], settings))
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,203 @@
+"""The selection / Gaussian-budget benchmark on synthetic datasets (no Blender): every room and run measured with
+finite numbers, verdict arithmetic pinned on hand-made numbers, the figure written, reruns reuse finished runs."""
+
+from __future__ import annotations
+
+import json
+import math
+import shutil
+
+import pytest
+from click.testing import CliRunner
+
+from conftest import synthetic_box_dataset
+from spotlessgs.selection_benchmark import (
+    PLOT, RESULTS_JSON, RESULTS_MD, ROW_FILE, RUN_FOLDERS, BenchmarkSettings, budget_verdict, main,
+    run_selection_benchmark, selection_verdict, train_config, verdict_lines,
+)
+
+pytestmark = pytest.mark.usefixtures("one_torch_thread")
+
+ARGS = ["--preset", "tiny", "--iterations", "40", "--width", "32", "--threads", "1", "--min-proxy-iterations", "8"]
+SETTINGS = BenchmarkSettings("tiny", 40, 32, 1, 0, 8)
+
+
+@pytest.fixture(scope="module")
+def bench(tmp_path_factory):
+    rooms = [synthetic_box_dataset(tmp_path_factory, "sb-a", seed=5).rename(
+                 tmp_path_factory.mktemp("rooms-a") / "room_a"),
+             synthetic_box_dataset(tmp_path_factory, "sb-b", seed=6).rename(
+                 tmp_path_factory.mktemp("rooms-b") / "room_b")]
+    out = tmp_path_factory.mktemp("selection-bench")
+    args = [a for room in rooms for a in ("--data", str(room))] + ["--out", str(out), *ARGS]
+    result = CliRunner().invoke(main, args)
+    assert result.exit_code == 0, result.output + repr(result.exception)
+    return rooms, out, result.output
+
+
+# ---- verdict arithmetic ----------------------------------------------------------------------------------------
+
+
+def test_selection_verdict_is_the_psnr_difference_against_the_tolerance():
+    v = selection_verdict(30.0, 30.5, 0.25)
+    assert v["delta_db"] == pytest.approx(-0.5) and not v["within"]
+    assert selection_verdict(31.0, 30.0, 0.25) == {"delta_db": 1.0, "tolerance_db": 0.25, "within": True}
+    assert selection_verdict(30.0, 30.25, 0.25)["within"]  # exactly at the tolerance
+    assert selection_verdict(20.1, 20.3, 0.2)["within"]  # at the bound despite float rounding (-0.2000000000000028)
+    assert not selection_verdict(20.0, 20.2501, 0.25)["within"]
+    assert selection_verdict(30.0, 30.0, 0.0)["within"]
+
+
+def test_budget_verdict_needs_both_fewer_gaussians_and_little_psnr_loss():
+    v = budget_verdict(1000, 650, 25.0, 24.9)
+    assert v["reduction_pct"] == pytest.approx(35.0) and v["delta_db"] == pytest.approx(-0.1) and v["met"]
+    assert budget_verdict(10, 7, 25.0, 25.0)["met"]  # exactly 30 % fewer
+    assert budget_verdict(1000, 700, 20.3, 20.1)["met"]  # exactly 30 % and exactly 0.2 dB lower
+    assert not budget_verdict(1000, 701, 25.0, 26.0)["met"]  # 29.9 % fewer
+    assert not budget_verdict(1000, 500, 25.0, 24.79)["met"]  # 0.21 dB lower
+    more = budget_verdict(1000, 1200, 25.0, 25.5)
+    assert more["reduction_pct"] == pytest.approx(-20.0) and not more["met"]
+    assert budget_verdict(1000, 900, 25.0, 25.0, min_reduction_pct=10.0, max_loss_db=0.0)["met"]
+
+
+def test_verdict_lines_state_the_measured_numbers():
+    lines = verdict_lines(selection_verdict(24.88, 25.0, 0.25), budget_verdict(1000, 650, 25.0, 24.9))
+    assert lines == ["choice vs spotless: −0.12 dB (tolerance 0.25 dB) — within",
+                     "budget: −35.0% Gaussians, −0.10 dB (bound 0.2 dB, at least 30% fewer) — met"]
+    lines = verdict_lines(selection_verdict(25.5, 25.0, 0.25), budget_verdict(1000, 1100, 25.0, 24.0))
+    assert lines == ["choice vs spotless: +0.50 dB (tolerance 0.25 dB) — within",
+                     "budget: +10.0% Gaussians, −1.00 dB (bound 0.2 dB, at least 30% fewer) — missed"]
+    assert verdict_lines(selection_verdict(24.0, 25.0, 0.25), budget_verdict(10, 7, 1.0, 1.0))[0].endswith("outside")
+
+
+@pytest.mark.parametrize("call, match", [
+    (lambda: selection_verdict(float("nan"), 25.0, 0.25), "chosen_psnr is not a finite number"),
+    (lambda: selection_verdict(25.0, float("inf"), 0.25), "spotless_psnr is not a finite number"),
+    (lambda: selection_verdict(25.0, 25.0, -0.1), "tolerance_db must be >= 0"),
+    (lambda: budget_verdict(0, 5, 25.0, 25.0), "Gaussian counts must be >= 1"),
+    (lambda: budget_verdict(5, 0, 25.0, 25.0), "Gaussian counts must be >= 1"),
+    (lambda: budget_verdict(5, 4, None, 25.0), "default_psnr is not a finite number"),
+    (lambda: BenchmarkSettings(threads=0), "threads must be >= 1"),
+    (lambda: BenchmarkSettings(iterations=0), "iterations must be >= 1"),
+    (lambda: BenchmarkSettings(min_proxy_iterations=0), "min_proxy_iterations must be >= 1"),
+])
+def test_bad_inputs_are_refused(call, match):
+    with pytest.raises(ValueError, match=match):
+        call()
+
+
+def test_budget_run_uses_the_command_line_budget_fields():
+    from spotlessgs.cli import budget_overrides
+
+    default, budget = train_config(SETTINGS, False), train_config(SETTINGS, True)
+    assert (default.iterations, default.image_width, default.num_threads) == (40, 32, 1)
+    assert not default.gaussian_budget
+    assert budget == default.replace(**budget_overrides(True))
+
+
+# ---- the whole benchmark ---------------------------------------------------------------------------------------
+
+
+def _finite_numbers(obj):
+    if isinstance(obj, bool):
+        return
+    if isinstance(obj, (int, float)):
+        assert math.isfinite(obj), obj
+    elif isinstance(obj, dict):
+        for v in obj.values():
+            _finite_numbers(v)
+    elif isinstance(obj, list):
+        for v in obj:
+            _finite_numbers(v)
+
+
+def test_json_has_every_room_and_run_with_finite_numbers(bench):
+    rooms, out, _output = bench
+    results = json.loads((out / RESULTS_JSON).read_text())
+    assert set(results["rooms"]) == {"room_a", "room_b"}
+    assert results["settings"]["min_proxy_iterations"] == 8 and results["provenance"]["seed"] == 0
+    for name, room in results["rooms"].items():
+        assert set(room["runs"]) == {"spotless", "chosen", "budget"}
+        assert room["selection"]["seconds"] > 0 and len(room["selection"]["candidates"]) == 6  # 2 BRDFs + 4 degrees
+        assert room["runs"]["chosen"]["model"] == room["selection"]["chosen"]
+        assert room["runs"]["spotless"]["model"] == "spotless" == room["runs"]["budget"]["model"]
+        assert room["runs"]["budget"]["strategy"] == "budget"
+        for run in room["runs"].values():
+            assert run["steps"] == 40 and run["gaussians"] >= 1 and run["relit_views"] == 14
+            for key in ("train_seconds", "ms_per_step", "relit_fps", "psnr", "psnr_aligned"):
+                assert math.isfinite(run[key]) and run[key] > 0, (name, key, run[key])
+            assert run["psnr_aligned"] >= run["psnr"] - 1e-6  # the best exposure gain cannot lower the PSNR
+        _finite_numbers({k: v for k, v in room.items() if k != "data"})
+        # the verdicts are recomputed from the stored numbers
+        runs = room["runs"]
+        assert room["verdicts"]["selection"] == selection_verdict(
+            runs["chosen"]["psnr_aligned"], runs["spotless"]["psnr_aligned"], room["selection"]["tolerance_db"])
+        assert room["verdicts"]["budget"] == budget_verdict(
+            runs["spotless"]["gaussians"], runs["budget"]["gaussians"], runs["spotless"]["psnr_aligned"],
+            runs["budget"]["psnr_aligned"])
+
+
+def test_markdown_and_figure(bench):
+    _rooms, out, output = bench
+    md = (out / RESULTS_MD).read_text()
+    results = json.loads((out / RESULTS_JSON).read_text())
+    for name, room in results["rooms"].items():
+        assert f"## {name}" in md
+        for line in verdict_lines(room["verdicts"]["selection"], room["verdicts"]["budget"]):
+            assert f"- {line}" in md
+    assert md.count("| spotless | spotless | default |") == 2 and "choice vs spotless" in output
+    assert (out / PLOT).read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+
+
+def test_rerun_reuses_finished_runs_and_refuses_other_settings(bench, monkeypatch):
+    import spotlessgs.training.trainer as trainer
+
+    rooms, out, _output = bench
+    before = json.loads((out / RESULTS_JSON).read_text())
+    summaries = {p: p.stat().st_mtime_ns for p in out.glob("*/*/train_summary.json")}
+    assert len(summaries) == 6
+    calls = []
+    monkeypatch.setattr(trainer, "train", lambda *a, **k: calls.append(a))
+    after = run_selection_benchmark(rooms, out, SETTINGS)
+    assert calls == []
+    assert {p: p.stat().st_mtime_ns for p in out.glob("*/*/train_summary.json")} == summaries
+    assert after["rooms"] == before["rooms"]
+    with pytest.raises(ValueError, match="trained with other settings; use a new --out"):
+        # other thread count: the selection's settings match (its decision is reused), the trained runs' do not
+        run_selection_benchmark(rooms, out, BenchmarkSettings("tiny", 40, 32, 2, 0, 8))
+
+
+def test_interrupted_scoring_is_redone_without_retraining(bench, monkeypatch, tmp_path):
+    import spotlessgs.training.trainer as trainer
+
+    rooms, out, _output = bench
+    copy = tmp_path / "out"
+    shutil.copytree(out, copy)
+    row = copy / "room_a" / RUN_FOLDERS["budget"] / ROW_FILE
+    old = json.loads(row.read_text())
+    row.unlink()
+    monkeypatch.setattr(trainer, "train", lambda *a, **k: pytest.fail("retrained a finished run"))
+    again = run_selection_benchmark(rooms, copy, SETTINGS)
+    new = again["rooms"]["room_a"]["runs"]["budget"]
+    assert row.is_file()
+    for key in ("gaussians", "steps", "train_seconds", "ms_per_step", "psnr", "psnr_aligned"):
+        assert new[key] == pytest.approx(old[key], abs=1e-6), key
+
+
+def test_datasets_are_refused_with_clear_errors(bench, tmp_path):
+    rooms, _out, _output = bench
+    with pytest.raises(ValueError, match="no dataset folders given"):
+        run_selection_benchmark([], tmp_path / "o1", SETTINGS)
+    twin = tmp_path / "x" / "room_a"
+    shutil.copytree(rooms[0], twin)
+    with pytest.raises(ValueError, match=r"share the room name\(s\) \['room_a'\]"):
+        run_selection_benchmark([rooms[0], twin], tmp_path / "o2", SETTINGS)
+    no_gt = tmp_path / "no_gt"
+    shutil.copytree(rooms[0], no_gt)
+    shutil.rmtree(no_gt / "gt")
+    meta = json.loads((no_gt / "transforms.json").read_text())
+    for frame in meta["frames"]:
+        frame.pop("gt_file_path", None)
+    (no_gt / "transforms.json").write_text(json.dumps(meta))
+    with pytest.raises(ValueError, match="no_gt: no test view has a ground-truth image"):
+        run_selection_benchmark([no_gt], tmp_path / "o3", SETTINGS)
