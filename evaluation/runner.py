@@ -43,6 +43,9 @@ class EvalConfig:
     grid_frames: int = 4  # frames shown in the side-by-side figure
     num_threads: int | None = None  # torch CPU threads while evaluating (None: leave torch's setting)
     progress: bool = True  # show progress bars on stderr
+    # evaluate_run only: also score the run's original (uneven) inputs (the ``input`` block: image metrics, temporal
+    # metrics, SfM). False skips them when a caller scores the inputs once for many runs of one dataset.
+    inputs: bool = True
 
     def __post_init__(self) -> None:
         if self.grid_frames < 1:
@@ -288,7 +291,8 @@ def evaluate_run(
     json_path: str | os.PathLike | None = None,
 ) -> dict:
     """Evaluate a training run: its relit test views against ground truth, temporal metrics on the whole relit and
-    input sequences, and (``config.sfm``) SfM on inputs vs relit with the dataset's intrinsics and true poses.
+    input sequences, and (``config.sfm``) SfM on inputs vs relit with the dataset's intrinsics and true poses. With
+    ``config.inputs`` False the inputs are not scored (no ``input`` block, no ``sfm/input`` folder).
 
     Args:
         run_dir: the run folder (``run.json`` with ``data_dir``, and ``relit/``).
@@ -298,7 +302,7 @@ def evaluate_run(
 
     Returns:
         the results dict: top-level keys for the relit sequence, ``input`` with the same keys for the original
-        (uneven) inputs, ``test_views``, ``config`` and ``provenance``.
+        (uneven) inputs (absent when ``config.inputs`` is False), ``test_views``, ``config`` and ``provenance``.
 
     Raises:
         FileNotFoundError: run.json, relit images, inputs or ground truth missing (named).
@@ -325,15 +329,18 @@ def evaluate_run(
     results: dict = {"mode": "run", "run_dir": str(run), "data_dir": str(data.root),
                      "test_views": [f.name for f in test]}
     results.update(score_pairs(relit_pairs, config, "relit vs gt"))
-    results["input"] = score_pairs(input_pairs, config, "input vs gt")
+    if config.inputs:
+        results["input"] = score_pairs(input_pairs, config, "input vs gt")
     if config.temporal:
         results.update(temporal_block([relit_dir / f.name for f in data.frames], config, "relit", data))
-        results["input"].update(temporal_block([f.input_path for f in data.frames], config, "input", data))
+        if config.inputs:
+            results["input"].update(temporal_block([f.input_path for f in data.frames], config, "input", data))
     panels = {}
     if config.sfm:
         names = [f.name for f in data.frames]
         true = {f.name: opengl_to_opencv_c2w(f.c2w_opengl) for f in data.frames}
-        for key, folder, label in (("input", _common_folder(data.frames), "input"), ("relit", relit_dir, "relit")):
+        sequences = [("input", _common_folder(data.frames), "input")] if config.inputs else []
+        for key, folder, label in sequences + [("relit", relit_dir, "relit")]:
             summary, res = _sfm_block(folder, names, out / "sfm" / key, config, label, data.intrinsics, true)
             if key == "input":
                 results["input"]["sfm"] = summary

@@ -187,3 +187,26 @@ def test_temporal_block_needs_one_pose_per_image(run_dir):
     with pytest.raises(ValueError, match="temporal input: 3 images but 12 posed frames"):
         temporal_block(paths, QUIET, "input", data)
     assert temporal_block(paths[:1], QUIET, "input") == {}
+
+
+def test_run_without_inputs_scores_the_relit_sequence_only(run_dir, run_results, tmp_path):
+    """``inputs=False`` drops the ``input`` block (metrics, temporal, SfM of the inputs) and nothing else: the relit
+    numbers are those of the default evaluation, which keeps scoring the inputs."""
+    cfg = EvalConfig(sfm=True, sfm_config=SfmConfig(seed=0), progress=False, num_threads=1, inputs=False)
+    r = evaluate_run(run_dir, cfg, out_dir=tmp_path / "eval")
+    assert "input" not in r and r["config"]["inputs"] is False
+    assert EvalConfig().inputs and run_results["config"]["inputs"] is True and "input" in run_results
+    assert sorted(p.name for p in (tmp_path / "eval" / "sfm").iterdir()) == ["relit"]
+    assert sorted(p.name for p in (run_dir / "eval" / "sfm").iterdir()) == ["input", "relit"]
+
+    def relit_only(results: dict) -> dict:
+        return {k: v for k, v in results.items() if k not in ("input", "config", "provenance")}
+
+    assert relit_only(r) == relit_only(run_results)  # SfM with one thread and a seed is bit-reproducible
+    saved = json.loads((tmp_path / "eval" / "results.json").read_text())
+    assert "input" not in saved and saved["psnr"] == pytest.approx(run_results["psnr"])
+    md = (tmp_path / "eval" / "results.md").read_text()
+    assert "| relit |" in md and "| input (uneven) |" not in md
+    with Image.open(tmp_path / "eval" / "figures" / "sfm_trajectories.png") as one, \
+            Image.open(run_dir / "eval" / "figures" / "sfm_trajectories.png") as two:
+        assert one.size[0] < two.size[0]  # one trajectory panel (relit) instead of two

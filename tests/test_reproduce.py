@@ -40,7 +40,7 @@ def _ours(table: dict) -> list[list]:
 
 def test_report_has_every_table_with_finite_numbers(tiny_run):
     out, seconds, output = tiny_run
-    assert "ran 23 stage(s), skipped 0" in output
+    assert "ran 25 stage(s), skipped 0" in output
     report = (out / "REPORT.md").read_text()
     for heading in ("### Table I —", "### Table II —", "### Table III —", "### Table IV —", "### Runtime",
                     "## Agreement with the paper's ordering"):
@@ -92,6 +92,11 @@ def test_results_json_structure(tiny_run):
     assert [p["step"] for p in auto["curve"]] == [75, 150]
     assert auto["selection"]["seconds"] < auto["curve"][0]["train_seconds"]
     assert set(ds["baselines2d"]) == {"clahe", "msrcr", "cyclegan"}
+    # The uneven inputs are scored once per dataset (eval-inputs stage), not in every method's evaluation.
+    assert ds["input"]["num_images"] == 2 and ds["input"]["sfm"]["total_images"] == 12
+    assert all("input" not in m["metrics"] for m in ds["methods"].values())
+    assert json.loads((out / "inputs" / "bedroom-uneven" / "results.json").read_text())["psnr"] == ds["input"]["psnr"]
+    assert not (out / "runs" / "bedroom-uneven" / "spotless" / "eval" / "sfm" / "input").exists()
     assert results["datasets"]["bedroom-saturated"]["baselines2d"] == {}
     curve = ds["methods"]["spotless"]["curve"]
     assert [p["step"] for p in curve] == [75, 150]
@@ -125,7 +130,7 @@ def test_rerun_skips_everything_and_redoes_an_interrupted_stage(tiny_run):
     config = preset("tiny")
     start = time.perf_counter()
     again = reproduce(config, out, jobs=2)
-    assert again.ran == [] and len(again.skipped) == 23 and time.perf_counter() - start < 5.0
+    assert again.ran == [] and len(again.skipped) == 25 and time.perf_counter() - start < 5.0
 
     # Interrupt one training stage: its marker is gone and a half-written file is left in its run folder.
     stage = "train/bedroom-uneven/3dgs"
@@ -139,6 +144,14 @@ def test_rerun_skips_everything_and_redoes_an_interrupted_stage(tiny_run):
     assert not (run_dir / "partial.tmp").exists() and (run_dir / "eval" / "results.json").is_file()
     after = json.loads((out / "results.json").read_text())["datasets"]["bedroom-uneven"]["methods"]["3dgs"]
     assert after["curve"][-1]["step"] == before["curve"][-1]["step"] == 150
+
+    # Interrupt the inputs' evaluation of one dataset: only it and the report are redone, with the same numbers.
+    stage = "eval-inputs/bedroom-saturated"
+    marker_path(out, stage).unlink()
+    before = json.loads((out / "results.json").read_text())["datasets"]["bedroom-saturated"]["input"]
+    redo = reproduce(config, out, jobs=2)
+    assert redo.retried == [stage] and redo.ran == [stage, "report"]
+    assert json.loads((out / "results.json").read_text())["datasets"]["bedroom-saturated"]["input"] == before
 
 
 def test_other_settings_are_refused(tiny_run):

@@ -72,6 +72,14 @@ def test_auto_training_time_counts_the_selection(auto_run):
     assert curve[1]["psnr_aligned"] == result["metrics"]["psnr_aligned"]
 
 
+def test_method_stage_leaves_the_inputs_to_their_own_stage(auto_run):
+    """A method's evaluation scores its relit sequence only: the dataset's eval-inputs stage scores the inputs."""
+    _, run, result = auto_run
+    assert "input" not in result["metrics"] and result["metrics"]["psnr_aligned"] > 0
+    saved = json.loads((run / "eval" / "results.json").read_text())
+    assert "input" not in saved and saved["config"]["inputs"] is False
+
+
 def test_collect_reads_what_each_run_needed(auto_run, tmp_path):
     """The report's collection adds run_decisions of every run folder; the tables show them."""
     _, auto_dir, result = auto_run
@@ -85,7 +93,10 @@ def test_collect_reads_what_each_run_needed(auto_run, tmp_path):
     for method in ("spotless", "auto"):
         write_marker(tmp_path, f"train/bedroom-uneven/{method}",
                      {"result": json.loads(json.dumps(result)), "seconds": 1.0, "peak_rss_mb": 1.0})
+    inputs = {"psnr": 8.5, "ssim": 0.25, "psnr_aligned": 9.5, "ssim_aligned": 0.3}
+    write_marker(tmp_path, "eval-inputs/bedroom-uneven", {"result": {"metrics": inputs}, "seconds": 1.0})
     collected = collect(tmp_path, config)
+    assert collected["datasets"]["bedroom-uneven"]["input"] == inputs
     methods = collected["datasets"]["bedroom-uneven"]["methods"]
     chosen, count = result["selection"]["chosen"], result["train"]["num_gaussians"]
     assert methods["spotless"]["decisions"] == {"model chosen": "spotless", "Gaussians": 4321}

@@ -10,10 +10,13 @@ from pathlib import Path
 
 import pytest
 
+from spotlessgs.io.atomic import write_json
 from spotlessgs.reproduce.config import ReproduceConfig, preset
 from spotlessgs.reproduce.executor import StageFailedError, execute, threads_per_job
 from spotlessgs.reproduce.pipeline import build_graph, check_or_record_config
-from spotlessgs.reproduce.stages import Stage, StageGraph, is_done, marker_path, read_marker, resolve
+from spotlessgs.reproduce.stages import (
+    Stage, StageGraph, is_done, marker_path, read_marker, resolve, write_marker,
+)
 from spotlessgs.reproduce.tables import (
     all_tables, agreement_notes, best_darkgs, check_at_least, check_auto_vs_spotless, check_order, check_sfm,
     format_cell, model_chosen_cell, model_summary, runtime_table, table1, table2, table3, table4,
@@ -148,8 +151,24 @@ def test_pipeline_graph_shape(tmp_path):
     config = preset("tiny")
     graph = build_graph(config, tmp_path)
     names = set(graph.stages)
-    # 2 renders + 7 trainings per dataset (2 datasets), 2 GAN renders, the GAN, 3 baselines on the uneven set, report
-    assert len(names) == 2 + 14 + 2 + 1 + 3 + 1
+    # 2 renders + 7 trainings and 1 inputs' evaluation per dataset (2 datasets), 2 GAN renders, the GAN, 3 baselines
+    # on the uneven set, report
+    assert len(names) == 2 + 14 + 2 + 2 + 1 + 3 + 1
+    # the uneven inputs are scored once per dataset, with the methods' evaluation settings, after its render only
+    inputs = graph["eval-inputs/bedroom-saturated"]
+    assert inputs.function == "spotlessgs.reproduce.tasks:evaluate_inputs"
+    assert inputs.deps == ("render/bedroom-saturated",) and inputs.clean_on_retry
+    assert inputs.output == tmp_path / "inputs" / "bedroom-saturated"
+    assert inputs.kwargs == {"data_dir": str(tmp_path / "datasets" / "bedroom-saturated"),
+                             "out_dir": str(tmp_path / "inputs" / "bedroom-saturated"), "sfm": True,
+                             "sfm_matcher": "exhaustive", "lpips": True, "seed": 0}
+    for stage in (graph["train/bedroom-saturated/3dgs"], graph["baseline2d/bedroom-uneven/clahe"]):
+        assert {k: stage.kwargs[k] for k in ("sfm", "sfm_matcher", "lpips", "seed")} == {
+            k: inputs.kwargs[k] for k in ("sfm", "sfm_matcher", "lpips", "seed")}
+    assert sorted(n for n in names if n.startswith("eval-inputs/")) == ["eval-inputs/bedroom-saturated",
+                                                                        "eval-inputs/bedroom-uneven"]
+    no_sfm = build_graph(preset("tiny", sfm=False, lpips=False, seed=4), tmp_path)["eval-inputs/bedroom-uneven"]
+    assert (no_sfm.kwargs["sfm"], no_sfm.kwargs["lpips"], no_sfm.kwargs["seed"]) == (False, False, 4)
     auto = graph["train/bedroom-uneven/auto"]
     assert auto.kwargs["variant"] == "auto" and auto.kwargs["selection_min_proxy_iterations"] == 20
     assert auto.output == tmp_path / "runs" / "bedroom-uneven" / "auto" and auto.clean_on_retry
@@ -517,8 +536,44 @@ def test_report_errors_name_the_missing_piece(tmp_path):
     assert load_config(tmp_path) == preset("tiny")  # the recorded config reads back identically
     with pytest.raises(FileNotFoundError, match="stage 'cyclegan/train' has not finished"):
         collect(tmp_path, preset("tiny"))
+    with pytest.raises(FileNotFoundError, match="stage 'eval-inputs/bedroom-uneven' has not finished"):
+        collect(tmp_path, preset("tiny", baselines=()))
+    write_marker(tmp_path, "eval-inputs/bedroom-uneven", {"result": {"metrics": {"psnr": 9.0}}})
     with pytest.raises(FileNotFoundError, match="stage 'train/bedroom-uneven/3dgs' has not finished"):
         collect(tmp_path, preset("tiny", baselines=()))
+
+
+def test_collect_reads_the_inputs_once_per_dataset_from_their_stage(tmp_path):
+    """The Input rows (Tables I, III, IV, the agreement notes) come from each dataset's eval-inputs marker, not from
+    a method's metrics."""
+    from spotlessgs.reproduce.report import collect
+
+    config = preset("tiny", methods=("3dgs", "spotless"), baselines=())
+    check_or_record_config(config, tmp_path)
+    hand = _collected()["datasets"]["bedroom-uneven"]
+    for variant, psnr in (("uneven", 11.0), ("saturated", 7.0)):
+        ds = f"bedroom-{variant}"
+        write_marker(tmp_path, f"eval-inputs/{ds}", {"result": {"metrics": _metrics(psnr, 0.5, 0.5,
+                                                                                     _sfm(1.0, 350.0, 11))},
+                                                      "seconds": 2.0, "peak_rss_mb": 1.0})
+        for method in config.methods:
+            write_marker(tmp_path, f"train/{ds}/{method}", {"result": {k: v for k, v in hand["methods"][method].items()
+                                                                      if k != "decisions"},
+                                                            "seconds": 1.0, "peak_rss_mb": 1.0})
+            write_json(tmp_path / "runs" / ds / method / "run.json", {"model": method})
+    collected = collect(tmp_path, config)
+    for variant, psnr in (("uneven", 11.0), ("saturated", 7.0)):
+        ds = collected["datasets"][f"bedroom-{variant}"]
+        assert ds["input"] == _metrics(psnr, 0.5, 0.5, _sfm(1.0, 350.0, 11))
+        assert all("input" not in m["metrics"] for m in ds["methods"].values())
+    t1 = table1(collected)
+    assert [r[1:4] for r in t1.rows if r[1] == "Input (spotlight-lit)"] == [["Input (spotlight-lit)", 10.0, 0.4],
+                                                                             ["Input (spotlight-lit)", 6.0, 0.4]]
+    assert [r[1:4] for r in table3(collected).rows if r[1] == "Original (spotlight-lit)" and r[0].startswith("bed")] \
+        == [["Original (spotlight-lit)", 1.0, 350.0]] * 2
+    notes = {n.claim: n for n in agreement_notes(collected)}
+    beats = notes["Acceptance on bedroom-saturated: SpotlessGS beats Original on aligned metrics"]
+    assert beats.status == "agrees" and "psnr_aligned 16.500 vs 7.000" in beats.text
 
 
 @pytest.mark.parametrize("name", ["tiny", "quick", "paper"])

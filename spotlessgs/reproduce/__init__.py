@@ -1,8 +1,9 @@
 """`spotless reproduce`: one resumable, parallel pipeline from the shipped rooms to the paper's tables.
 
 Stages (a DAG, see :mod:`spotlessgs.reproduce.pipeline`): render the test rooms (uneven, saturated) and the Cycle-GAN's
-other rooms; train every 3D method (with intermediate scores for the speed-against-error curve), relight and evaluate
-it; train the Cycle-GAN and run the 2D baselines; write REPORT.md, results.json and figures.
+other rooms; evaluate each test dataset's uneven inputs once; train every 3D method (with intermediate scores for the
+speed-against-error curve), relight and evaluate it; train the Cycle-GAN and run the 2D baselines; write REPORT.md,
+results.json and figures.
 """
 
 from spotlessgs.reproduce.config import PRESETS, ReproduceConfig, preset

@@ -5,8 +5,9 @@ Output folder layout::
     OUT/reproduce.json                    the resolved config (a rerun with another config is refused)
     OUT/datasets/<room>-<variant>/        rendered test datasets (simulator)
     OUT/datasets/gan-<room>/              other rooms' renders for the Cycle-GAN
-    OUT/runs/<room>-<variant>/<method>/   training runs (+ relit/, eval/, curve/; auto: model_selection.json,
-                                          selection/ and gaussian_budget.json)
+    OUT/inputs/<room>-<variant>/          the uneven inputs' evaluation, once per dataset (results.json, sfm/)
+    OUT/runs/<room>-<variant>/<method>/   training runs (+ relit/, eval/ without the inputs, curve/; auto:
+                                          model_selection.json, selection/ and gaussian_budget.json)
     OUT/cyclegan/                         the Cycle-GAN checkpoint
     OUT/baselines2d/<room>-<variant>/<method>/  enhanced images and their evaluation
     OUT/.stages/...                       done-markers with each stage's summary
@@ -26,6 +27,8 @@ from spotlessgs.reproduce.tasks import AUTO_METHOD
 
 CONFIG_FILE = "reproduce.json"
 TASKS = "spotlessgs.reproduce.tasks"
+# Stage family that evaluates a dataset's uneven inputs once (``eval-inputs/<dataset>``; the report reads its marker).
+INPUTS_STAGE = "eval-inputs"
 
 
 def dataset_id(room: str, variant: str) -> str:
@@ -37,7 +40,8 @@ def build_graph(config: ReproduceConfig, out: Path) -> StageGraph:
     """Every stage of the pipeline for ``config`` writing under ``out``.
 
     The list order is the scheduling priority among ready stages: renders first (everything waits for them), then
-    the Cycle-GAN (long, independent of the 3D runs), then the 3D runs, the 2D baselines and the report.
+    the Cycle-GAN (long, independent of the 3D runs), then the 3D runs, the inputs' evaluation of each dataset
+    (``eval-inputs/<dataset>``: the same for every method, so scored once), the 2D baselines and the report.
     """
     out = Path(out)
     stages: list[Stage] = []
@@ -77,6 +81,11 @@ def build_graph(config: ReproduceConfig, out: Path) -> StageGraph:
                         "train_preset": config.train_preset, "iterations": config.train_iterations,
                         "image_width": config.train_width, "curve_fractions": tuple(config.curve_fractions),
                         **selection, **common}))
+    for room, variant in config.datasets():
+        ds = dataset_id(room, variant)
+        stages.append(Stage(
+            f"{INPUTS_STAGE}/{ds}", f"{TASKS}:evaluate_inputs", deps=(f"render/{ds}",), output=out / "inputs" / ds,
+            kwargs={"data_dir": str(out / "datasets" / ds), "out_dir": str(out / "inputs" / ds), **common}))
     for room, variant in config.datasets():
         if variant not in config.baseline_variants:
             continue

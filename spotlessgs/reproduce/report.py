@@ -30,12 +30,13 @@ def load_config(out: Path) -> ReproduceConfig:
 
 def collect(out: Path, config: ReproduceConfig) -> dict[str, Any]:
     """Every finished stage's summary, arranged per dataset (the structure documented in :mod:`tables`), with what
-    each 3D run needed (``decisions``: spotlessgs.training.selection.run_decisions of its run folder).
+    each 3D run needed (``decisions``: spotlessgs.training.selection.run_decisions of its run folder) and the uneven
+    inputs' scores (``input``) from the dataset's ``eval-inputs`` stage.
 
     Raises:
         FileNotFoundError: a stage the report needs has not finished (named).
     """
-    from spotlessgs.reproduce.pipeline import dataset_id
+    from spotlessgs.reproduce.pipeline import INPUTS_STAGE, dataset_id
     from spotlessgs.training.selection import run_decisions
 
     collected: dict[str, Any] = {"datasets": {}, "cyclegan": None}
@@ -44,14 +45,13 @@ def collect(out: Path, config: ReproduceConfig) -> dict[str, Any]:
             "stage_seconds": read_marker(out, "cyclegan/train")["seconds"]}
     for room, variant in config.datasets():
         ds = dataset_id(room, variant)
-        entry: dict[str, Any] = {"room": room, "variant": variant, "methods": {}, "baselines2d": {}, "input": None}
+        entry: dict[str, Any] = {"room": room, "variant": variant, "methods": {}, "baselines2d": {},
+                                 "input": read_marker(out, f"{INPUTS_STAGE}/{ds}")["result"]["metrics"]}
         for method in config.methods:
             marker = read_marker(out, f"train/{ds}/{method}")
             entry["methods"][method] = marker["result"]
             entry["methods"][method]["stage"] = {"seconds": marker["seconds"], "peak_rss_mb": marker["peak_rss_mb"]}
             entry["methods"][method]["decisions"] = run_decisions(out / "runs" / ds / method)
-            if entry["input"] is None:
-                entry["input"] = marker["result"]["metrics"].get("input")
         if variant in config.baseline_variants:
             for method in config.baselines:
                 entry["baselines2d"][method] = read_marker(out, f"baseline2d/{ds}/{method}")["result"]

@@ -3,7 +3,8 @@
 Input (``collected``, built by :mod:`spotlessgs.reproduce.report`)::
 
     {"datasets": {DS: {"room", "variant",
-                       "input": {psnr, ssim, lpips, *_aligned, tmp_psnr, tmp_ssim, sfm: {...}},
+                       "input": {psnr, ssim, lpips, *_aligned, tmp_psnr, tmp_ssim, sfm: {...}} (the uneven inputs,
+                                scored once per dataset by its eval-inputs stage),
                        "methods": {METHOD: {"metrics": {same keys, sfm}, "train": {...}, "relight": {...},
                                             "curve": [...], "selection": {...} (auto only),
                                             "decisions": {"model chosen": str, "Gaussians": int | None}}},

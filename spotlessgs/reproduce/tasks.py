@@ -79,13 +79,72 @@ def render_room(scene_file: str, out_dir: str, variant: str, frames: int, width:
 # 3D methods: train (with intermediate scores), relight, evaluate
 
 
-def _eval_config(sfm: bool, sfm_matcher: str, lpips: bool, seed: int, threads: int):
-    """The evaluation settings shared by every method (identical SfM settings for every sequence)."""
+def _eval_config(sfm: bool, sfm_matcher: str, lpips: bool, seed: int, threads: int, inputs: bool = True):
+    """The evaluation settings shared by every method (identical SfM settings for every sequence); ``inputs``
+    False: evaluate_run leaves the dataset's inputs to the ``eval-inputs`` stage (:func:`evaluate_inputs`)."""
     from evaluation.runner import EvalConfig
     from evaluation.sfm import SfmConfig
 
     return EvalConfig(lpips=lpips, sfm=sfm, sfm_config=SfmConfig(matcher=sfm_matcher, num_threads=1, seed=seed),
-                      num_threads=threads, progress=False)
+                      num_threads=threads, progress=False, inputs=inputs)
+
+
+def evaluate_inputs(data_dir: str, out_dir: str, sfm: bool, sfm_matcher: str, lpips: bool, seed: int,
+                    threads: int) -> dict[str, Any]:
+    """Score a dataset's original (uneven) inputs once for every method: the ``input`` block of
+    ``evaluation.runner.evaluate_run`` with the methods' settings (:func:`_eval_config`), computed by the same
+    functions on the same files: image metrics of the test views' inputs against the ground truth, temporal metrics
+    of the whole input sequence, SfM of the input folder with the dataset's intrinsics and true poses.
+
+    Writes ``out_dir/results.json`` (with per-image scores, config and provenance) and the SfM work folder
+    ``out_dir/sfm``.
+
+    Returns:
+        ``{"metrics": ...}``: the results without per-image lists, configs and provenance (what a method's
+        ``metrics["input"]`` held when every method scored the inputs itself).
+
+    Raises:
+        ValueError: no test view with ground truth, or input images spread over several folders (named).
+        FileNotFoundError: an input or ground-truth image listed in transforms.json is missing (named).
+    """
+    from dataclasses import asdict
+
+    from evaluation.dataset import read_dataset
+    from evaluation.folders import ImagePair
+    from evaluation.report import write_results_json
+    from evaluation.runner import score_pairs, temporal_block
+    from evaluation.sfm import run_sfm
+    from spotlessgs.io.atomic import to_jsonable
+    from spotlessgs.io.cameras import opengl_to_opencv_c2w
+    from spotlessgs.io.provenance import provenance
+
+    config = _eval_config(sfm, sfm_matcher, lpips, seed, threads)
+    data, out = read_dataset(data_dir), Path(out_dir)
+    test = [f for f in data.test_frames if f.gt_path is not None]
+    if not test:
+        raise ValueError(f"{data.root}: no test view has a ground-truth image (gt_file_path)")
+    for f in test:
+        for path in (f.gt_path, f.input_path):
+            if not path.is_file():
+                raise FileNotFoundError(f"{path}: image listed in transforms.json does not exist")
+    folders = sorted({str(f.input_path.parent) for f in data.frames})
+    if config.sfm and len(folders) != 1:
+        raise ValueError(f"{data.root}: input images are spread over {len(folders)} folders ({folders}); SfM needs "
+                         "them in one")
+    results: dict[str, Any] = {"mode": "inputs", "data_dir": str(data.root), "test_views": [f.name for f in test]}
+    results.update(score_pairs([ImagePair(f.name, f.input_path, f.gt_path) for f in test], config, "input vs gt"))
+    if config.temporal:
+        results.update(temporal_block([f.input_path for f in data.frames], config, "input", data))
+    if config.sfm:
+        names = [f.name for f in data.frames]
+        true = {f.name: opengl_to_opencv_c2w(f.c2w_opengl) for f in data.frames}
+        sfm_result = run_sfm(Path(folders[0]), names, out / "sfm", config.sfm_config, data.intrinsics)
+        results["sfm"] = sfm_result.summary(true, names)
+    results["config"] = asdict(config)
+    results["provenance"] = provenance(extra_packages=("pycolmap", "kornia"))
+    write_results_json(out / "results.json", results)
+    metrics = {k: v for k, v in compact_metrics(results).items() if k not in ("mode", "data_dir")}
+    return {"metrics": to_jsonable(metrics)}
 
 
 def relight_views(run_dir: Path, which: str, out_dir: Path) -> dict[str, Any]:
@@ -179,7 +238,8 @@ def train_method(data_dir: str, run_dir: str, variant: str, train_preset: str, i
     training time counting the selection first (the curve starts at the selection's cost).
 
     Returns:
-        ``metrics`` (evaluate_run's results without per-image lists), ``train`` (steps, seconds: the sum of the
+        ``metrics`` (evaluate_run's results without per-image lists, and without the inputs' ``input`` block: see
+        :func:`evaluate_inputs`), ``train`` (steps, seconds: the sum of the
         training loops' wall time plus, for ``auto``, the selection's wall time ``selection_seconds``; ms_per_step of
         the training loops alone, gaussians, peak_rss_mb of the process while training), ``selection`` (``auto``
         only, see select_auto_model), ``relight`` (render_run's summary of all views + ``peak_rss_mb`` and
@@ -214,7 +274,9 @@ def train_method(data_dir: str, run_dir: str, variant: str, train_preset: str, i
 
     relit = relight_in_fresh_process(run, threads)
 
-    results = evaluate_run(run, _eval_config(sfm, sfm_matcher, lpips, seed, threads), out_dir=run / "eval")
+    # The inputs are the same for every method: the dataset's eval-inputs stage scores them once.
+    results = evaluate_run(run, _eval_config(sfm, sfm_matcher, lpips, seed, threads, inputs=False),
+                           out_dir=run / "eval")
     metrics = compact_metrics(results)
     train_seconds = selection_seconds + loop_seconds
     curve.append({"step": config.iterations, "train_seconds": train_seconds,
