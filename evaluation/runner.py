@@ -276,12 +276,51 @@ def _work_dir(out: Path | None) -> Iterator[Path]:
             yield Path(tmp)
 
 
-def _common_folder(frames: Sequence[DatasetFrame]) -> Path:
-    """The single folder holding every input image (SfM reads images from one folder)."""
-    folders = {f.input_path.parent for f in frames}
+def _common_folder(data: DatasetViews) -> Path:
+    """The single folder holding every input image of ``data`` (SfM reads images from one folder)."""
+    folders = sorted({str(f.input_path.parent) for f in data.frames})
     if len(folders) != 1:
-        raise ValueError(f"input images are spread over {len(folders)} folders; SfM needs them in one")
-    return folders.pop()
+        raise ValueError(f"{data.root}: input images are spread over {len(folders)} folders ({folders}); SfM needs "
+                         "them in one")
+    return Path(folders[0])
+
+
+def scored_test_frames(data: DatasetViews) -> list[DatasetFrame]:
+    """The dataset's test frames with ground truth, after checking that their input and ground-truth files exist.
+
+    Raises:
+        ValueError: no test view has a ground-truth image; FileNotFoundError: a listed image is missing (named).
+    """
+    test = [f for f in data.test_frames if f.gt_path is not None]
+    if not test:
+        raise ValueError(f"{data.root}: no test view has a ground-truth image (gt_file_path)")
+    for f in test:
+        for p in (f.gt_path, f.input_path):
+            if not p.is_file():
+                raise FileNotFoundError(f"{p}: image listed in transforms.json does not exist")
+    return test
+
+
+def score_inputs(data: DatasetViews, config: EvalConfig, sfm_dir: Path) -> tuple[dict, SfmResult | None]:
+    """The original (uneven) inputs of a dataset, scored like a relit sequence: image metrics of the test views'
+    inputs against the ground truth, temporal metrics of the whole input sequence (``config.temporal``), and SfM of
+    the input folder with the dataset's intrinsics and true poses (``config.sfm``; work folder ``sfm_dir``).
+
+    Returns:
+        (the scores, with an ``sfm`` summary when run; the SfmResult or None).
+    """
+    test = scored_test_frames(data)
+    folder = _common_folder(data) if config.sfm else None  # before any work: a clear error, early
+    scores = score_pairs([ImagePair(f.name, f.input_path, f.gt_path) for f in test], config, "input vs gt")
+    if config.temporal:
+        scores.update(temporal_block([f.input_path for f in data.frames], config, "input", data))
+    result = None
+    if config.sfm:
+        names = [f.name for f in data.frames]
+        true = {f.name: opengl_to_opencv_c2w(f.c2w_opengl) for f in data.frames}
+        scores["sfm"], result = _sfm_block(folder, names, sfm_dir, config, "input",
+                                           data.intrinsics, true)
+    return scores, result
 
 
 def evaluate_run(
@@ -316,38 +355,26 @@ def evaluate_run(
     missing = [f.name for f in data.frames if f.name not in relit_names]
     if missing:
         raise FileNotFoundError(f"{relit_dir}: missing relit images for {len(missing)} view(s), e.g. {missing[:3]}")
-    test = [f for f in data.test_frames if f.gt_path is not None]
-    if not test:
-        raise ValueError(f"{data.root}: no test view has a ground-truth image (gt_file_path)")
-    for f in test:
-        for p in (f.gt_path, f.input_path):
-            if not p.is_file():
-                raise FileNotFoundError(f"{p}: image listed in transforms.json does not exist")
+    test = scored_test_frames(data)
     relit_pairs = [ImagePair(f.name, relit_dir / f.name, f.gt_path) for f in test]
-    input_pairs = [ImagePair(f.name, f.input_path, f.gt_path) for f in test]
 
     results: dict = {"mode": "run", "run_dir": str(run), "data_dir": str(data.root),
                      "test_views": [f.name for f in test]}
     results.update(score_pairs(relit_pairs, config, "relit vs gt"))
-    if config.inputs:
-        results["input"] = score_pairs(input_pairs, config, "input vs gt")
     if config.temporal:
         results.update(temporal_block([relit_dir / f.name for f in data.frames], config, "relit", data))
-        if config.inputs:
-            results["input"].update(temporal_block([f.input_path for f in data.frames], config, "input", data))
     panels = {}
+    names = [f.name for f in data.frames]
+    true = {f.name: opengl_to_opencv_c2w(f.c2w_opengl) for f in data.frames}
+    if config.inputs:
+        results["input"], input_sfm = score_inputs(data, config, out / "sfm" / "input")
+        if input_sfm is not None:
+            panels[f"input ({input_sfm.registered_images}/{input_sfm.total_images} registered)"] = \
+                _trajectory_panel(input_sfm, names, true)
     if config.sfm:
-        names = [f.name for f in data.frames]
-        true = {f.name: opengl_to_opencv_c2w(f.c2w_opengl) for f in data.frames}
-        sequences = [("input", _common_folder(data.frames), "input")] if config.inputs else []
-        for key, folder, label in sequences + [("relit", relit_dir, "relit")]:
-            summary, res = _sfm_block(folder, names, out / "sfm" / key, config, label, data.intrinsics, true)
-            if key == "input":
-                results["input"]["sfm"] = summary
-            else:
-                results["sfm"] = summary
-            panels[f"{label} ({res.registered_images}/{res.total_images} registered)"] = _trajectory_panel(
-                res, names, true)
+        results["sfm"], res = _sfm_block(relit_dir, names, out / "sfm" / "relit", config, "relit", data.intrinsics,
+                                         true)
+        panels[f"relit ({res.registered_images}/{res.total_images} registered)"] = _trajectory_panel(res, names, true)
     results["config"] = asdict(config)
     results["provenance"] = provenance(extra_packages=("pycolmap", "kornia"))
 

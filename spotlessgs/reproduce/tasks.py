@@ -110,36 +110,16 @@ def evaluate_inputs(data_dir: str, out_dir: str, sfm: bool, sfm_matcher: str, lp
     from dataclasses import asdict
 
     from evaluation.dataset import read_dataset
-    from evaluation.folders import ImagePair
     from evaluation.report import write_results_json
-    from evaluation.runner import score_pairs, temporal_block
-    from evaluation.sfm import run_sfm
+    from evaluation.runner import score_inputs
     from spotlessgs.io.atomic import to_jsonable
-    from spotlessgs.io.cameras import opengl_to_opencv_c2w
     from spotlessgs.io.provenance import provenance
 
     config = _eval_config(sfm, sfm_matcher, lpips, seed, threads)
     data, out = read_dataset(data_dir), Path(out_dir)
-    test = [f for f in data.test_frames if f.gt_path is not None]
-    if not test:
-        raise ValueError(f"{data.root}: no test view has a ground-truth image (gt_file_path)")
-    for f in test:
-        for path in (f.gt_path, f.input_path):
-            if not path.is_file():
-                raise FileNotFoundError(f"{path}: image listed in transforms.json does not exist")
-    folders = sorted({str(f.input_path.parent) for f in data.frames})
-    if config.sfm and len(folders) != 1:
-        raise ValueError(f"{data.root}: input images are spread over {len(folders)} folders ({folders}); SfM needs "
-                         "them in one")
-    results: dict[str, Any] = {"mode": "inputs", "data_dir": str(data.root), "test_views": [f.name for f in test]}
-    results.update(score_pairs([ImagePair(f.name, f.input_path, f.gt_path) for f in test], config, "input vs gt"))
-    if config.temporal:
-        results.update(temporal_block([f.input_path for f in data.frames], config, "input", data))
-    if config.sfm:
-        names = [f.name for f in data.frames]
-        true = {f.name: opengl_to_opencv_c2w(f.c2w_opengl) for f in data.frames}
-        sfm_result = run_sfm(Path(folders[0]), names, out / "sfm", config.sfm_config, data.intrinsics)
-        results["sfm"] = sfm_result.summary(true, names)
+    scores, _ = score_inputs(data, config, out / "sfm")
+    results: dict[str, Any] = {"mode": "inputs", "data_dir": str(data.root),
+                               "test_views": [f.name for f in data.test_frames if f.gt_path is not None], **scores}
     results["config"] = asdict(config)
     results["provenance"] = provenance(extra_packages=("pycolmap", "kornia"))
     write_results_json(out / "results.json", results)
