@@ -212,7 +212,6 @@ def test_resume_equals_an_uninterrupted_run(bedroom, tmp_path):
 @pytest.mark.blender
 def test_nan_stops_training_and_keeps_the_last_good_checkpoint(bedroom, tmp_path, monkeypatch):
     import spotlessgs.training.trainer as trainer_mod
-    from spotlessgs.training.checkpoint import load_checkpoint
 
     real = trainer_mod.photometric_loss
     calls = {"n": 0}
@@ -223,8 +222,17 @@ def test_nan_stops_training_and_keeps_the_last_good_checkpoint(bedroom, tmp_path
         return (loss * float("nan") if calls["n"] == 25 else loss), parts
 
     monkeypatch.setattr(trainer_mod, "photometric_loss", poisoned)
+    _assert_diverges_and_keeps_step_20(bedroom, tmp_path, r"step 24: loss is nan.*last good checkpoint")
+
+
+def _assert_diverges_and_keeps_step_20(bedroom, tmp_path, match):
+    """A 40-step darkgs run with checkpoints every 20 steps stops with ``match`` and leaves the step-20 checkpoint,
+    finite."""
+    import spotlessgs.training.trainer as trainer_mod
+    from spotlessgs.training.checkpoint import load_checkpoint
+
     cfg = _tiny(iterations=40, image_width=40, checkpoint_every=20, densify_from=1000)
-    with pytest.raises(trainer_mod.TrainingDivergedError, match=r"step 24: loss is nan.*last good checkpoint"):
+    with pytest.raises(trainer_mod.TrainingDivergedError, match=match):
         trainer_mod.train(bedroom, tmp_path / "run", "darkgs", cfg, seed=0, progress=False)
     ckpt = load_checkpoint(tmp_path / "run")
     assert ckpt["step"] == 20
@@ -235,7 +243,6 @@ def test_nan_stops_training_and_keeps_the_last_good_checkpoint(bedroom, tmp_path
 def test_a_nan_parameter_never_reaches_a_checkpoint(bedroom, tmp_path, monkeypatch):
     """A NaN in a parameter no render uses (darkgs ignores the vanilla SH colour) is caught before the next save."""
     import spotlessgs.training.trainer as trainer_mod
-    from spotlessgs.training.checkpoint import load_checkpoint
 
     scenes = []
     real_build, real_loss = trainer_mod.build_optimizers, trainer_mod.photometric_loss
@@ -255,12 +262,7 @@ def test_a_nan_parameter_never_reaches_a_checkpoint(bedroom, tmp_path, monkeypat
 
     monkeypatch.setattr(trainer_mod, "build_optimizers", capture)
     monkeypatch.setattr(trainer_mod, "photometric_loss", poison_after_step_24)
-    cfg = _tiny(iterations=40, image_width=40, checkpoint_every=20, densify_from=1000)
-    with pytest.raises(trainer_mod.TrainingDivergedError, match=r"step 39: parameter 'shN'.*last good checkpoint"):
-        trainer_mod.train(bedroom, tmp_path / "run", "darkgs", cfg, seed=0, progress=False)
-    ckpt = load_checkpoint(tmp_path / "run")
-    assert ckpt["step"] == 20
-    assert all(torch.isfinite(t).all() for t in ckpt["gaussians"].values())
+    _assert_diverges_and_keeps_step_20(bedroom, tmp_path, r"step 39: parameter 'shN'.*last good checkpoint")
 
 
 @pytest.mark.blender
