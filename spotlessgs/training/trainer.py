@@ -351,7 +351,10 @@ def train(
                 raise TrainingDivergedError(f"step {step}: the render of view {views.names[k]} has NaN/Inf; "
                                             f"the last good checkpoint {ckpt_file} is intact")
             target = images[k]
-            if held_out is not None:  # held-out pixels show the render itself: no error, no gradient there
+            # Held-out pixels show the render itself, clamped to [0, 1]: no error and no gradient there, except that a
+            # render above 1 is pulled down to 1 (marking them clipped too would remove that; the measured selection
+            # results were made with this form).
+            if held_out is not None:
                 target = torch.where(held_out[k][..., None], out.image.detach().clamp(0.0, 1.0), target)
             loss, parts = photometric_loss(out.image, target, saturated[k], config.ssim_lambda)
             if prior is not None and scene.appearance.light is not None:
