@@ -244,7 +244,6 @@ def select_model(
         final = [score(candidate_model(d, brdf), proxy, winner_dir, "light") for d in degrees]
     for folder in selection_dir.iterdir():  # proxies keep their metrics and summaries, not their checkpoints
         shutil.rmtree(folder / "checkpoints", ignore_errors=True)
-    results = scored
     chosen = choose(final, selection.tolerance_db)
     best = max(final, key=lambda r: r.validation_psnr)
     decision = {
@@ -256,7 +255,7 @@ def select_model(
         "chosen_model": dataclasses.asdict(chosen.model),
         "best": best.name,
         "tolerance_db": selection.tolerance_db,
-        "candidates": [dataclasses.asdict(r) for r in results],
+        "candidates": [dataclasses.asdict(r) for r in scored],
         "base": {"steps": base.steps, "validation_psnr": base.validation_psnr, "ms_per_step": base.ms_per_step},
         "settings": settings,
     }

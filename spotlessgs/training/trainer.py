@@ -391,16 +391,13 @@ def train(
     steps_done = max(end - start, 0)
     test_psnr = evaluate_reconstruction(scene, views, config) if end == config.iterations else None
     val_psnr = None
-    if end == config.iterations and held_out is not None:
-        scene.eval()
+    held_out_views = split.validation if not config.validation_rejoin else []
+    if end == config.iterations and (held_out is not None or held_out_views):
+        scene.eval()  # score the held-out pixel blocks of every training view, or the held-out views
         val_psnr = validation_psnr(scene, views.c2w.to(device), views.viewmats.to(device), views.K.to(device),
-                                   views.images.to(device), views.train, views.width, views.height,
-                                   config.raster_backend, config.num_threads, pixel_masks=held_out)
-    elif end == config.iterations and split.validation and not config.validation_rejoin:
-        scene.eval()
-        val_psnr = validation_psnr(scene, views.c2w.to(device), views.viewmats.to(device), views.K.to(device),
-                                   views.images.to(device), split.validation, views.width, views.height,
-                                   config.raster_backend, config.num_threads)
+                                   views.images.to(device), views.train if held_out is not None else held_out_views,
+                                   views.width, views.height, config.raster_backend, config.num_threads,
+                                   pixel_masks=held_out)
     result = TrainResult(run_dir, end, seconds, 1000.0 * seconds / max(steps_done, 1), len(scene.gaussians),
                          loss_value, test_psnr, val_psnr)
     if end == config.iterations:
