@@ -28,6 +28,7 @@ SFM_COLUMNS: tuple[tuple[str, str, str], ...] = (
     ("observations_per_image", "Obs./image ↑", "{:.1f}"),
     ("registered_images", "Registered", "{}"),
     ("points3d", "3D points", "{}"),
+    ("models", "Sub-models", "{}"),
 )
 
 
@@ -73,6 +74,8 @@ def markdown_report(results: dict, title: str = "Evaluation") -> str:
             lines.append(f"| {label} | " + " | ".join(_fmt(r.get(k), f) for k, _, f in cols) + " |")
         lines.append("")
     sfm_rows = [(label, r["sfm"]) for label, r in rows if isinstance(r.get("sfm"), dict)]
+    if isinstance(results.get("input"), dict) and isinstance(results["input"].get("sfm_gt"), dict):
+        sfm_rows.append(("ground truth (evenly lit, reference)", results["input"]["sfm_gt"]))
     if sfm_rows:
         has_traj = any(isinstance(s.get("trajectory"), dict) for _, s in sfm_rows)
         head = [t for _, t, _ in SFM_COLUMNS] + (["ATE RMSE ↓", "RRE (deg) ↓"] if has_traj else [])

@@ -189,20 +189,24 @@ def _sfm_block(
 
 
 def _trajectory_panel(result: SfmResult, names: Sequence[str], true_c2w: dict | None) -> dict:
-    """Plot data for one SfM result: centres in time order, points, true centres (estimate aligned to them)."""
-    order = [n for n in names if n in result.poses_c2w]
-    centres = np.array([result.poses_c2w[n][:3, 3] for n in order]).reshape(-1, 3)
-    points = result.points_xyz
+    """Plot data for one SfM result: centres in time order, points, true centres. With true poses every sub-model is
+    aligned to them on its own (its sub-models' frames are unrelated); without, the largest sub-model is shown."""
     if true_c2w is None:
-        return {"centres": centres, "points": points}
-    errs = result.trajectory_errors(true_c2w, names)
-    if errs is None:
-        return {"centres": np.zeros((0, 3)), "points": np.zeros((0, 3)),
-                "true_centres": np.array([true_c2w[n][:3, 3] for n in names])}
-    sim = errs.alignment
+        model = result.models[0] if result.models else None
+        order = [n for n in names if model is not None and n in model.poses_c2w]
+        return {"centres": np.array([model.poses_c2w[n][:3, 3] for n in order]).reshape(-1, 3),
+                "points": model.points_xyz if model is not None else np.zeros((0, 3))}
+    aligned = {}
+    points = [np.zeros((0, 3))]
+    for model, common, errs in result.model_alignments(true_c2w, names):
+        sim = errs.alignment
+        aligned.update({n: sim.apply(model.poses_c2w[n][None, :3, 3])[0] for n in common})
+        if len(model.points_xyz):
+            points.append(sim.apply(model.points_xyz))
+    order = [n for n in names if n in aligned]
     return {
-        "centres": sim.apply(centres),
-        "points": sim.apply(points) if len(points) else points,
+        "centres": np.array([aligned[n] for n in order]).reshape(-1, 3),
+        "points": np.concatenate(points),
         "true_centres": np.array([true_c2w[n][:3, 3] for n in names]),
     }
 
@@ -306,8 +310,12 @@ def score_inputs(data: DatasetViews, config: EvalConfig, sfm_dir: Path) -> tuple
     inputs against the ground truth, temporal metrics of the whole input sequence (``config.temporal``), and SfM of
     the input folder with the dataset's intrinsics and true poses (``config.sfm``; work folder ``sfm_dir``).
 
+    With SfM, when every frame has a ground-truth image in one folder (the simulator's datasets), SfM also runs on
+    the evenly lit ground truth (``sfm_gt``, work folder ``<sfm_dir>_gt``): the reference for what perfect relighting
+    would give the same pipeline.
+
     Returns:
-        (the scores, with an ``sfm`` summary when run; the SfmResult or None).
+        (the scores, with ``sfm`` and ``sfm_gt`` summaries when run; the inputs' SfmResult or None).
     """
     test = scored_test_frames(data)
     folder = _common_folder(data) if config.sfm else None  # before any work: a clear error, early
@@ -320,7 +328,23 @@ def score_inputs(data: DatasetViews, config: EvalConfig, sfm_dir: Path) -> tuple
         true = {f.name: opengl_to_opencv_c2w(f.c2w_opengl) for f in data.frames}
         scores["sfm"], result = _sfm_block(folder, names, sfm_dir, config, "input",
                                            data.intrinsics, true)
+        gt_folder = _ground_truth_folder(data)
+        if gt_folder is not None:
+            scores["sfm_gt"], _ = _sfm_block(gt_folder, names, sfm_dir.with_name(sfm_dir.name + "_gt"), config,
+                                             "ground truth", data.intrinsics, true)
     return scores, result
+
+
+def _ground_truth_folder(data: DatasetViews) -> Path | None:
+    """The single folder holding a ground-truth image of every frame of ``data`` with the input's file name (None
+    when some frame has none, or they are spread over several folders or named otherwise)."""
+    paths = [f.gt_path for f in data.frames]
+    if any(p is None or not p.is_file() for p in paths):
+        return None
+    folders = {p.parent for p in paths}
+    if len(folders) != 1 or any(p.name != f.name for p, f in zip(paths, data.frames)):
+        return None
+    return folders.pop()
 
 
 def evaluate_run(

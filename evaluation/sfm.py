@@ -3,6 +3,14 @@
 Used to ask whether relit images help a classical SfM pipeline (METHOD §7): run it on the original (uneven) and on the
 relit sequence with the same settings and compare reprojection error, observations per image, registered images and
 points, and the trajectory against the true poses when they are known.
+
+COLMAP's incremental mapper may split a sequence into several sub-models where consecutive images share too few
+matches: on the simulator's rectangular loops the camera turns by 90 degrees between two frames at every corner, so a
+loop reconstructs as one sub-model per side (60 frames at 160x120: four sub-models of 14-16 images; the largest alone
+would measure a quarter of the sequence). With ``SfmConfig.all_models`` (default) the statistics pool every sub-model:
+registered images and points are summed, the reprojection error is COLMAP's mean over all 3D points of all sub-models,
+observations per image are all observations over all registered images, and each sub-model is aligned to the true
+poses on its own before the trajectory errors are pooled.
 """
 
 from __future__ import annotations
@@ -15,7 +23,7 @@ from typing import Callable, Literal, Mapping, Sequence
 
 import numpy as np
 
-from evaluation.trajectory import TrajectoryErrors, trajectory_errors
+from evaluation.trajectory import TrajectoryErrors, pool_trajectory_errors, trajectory_errors
 from spotlessgs.io.cameras import Intrinsics
 
 
@@ -30,6 +38,7 @@ class SfmConfig:
     num_threads: int = 1  # CPU threads for extraction, matching and mapping (1: bit-reproducible; more may vary)
     seed: int = 0  # random seed for COLMAP's RANSAC and mapping (deterministic runs)
     refine_intrinsics: bool = False  # let bundle adjustment refine known intrinsics (False keeps them fixed)
+    all_models: bool = True  # pool the statistics of every sub-model the mapper builds (False: the largest only)
     verbose: bool = False  # let COLMAP log its INFO messages to stderr (False: warnings and errors only)
 
     def __post_init__(self) -> None:
@@ -41,17 +50,36 @@ class SfmConfig:
 
 
 @dataclass(frozen=True)
+class SfmModel:
+    """One sub-model of an SfM run: registered poses and sparse points, in the sub-model's own arbitrary frame."""
+
+    poses_c2w: dict[str, np.ndarray]  # image name → (4, 4) camera-to-world, OpenCV axes
+    points_xyz: np.ndarray  # (P, 3) sparse points
+    points_rgb: np.ndarray  # (P, 3) uint8 colours of the points
+    point_errors_px: np.ndarray  # (P,) mean reprojection error of each point over its track (px)
+    observations: int  # 2D observations of the points (sum of the track lengths)
+
+
+@dataclass(frozen=True)
 class SfmResult:
-    """Outcome of one SfM run: statistics, registered poses and the sparse cloud of the largest model."""
+    """Outcome of one SfM run: statistics over the sub-models it pools, and each sub-model (largest first)."""
 
     total_images: int  # images given to the pipeline
-    registered_images: int  # images registered in the largest model
-    points3d: int  # 3D points of the largest model
-    reprojection_error_px: float | None  # mean reprojection error (px); None when nothing was reconstructed
-    observations_per_image: float | None  # mean observations per registered image; None when nothing registered
-    poses_c2w: dict[str, np.ndarray]  # image name → (4, 4) camera-to-world, OpenCV axes, model's arbitrary frame
-    points_xyz: np.ndarray  # (P, 3) sparse points in the model's frame
-    points_rgb: np.ndarray  # (P, 3) uint8 colours of the points
+    registered_images: int  # images registered in the pooled sub-models
+    points3d: int  # 3D points of the pooled sub-models
+    reprojection_error_px: float | None  # mean reprojection error over all points (px); None when nothing was built
+    observations_per_image: float | None  # observations per registered image; None when nothing registered
+    models: tuple[SfmModel, ...] = ()  # the pooled sub-models, most registered images first
+
+    @property
+    def poses_c2w(self) -> dict[str, np.ndarray]:
+        """Image name → (4, 4) camera-to-world of every pooled sub-model (each in its own frame)."""
+        return {name: pose for model in self.models for name, pose in model.poses_c2w.items()}
+
+    @property
+    def largest_model_images(self) -> int:
+        """Images registered in the largest sub-model (0 when none)."""
+        return len(self.models[0].poses_c2w) if self.models else 0
 
     def summary(self, true_c2w: Mapping[str, np.ndarray] | None = None, order: Sequence[str] | None = None) -> dict:
         """JSON-ready statistics; with true poses (name → (4, 4) c2w, OpenCV axes) also trajectory errors.
@@ -66,6 +94,8 @@ class SfmResult:
             "registered_images": self.registered_images,
             "total_images": self.total_images,
             "points3d": self.points3d,
+            "models": len(self.models),
+            "largest_model_images": self.largest_model_images,
         }
         if true_c2w is not None:
             errs = self.trajectory_errors(true_c2w, order)
@@ -78,16 +108,30 @@ class SfmResult:
             }
         return out
 
+    def model_alignments(
+        self, true_c2w: Mapping[str, np.ndarray], order: Sequence[str] | None = None
+    ) -> list[tuple[SfmModel, list[str], TrajectoryErrors]]:
+        """Each sub-model with at least 3 poses that have true poses: (model, its image names in time order, its
+        errors after its own similarity alignment to the truth)."""
+        names = list(order or sorted(true_c2w))
+        out = []
+        for model in self.models:
+            common = [n for n in names if n in model.poses_c2w and n in true_c2w]
+            if len(common) < 3:
+                continue
+            est = np.stack([model.poses_c2w[n] for n in common])
+            true = np.stack([np.asarray(true_c2w[n], dtype=np.float64) for n in common])
+            out.append((model, common, trajectory_errors(est, true)))
+        return out
+
     def trajectory_errors(
         self, true_c2w: Mapping[str, np.ndarray], order: Sequence[str] | None = None
     ) -> TrajectoryErrors | None:
-        """Errors of the registered poses against ``true_c2w`` (OpenCV axes); None with fewer than 3 common poses."""
-        names = [n for n in (order or sorted(true_c2w)) if n in self.poses_c2w and n in true_c2w]
-        if len(names) < 3:
-            return None
-        est = np.stack([self.poses_c2w[n] for n in names])
-        true = np.stack([np.asarray(true_c2w[n], dtype=np.float64) for n in names])
-        return trajectory_errors(est, true)
+        """Errors of the registered poses against ``true_c2w`` (OpenCV axes), each sub-model aligned on its own and
+        the errors pooled (:func:`~evaluation.trajectory.pool_trajectory_errors`); None when no sub-model has 3 poses
+        with true poses."""
+        parts = [errs for _m, _n, errs in self.model_alignments(true_c2w, order)]
+        return pool_trajectory_errors(parts) if parts else None
 
 
 def run_sfm(
@@ -175,14 +219,14 @@ def _pipeline(
     options.num_threads = config.num_threads
     options.random_seed = config.seed
     options.min_num_matches = config.min_num_matches
-    options.multiple_models = False
+    options.multiple_models = config.all_models
     if intrinsics is not None and not config.refine_intrinsics:
         options.ba_refine_focal_length = False
         options.ba_refine_principal_point = False
         options.ba_refine_extra_params = False
     step("mapping")
     models = pycolmap.incremental_mapping(database, image_dir, work / "sparse", options=options)
-    return _result_from_models(models, total=len(names))
+    return _result_from_models(models, total=len(names), all_models=config.all_models)
 
 
 def _check_sizes(image_dir: Path, names: Sequence[str], intr: Intrinsics) -> None:
@@ -198,27 +242,38 @@ def _check_sizes(image_dir: Path, names: Sequence[str], intr: Intrinsics) -> Non
                 )
 
 
-def _result_from_models(models: Mapping[int, object], total: int) -> SfmResult:
-    """Statistics, poses and points of the model with the most registered images (empty result when none)."""
-    if not models:
-        return SfmResult(total, 0, 0, None, None, {}, np.zeros((0, 3)), np.zeros((0, 3), dtype=np.uint8))
-    rec = max(models.values(), key=lambda r: (r.num_reg_images(), r.num_points3D()))
+def _result_from_models(models: Mapping[int, object], total: int, all_models: bool = True) -> SfmResult:
+    """Pooled statistics of every sub-model (``all_models``) or of the one with the most registered images."""
+    recs = sorted(models.values(), key=lambda r: (r.num_reg_images(), r.num_points3D()), reverse=True)
+    recs = [r for r in recs if r.num_reg_images() > 0][: None if all_models else 1]
+    if not recs:
+        return SfmResult(total, 0, 0, None, None)
+    parts = tuple(_model_from_reconstruction(r) for r in recs)
+    errors = np.concatenate([m.point_errors_px for m in parts])
+    registered = sum(len(m.poses_c2w) for m in parts)
+    return SfmResult(
+        total_images=total,
+        registered_images=registered,
+        points3d=len(errors),
+        reprojection_error_px=float(errors.mean()) if len(errors) else None,
+        observations_per_image=sum(m.observations for m in parts) / registered,
+        models=parts,
+    )
+
+
+def _model_from_reconstruction(rec) -> SfmModel:
+    """Poses (camera-to-world, OpenCV axes), points, colours, point errors and observation count of one sub-model."""
     poses = {}
     for image_id in rec.reg_image_ids():
         image = rec.image(image_id)
         cam_from_world = np.eye(4)
         cam_from_world[:3, :4] = image.cam_from_world().matrix()
         poses[image.name] = np.linalg.inv(cam_from_world)
-    xyz = np.array([p.xyz for p in rec.points3D.values()], dtype=np.float64).reshape(-1, 3)
-    rgb = np.array([p.color for p in rec.points3D.values()], dtype=np.uint8).reshape(-1, 3)
-    n_reg = rec.num_reg_images()
-    return SfmResult(
-        total_images=total,
-        registered_images=n_reg,
-        points3d=rec.num_points3D(),
-        reprojection_error_px=float(rec.compute_mean_reprojection_error()) if rec.num_points3D() else None,
-        observations_per_image=float(rec.compute_mean_observations_per_reg_image()) if n_reg else None,
+    points = list(rec.points3D.values())
+    return SfmModel(
         poses_c2w=poses,
-        points_xyz=xyz,
-        points_rgb=rgb,
+        points_xyz=np.array([p.xyz for p in points], dtype=np.float64).reshape(-1, 3),
+        points_rgb=np.array([p.color for p in points], dtype=np.uint8).reshape(-1, 3),
+        point_errors_px=np.array([p.error for p in points], dtype=np.float64),
+        observations=int(sum(p.track.length() for p in points)),
     )

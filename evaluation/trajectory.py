@@ -5,6 +5,7 @@ Poses are camera-to-world 4×4 matrices (any consistent camera-axis convention s
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -105,3 +106,25 @@ def trajectory_errors(est_c2w: np.ndarray, true_c2w: np.ndarray) -> TrajectoryEr
         alignment=sim,
     )
 
+
+
+def pool_trajectory_errors(parts: Sequence[TrajectoryErrors]) -> TrajectoryErrors:
+    """Errors of several sub-trajectories, each aligned on its own (e.g. the sub-models of one SfM run), pooled over
+    all their poses: ATE RMSE and mean over every pose, RRE over every consecutive pair within a part; the alignment
+    is that of the part with the most poses.
+
+    Raises:
+        ValueError: no parts.
+    """
+    if not parts:
+        raise ValueError("pool_trajectory_errors: no trajectories to pool")
+    n = np.array([p.num_poses for p in parts], dtype=np.float64)
+    pairs = n - 1
+    rmse = np.array([p.ate_rmse for p in parts])
+    return TrajectoryErrors(
+        ate_rmse=float(np.sqrt((n * rmse**2).sum() / n.sum())),
+        ate_mean=float((n * np.array([p.ate_mean for p in parts])).sum() / n.sum()),
+        rre_mean_deg=float((pairs * np.array([p.rre_mean_deg for p in parts])).sum() / pairs.sum()),
+        num_poses=int(n.sum()),
+        alignment=max(parts, key=lambda p: p.num_poses).alignment,
+    )

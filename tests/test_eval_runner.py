@@ -197,7 +197,8 @@ def test_run_without_inputs_scores_the_relit_sequence_only(run_dir, run_results,
     assert "input" not in r and r["config"]["inputs"] is False
     assert EvalConfig().inputs and run_results["config"]["inputs"] is True and "input" in run_results
     assert sorted(p.name for p in (tmp_path / "eval" / "sfm").iterdir()) == ["relit"]
-    assert sorted(p.name for p in (run_dir / "eval" / "sfm").iterdir()) == ["input", "relit"]
+    assert sorted(p.name for p in (run_dir / "eval" / "sfm").iterdir()) == ["input", "input_gt", "relit"]
+    assert run_results["input"]["sfm_gt"]["total_images"] == run_results["input"]["sfm"]["total_images"]
 
     def relit_only(results: dict) -> dict:
         return {k: v for k, v in results.items() if k not in ("input", "config", "provenance")}

@@ -7,6 +7,7 @@ import pytest
 from PIL import Image
 
 from evaluation.sfm import SfmConfig, run_sfm
+from evaluation.trajectory import pool_trajectory_errors
 from evaluation.synthetic import render_room_sequence
 from spotlessgs.io.cameras import Intrinsics, opengl_to_opencv_c2w
 from spotlessgs.io.images import write_png
@@ -33,7 +34,12 @@ def test_all_images_register_with_accurate_poses(room_images, tmp_path, matcher)
     assert result.registered_images == result.total_images == len(names)
     assert result.reprojection_error_px < 1.0
     assert result.observations_per_image > 100 and result.points3d > 300
-    assert result.points_xyz.shape == (result.points3d, 3) and result.points_rgb.dtype == np.uint8
+    assert len(result.models) == 1 and result.largest_model_images == len(names)
+    model = result.models[0]
+    assert model.points_xyz.shape == (result.points3d, 3) and model.points_rgb.dtype == np.uint8
+    # COLMAP's own statistics of one model: mean point error, observations over registered images
+    assert result.reprojection_error_px == pytest.approx(model.point_errors_px.mean())
+    assert result.observations_per_image == pytest.approx(model.observations / len(names))
     traj = summary["trajectory"]
     # the room is 5 m wide and the path 1.7 m long: a few millimetres after Sim3 alignment
     assert traj["ate_rmse"] < 0.02 and traj["rre_mean_deg"] < 0.5 and traj["num_poses"] == len(names)
@@ -77,4 +83,49 @@ def test_single_thread_runs_are_reproducible(room_images, tmp_path):
     a = run_sfm(root / "even", names[::2], tmp_path / "a", SfmConfig(seed=3), intr)
     b = run_sfm(root / "even", names[::2], tmp_path / "b", SfmConfig(seed=3), intr)
     assert a.summary() == b.summary() and a.registered_images == 8
-    np.testing.assert_array_equal(a.points_xyz, b.points_xyz)
+    np.testing.assert_array_equal(a.models[0].points_xyz, b.models[0].points_xyz)
+
+
+def test_a_sequence_that_breaks_in_two_pools_both_sub_models(tmp_path):
+    """Two rooms with unrelated textures seen along the same path, one after the other: no match links them, so the
+    mapper builds two sub-models; the pooled statistics count both, the largest-only ones one."""
+    names, true = [], {}
+    for seed in (0, 1):
+        seq = render_room_sequence(num_frames=8, width=240, height=180, seed=seed)
+        for k, img in enumerate(seq.even):
+            names.append(f"frame_{seed}{k:04d}.png")
+            write_png(tmp_path / "seq" / names[-1], img)
+            true[names[-1]] = opengl_to_opencv_c2w(seq.c2w_opengl[k])
+    pooled = run_sfm(tmp_path / "seq", names, tmp_path / "a", SfmConfig(), seq.intrinsics)
+    largest = run_sfm(tmp_path / "seq", names, tmp_path / "b", SfmConfig(all_models=False), seq.intrinsics)
+    assert len(pooled.models) == 2 and pooled.registered_images == 16 and pooled.largest_model_images == 8
+    assert len(largest.models) == 1 and largest.registered_images == 8
+    assert pooled.points3d == sum(len(m.point_errors_px) for m in pooled.models) > largest.points3d
+    all_errors = np.concatenate([m.point_errors_px for m in pooled.models])
+    assert pooled.reprojection_error_px == pytest.approx(all_errors.mean())
+    assert pooled.observations_per_image == pytest.approx(sum(m.observations for m in pooled.models) / 16)
+    # each sub-model has its own frame: aligned separately, both follow the true path to millimetres
+    parts = pooled.model_alignments(true, names)
+    assert [len(common) for _m, common, _e in parts] == [8, 8]
+    assert {common[0][6] for _m, common, _e in parts} == {"0", "1"}  # one sub-model per room
+    traj = pooled.summary(true, names)["trajectory"]
+    assert traj["num_poses"] == 16 and traj["ate_rmse"] < 0.02
+
+
+def _errors(rmse, mean, rre, n):
+    from evaluation.trajectory import Sim3, TrajectoryErrors
+
+    return TrajectoryErrors(rmse, mean, rre, n, Sim3(float(n), np.eye(3), np.zeros(3)))
+
+
+def test_pooled_trajectory_errors_weight_poses_and_pairs():
+    a, b = _errors(0.1, 0.08, 1.0, 4), _errors(0.4, 0.3, 3.0, 2)
+    pooled = pool_trajectory_errors([a, b])
+    # RMSE over all 6 poses: sqrt((4 * 0.01 + 2 * 0.16) / 6); RRE over 3 + 1 consecutive pairs
+    assert pooled.ate_rmse == pytest.approx(np.sqrt(0.36 / 6))
+    assert pooled.ate_mean == pytest.approx((4 * 0.08 + 2 * 0.3) / 6)
+    assert pooled.rre_mean_deg == pytest.approx((3 * 1.0 + 1 * 3.0) / 4)
+    assert pooled.num_poses == 6 and pooled.alignment.scale == 4.0  # the alignment of the larger part
+    assert pool_trajectory_errors([b]) == b
+    with pytest.raises(ValueError, match="no trajectories"):
+        pool_trajectory_errors([])

@@ -18,7 +18,7 @@ from spotlessgs.reproduce.stages import (
     Stage, StageGraph, is_done, marker_path, read_marker, resolve, write_marker,
 )
 from spotlessgs.reproduce.tables import (
-    all_tables, agreement_notes, best_darkgs, check_at_least, check_auto_vs_spotless, check_order, check_sfm,
+    GT_SFM_LABEL, all_tables, agreement_notes, best_darkgs, check_at_least, check_auto_vs_spotless, check_order, check_sfm,
     format_cell, model_chosen_cell, model_summary, runtime_table, table1, table2, table3, table4,
 )
 from spotlessgs.reproduce.tasks import curve_milestones
@@ -448,7 +448,21 @@ def test_table3_handles_unregistered_sequences():
     t = table3(c)
     row = next(r for r in t.rows if r[1] == "3DGS")
     assert row[2] is None and row[4] == 0
-    assert "| bedroom-uneven | 3DGS | n/a | n/a | 0 | n/a |" in t.markdown()
+    assert "| bedroom-uneven | 3DGS | n/a | n/a | 0 | n/a | n/a |" in t.markdown()
+
+
+def test_table3_has_the_ground_truth_reference_and_the_real_paper_rows():
+    c = _collected()
+    ds = c["datasets"]["bedroom-uneven"]
+    assert not any(r[1] == GT_SFM_LABEL for r in table3(c).rows)  # no reference scored: no row
+    ds["input"]["sfm_gt"] = dict(_sfm(0.9, 500.0, 12), models=2, trajectory={"ate_rmse": 0.01})
+    t = table3(c)
+    rows = [r for r in t.rows if r[0] == "bedroom-uneven"]
+    assert rows[-1] == ["bedroom-uneven", GT_SFM_LABEL, 0.9, 500.0, 12, 2, 0.01]  # after the dataset's methods
+    assert {r[0] for r in t.rows if r[1] == "SpotlessGS (ours)"} == {"bedroom-uneven", "paper (real, self-collected)"}
+    note = check_sfm("c", _sfm(0.5, 100.0, 8), _sfm(0.4, 90.0, 8), "relit", ds["input"]["sfm_gt"])
+    assert note.status == "disagrees"  # the reference is quoted, it does not change the verdict
+    assert "evenly lit ground truth (reference): 12 registered, 0.900 px, 500.0 observations per image" in note.text
 
 
 def test_all_tables_present_with_finite_numbers():
