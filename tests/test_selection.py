@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import dataclasses
 import json
+import math
 
 import pytest
 import torch
@@ -13,10 +14,11 @@ from click.testing import CliRunner
 from conftest import synthetic_box_dataset
 from spotlessgs.models.shading import ModelConfig
 from spotlessgs.training.config import preset
-from spotlessgs.training.validation import holdout_blocks
+from spotlessgs.training.trainer import validation_steps
+from spotlessgs.training.validation import held_out_score, holdout_blocks
 from spotlessgs.training.selection import (
     SELECTION_FILE, CandidateResult, SelectionConfig, appearance_parameters, candidate_model, choose, cost_rank,
-    format_selection_table, proxy_config, run_decisions, selection_config,
+    format_selection_table, phase_tolerance, proxy_config, run_decisions, selection_config,
 )
 
 
@@ -101,6 +103,60 @@ def test_table_lists_every_candidate_and_marks_the_choice():
     assert lines[1].startswith("  auto-sh0-lambert") and "-1.00" in lines[1]
 
 
+def test_each_coordinate_phase_gets_half_the_tolerance_so_the_two_decisions_stay_within_it():
+    assert phase_tolerance(SelectionConfig(tolerance_db=0.3)) == pytest.approx(0.15)
+    assert phase_tolerance(SelectionConfig(tolerance_db=0.3, search="grid")) == pytest.approx(0.3)
+
+
+def test_a_dark_criterion_candidate_is_compared_on_its_dark_pixels():
+    light = [dataclasses.replace(_result(d, "lambert", psnr), validation_psnr_dark=dark, criterion="dark")
+             for d, psnr, dark in ((0, 24.2, 29.50), (1, 24.1, 29.60), (3, 24.0, 29.70))]
+    assert [r.score for r in light] == [29.50, 29.60, 29.70]
+    # on all pixels degree 0 is best; on the dark ones degree 3 is, and degree 0 is 0.2 dB behind it
+    assert choose(light, 0.125).name == "auto-sh1-lambert" and choose(light, 0.25).name == "auto-sh0-lambert"
+    assert _result(0, "lambert", 24.2).score == 24.2  # default criterion: all held-out pixels
+
+
+def test_proxies_average_their_scores_and_speed_up_the_low_frequency_light():
+    full = preset("quick")
+    proxy = proxy_config(full, SelectionConfig())
+    assert proxy.validation_average == 4 and proxy.lr_lf_light == pytest.approx(10 * full.lr_light)
+    assert proxy.lr_brdf == full.lr_brdf and proxy.lr_light == full.lr_light
+    assert proxy_config(full, SelectionConfig(proxy_light_lr_scale=2.0)).lr_lf_light == pytest.approx(2e-3)
+
+
+def test_validation_steps_cover_the_last_third_and_end_at_the_last_step():
+    assert validation_steps(150, 4) == {100, 117, 133, 150}
+    assert validation_steps(3000, 1) == {3000} and validation_steps(30, 2) == {20, 30}
+
+
+class _FixedRenders:
+    """A stand-in scene whose render of view k is a fixed image."""
+
+    def __init__(self, images):
+        self.images = images
+
+    def render(self, c2w, viewmat, K, width, height, backend="auto", num_threads=None):
+        from types import SimpleNamespace
+
+        return SimpleNamespace(image=self.images[int(c2w)])
+
+
+def test_held_out_score_on_all_and_on_the_darkest_pixels():
+    # one view, 1 x 4 pixels, grey; observed brightness 0.1, 0.2, 0.8, 0.9; errors 0.1, 0.3, 0.0, 0.2 (every channel)
+    seen = torch.tensor([0.1, 0.2, 0.8, 0.9]).reshape(1, 1, 4, 1).expand(1, 1, 4, 3)
+    pred = (seen[0] + torch.tensor([0.1, 0.3, 0.0, -0.2]).reshape(1, 4, 1)).clone()
+    score = held_out_score(_FixedRenders([pred]), torch.zeros(1), torch.zeros(1), None, seen, [0], 4, 1)
+    assert score.psnr == pytest.approx(-10 * math.log10((0.01 + 0.09 + 0.0 + 0.04) / 4))
+    assert score.psnr_dark == pytest.approx(-10 * math.log10((0.01 + 0.09) / 2))  # the darker half
+    masked = held_out_score(_FixedRenders([pred]), torch.zeros(1), torch.zeros(1), None, seen, [0], 4, 1,
+                            pixel_masks=torch.tensor([[[False, True, True, False]]]))
+    assert masked.psnr == pytest.approx(-10 * math.log10(0.09 / 2)) and masked.psnr_dark == pytest.approx(
+        -10 * math.log10(0.09))
+    with pytest.raises(ValueError, match="dark_quantile"):
+        held_out_score(_FixedRenders([pred]), torch.zeros(1), torch.zeros(1), None, seen, [0], 4, 1, dark_quantile=0.0)
+
+
 # ---- run folders ------------------------------------------------------------------------------------------------
 
 
@@ -150,14 +206,16 @@ def test_train_model_auto_writes_the_decision_prints_the_table_and_trains_the_ch
     assert names[:2] == ["auto-sh0-lambert", "auto-sh0-mlp"]
     reflectance, light = decision["candidates"][:2], decision["candidates"][2:]
     lam, mlp = (c["validation_psnr"] for c in reflectance)
-    brdf = "lambert" if lam >= max(lam, mlp) - 0.3 else "mlp"
+    brdf = "lambert" if lam >= max(lam, mlp) - 0.15 else "mlp"  # each of the two decisions: half the tolerance
     assert names[2:] == [f"auto-sh{d}-{brdf}" for d in range(4)]
     assert decision["settings"]["proxy_iterations"] == 100 and decision["tolerance_db"] == 0.3
     assert decision["settings"]["reflectance_proxy_iterations"] == 100  # 15 % of 300 < the 100-step minimum
-    best = max(c["validation_psnr"] for c in light)
+    assert decision["phase_tolerance_db"] == 0.15
+    assert [c["criterion"] for c in decision["candidates"]] == ["all"] * 2 + ["dark"] * 4
+    best = max(c["validation_psnr_dark"] for c in light)  # the SH degree is decided on the darkest held-out pixels
     chosen = next(c for c in light if c["name"] == decision["chosen"])
-    assert chosen["validation_psnr"] >= best - 0.3
-    assert all(c["validation_psnr"] < best - 0.3 for c in light if c["sh_degree"] < chosen["sh_degree"])
+    assert chosen["validation_psnr_dark"] >= best - 0.15
+    assert all(c["validation_psnr_dark"] < best - 0.15 for c in light if c["sh_degree"] < chosen["sh_degree"])
     assert decision["chosen"] in res.output and "val PSNR" in res.output
     info = json.loads((out / "run.json").read_text())
     assert info["model"] == decision["chosen"] and ModelConfig(**info["model_config"]).name == decision["chosen"]
@@ -302,3 +360,18 @@ def test_held_out_pixels_never_influence_training_only_the_validation_score(box_
     for key, tensor in a["gaussians"].items():
         torch.testing.assert_close(b["gaussians"][key], tensor, rtol=0, atol=0, msg=key)
     assert results[0].validation_psnr > results[1].validation_psnr + 3.0
+
+
+def test_the_validation_score_is_the_mean_of_the_scores_over_the_last_third(box_room, tmp_path):
+    from spotlessgs.training.trainer import read_metrics, train
+
+    cfg = _tiny(iterations=30, image_width=None, densify_from=10, densify_until=25, checkpoint_every=30,
+                validation_blocks=0.3, validation_block=4, validation_average=3)
+    result = train(box_room, tmp_path / "run", "darkgs", cfg, seed=0, progress=False)
+    scored = [r for r in read_metrics(tmp_path / "run" / "metrics.jsonl") if "validation_psnr" in r]
+    assert [r["step"] for r in scored] == [20, 25, 30]
+    assert result.validation_psnr == pytest.approx(sum(r["validation_psnr"] for r in scored) / 3)
+    assert result.validation_psnr_dark == pytest.approx(sum(r["validation_psnr_dark"] for r in scored) / 3)
+    assert len({round(r["validation_psnr"], 6) for r in scored}) == 3  # the model changed between the scores
+    summary = json.loads((tmp_path / "run" / "train_summary.json").read_text())
+    assert summary["validation_psnr_dark"] == pytest.approx(result.validation_psnr_dark)

@@ -44,6 +44,8 @@ class TrainConfig:
     lr_shN: float = 1.25e-4
     # Spotlight RID MLP, fall-off τ/γ, low-frequency SH light / ambient.
     lr_light: float = 1e-3
+    # Low-frequency light (SH coefficients / constant ambient); None = lr_light.
+    lr_lf_light: float | None = None
     # Light pose relative to the camera (so3 rotation and translation).
     lr_light_pose: float = 1e-3
     # Learned BRDF MLP.
@@ -84,6 +86,9 @@ class TrainConfig:
     # The validation views rejoin the fitted views once densification ends (step densify_until); False = they stay
     # held out for the whole run (model selection proxies).
     validation_rejoin: bool = False
+    # The final validation score is the mean of this many scores taken at evenly spaced steps over the last third of
+    # the run (ending at the last step): it smooths the step-to-step noise of a short run. 1 = the last step only.
+    validation_average: int = 1
     # Gaussian budget: stop densifying when the validation PSNR stops improving and prune Gaussians whose removal does
     # not change the renders (needs validation_every > 0).
     gaussian_budget: bool = False
@@ -111,6 +116,8 @@ class TrainConfig:
     def __post_init__(self) -> None:
         if self.validation_every < 0 or self.validation_every == 1:
             raise ValueError(f"TrainConfig: validation_every must be 0 (off) or >= 2, got {self.validation_every}")
+        if self.validation_average < 1:
+            raise ValueError(f"TrainConfig: validation_average must be >= 1, got {self.validation_average}")
         if not 0.0 <= self.validation_blocks < 1.0:
             raise ValueError(f"TrainConfig: validation_blocks must be in [0, 1), got {self.validation_blocks}")
         if self.validation_blocks > 0 and self.validation_every > 0:

@@ -34,7 +34,8 @@ from spotlessgs.training.strategy import DensifyConfig, DensifyStrategy
 from spotlessgs.training.warm_start import warm_start_scene
 from spotlessgs.training.budget import BudgetConfig, BudgetStrategy, budget_report
 from spotlessgs.training.validation import (
-    ViewSplit, evenly_spaced, gaussian_contributions, holdout_blocks, split_training_views, validation_psnr,
+    ViewSplit, evenly_spaced, gaussian_contributions, held_out_score, holdout_blocks, split_training_views,
+    validation_psnr,
 )
 
 log = logging.getLogger(__name__)
@@ -56,8 +57,11 @@ class TrainResult:
     final_loss: float
     test_psnr: float | None
     # Spotlight-lit PSNR of the held-out validation views (validation_every > 0 and the views never fitted) or of the
-    # held-out pixel blocks (validation_blocks > 0), else None.
+    # held-out pixel blocks (validation_blocks > 0), else None; with validation_average > 1 the mean of that many
+    # scores over the last third of the run.
     validation_psnr: float | None = None
+    # The same on the darkest half of the scored pixels (HeldOutScore.psnr_dark), else None.
+    validation_psnr_dark: float | None = None
 
 
 def model_config(variant: str | ModelConfig, config: TrainConfig) -> ModelConfig:
@@ -129,7 +133,8 @@ def build_optimizers(scene: RelightableScene, config: TrainConfig, extent: float
         groups.append({"params": [app.light.log_gamma, app.light.log_tau, *app.light.rid.parameters()],
                        "lr": config.lr_light})
     if app.lf_light is not None:
-        groups.append({"params": list(app.lf_light.parameters()), "lr": config.lr_light})
+        groups.append({"params": list(app.lf_light.parameters()),
+                       "lr": config.lr_light if config.lr_lf_light is None else config.lr_lf_light})
     brdf_params = [] if app.brdf is None else list(app.brdf.parameters())
     if brdf_params:
         groups.append({"params": brdf_params, "lr": config.lr_brdf})
@@ -336,6 +341,17 @@ def train(
     from tqdm import tqdm
 
     end = config.iterations if stop_after is None else min(stop_after, config.iterations)
+    held_out_views = split.validation if not config.validation_rejoin else []
+    score_views = views.train if held_out is not None else held_out_views
+    score_steps = validation_steps(config.iterations, config.validation_average) if score_views else set()
+
+    def score_held_out() -> dict:
+        scene.eval()
+        score = held_out_score(scene, c2ws, viewmats, K, images, score_views, views.width, views.height,
+                               config.raster_backend, config.num_threads, pixel_masks=held_out)
+        scene.train()
+        return {"validation_psnr": score.psnr, "validation_psnr_dark": score.psnr_dark}
+
     bar = tqdm(range(start, end), initial=start, total=config.iterations, desc=f"train {scene.config.name}",
                disable=not progress, unit="it")
     metrics_file = open(run_dir / "metrics.jsonl", "a", encoding="utf-8")
@@ -350,13 +366,13 @@ def train(
             if not torch.isfinite(out.image).all():
                 raise TrainingDivergedError(f"step {step}: the render of view {views.names[k]} has NaN/Inf; "
                                             f"the last good checkpoint {ckpt_file} is intact")
-            target = images[k]
-            # Held-out pixels show the render itself, clamped to [0, 1]: no error and no gradient there, except that a
-            # render above 1 is pulled down to 1 (marking them clipped too would remove that; the measured selection
-            # results were made with this form).
+            target, clipped = images[k], saturated[k]
+            # Held-out pixels show the render itself, clamped to [0, 1], and count as clipped: no error and no
+            # gradient there (a render above 1 meets a clipped target of 1, which the clipped L1 does not penalise).
             if held_out is not None:
                 target = torch.where(held_out[k][..., None], out.image.detach().clamp(0.0, 1.0), target)
-            loss, parts = photometric_loss(out.image, target, saturated[k], config.ssim_lambda)
+                clipped = clipped | held_out[k]
+            loss, parts = photometric_loss(out.image, target, clipped, config.ssim_lambda)
             if prior is not None and scene.appearance.light is not None:
                 loss = loss + scene.appearance.light.light_prior_loss(prior, config.light_prior_weight)
             loss_value = float(loss.detach())
@@ -370,11 +386,13 @@ def train(
             changes = strategy.step_post_backward(step, scene.gaussians, opts, out.means2d_grad(), out.radii,
                                                   views.width, views.height)
             s = step + 1
-            if s % config.log_every == 0 or s == end:
+            held = score_held_out() if s in score_steps else {}
+            if s % config.log_every == 0 or s == end or held:
                 elapsed = time.perf_counter() - t0
                 rec = {"step": s, "loss": loss_value, "l1": parts["l1"], "ssim": parts["ssim"],
                        "psnr": _psnr(out.image, images[k]), "gaussians": len(scene.gaussians),
-                       "ms_per_step": 1000.0 * elapsed / (s - start), **{k2: v for k2, v in changes.items() if v}}
+                       "ms_per_step": 1000.0 * elapsed / (s - start), **{k2: v for k2, v in changes.items() if v},
+                       **held}
                 metrics_file.write(json.dumps(rec) + "\n")
                 metrics_file.flush()
                 bar.set_postfix(loss=f"{loss_value:.4f}", psnr=f"{rec['psnr']:.2f}", n=len(scene.gaussians),
@@ -390,16 +408,17 @@ def train(
     seconds = time.perf_counter() - t0
     steps_done = max(end - start, 0)
     test_psnr = evaluate_reconstruction(scene, views, config) if end == config.iterations else None
-    val_psnr = None
-    held_out_views = split.validation if not config.validation_rejoin else []
-    if end == config.iterations and (held_out is not None or held_out_views):
-        scene.eval()  # score the held-out pixel blocks of every training view, or the held-out views
-        val_psnr = validation_psnr(scene, views.c2w.to(device), views.viewmats.to(device), views.K.to(device),
-                                   views.images.to(device), views.train if held_out is not None else held_out_views,
-                                   views.width, views.height, config.raster_backend, config.num_threads,
-                                   pixel_masks=held_out)
+    val_psnr = val_dark = None
+    if end == config.iterations and score_views:
+        # the held-out pixel blocks of every training view, or the held-out views: the scores logged at
+        # score_steps (a resumed run re-scores its last step when the interrupted session did not log it)
+        scores = [r for r in read_metrics(run_dir / "metrics.jsonl") if "validation_psnr" in r]
+        if not any(r["step"] == end for r in scores):
+            scores.append({"step": end, **score_held_out()})
+        val_psnr = sum(r["validation_psnr"] for r in scores) / len(scores)
+        val_dark = sum(r["validation_psnr_dark"] for r in scores) / len(scores)
     result = TrainResult(run_dir, end, seconds, 1000.0 * seconds / max(steps_done, 1), len(scene.gaussians),
-                         loss_value, test_psnr, val_psnr)
+                         loss_value, test_psnr, val_psnr, val_dark)
     if end == config.iterations:
         from spotlessgs.light_report import write_light_report
 
@@ -409,11 +428,31 @@ def train(
             "num_gaussians": result.num_gaussians,
             "final_loss": loss_value if math.isfinite(loss_value) else None,  # None: resumed a finished run
             "test_psnr_reconstruction": test_psnr, "device": str(device),
-            "validation_views": split.validation, "validation_psnr": val_psnr,
+            "validation_views": split.validation, "validation_psnr": val_psnr, "validation_psnr_dark": val_dark,
         })
         if isinstance(strategy, BudgetStrategy):
             write_json(run_dir / "gaussian_budget.json", budget_report(strategy, len(scene.gaussians), config))
     return result
+
+
+def validation_steps(iterations: int, count: int) -> set[int]:
+    """The steps (1-based, counted after the update) whose held-out scores are averaged: ``count`` evenly spaced over
+    the last third of ``iterations``, the last one at ``iterations``."""
+    if count <= 1:
+        return {iterations}
+    span = iterations // 3
+    return {iterations - round(j * span / (count - 1)) for j in range(count)}
+
+
+def read_metrics(path: Path) -> list[dict]:
+    """The records of a metrics.jsonl file (a line cut by a crash is skipped)."""
+    records = []
+    for line in path.read_text().splitlines() if path.is_file() else []:
+        try:
+            records.append(json.loads(line))
+        except json.JSONDecodeError:
+            continue
+    return records
 
 
 @torch.no_grad()
