@@ -80,7 +80,8 @@ def render_markdown(config: ReproduceConfig, tables: list[Table], notes: list[Ag
         + f"; Cycle-GAN preset `{config.cyclegan_preset}` trained on {', '.join(config.gan_rooms)}; "
         f"seed {config.seed}.",
         "",
-        f"Paper figures are from the {paper.SOURCE}; they come from other data (and a GPU), so compare orderings, "
+        f"Paper figures are from the {paper.SOURCE} (Table III: its real-world sequence); they come from other data "
+        "(and a GPU), so compare orderings, "
         "not values.", "",
         "## Agreement with the paper's ordering", "",
     ]

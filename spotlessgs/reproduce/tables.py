@@ -239,8 +239,8 @@ def table3(collected: dict) -> Table:
                        "relighting would give it.")
     if not any_sfm:
         table.notes.append("SfM was switched off for this run.")
-    table.notes.append(f"Paper rows: {paper.SOURCE} (Table III, on the paper's self-collected real-world sequence, "
-                       "not its synthetic set; the paper gives no registration counts).")
+    table.notes.append(f"Paper rows: {paper.TABLE3_SOURCE} (Table III; not the synthetic set of the other tables; "
+                       "the paper gives no registration counts).")
     return table
 
 
