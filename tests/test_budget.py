@@ -183,6 +183,31 @@ def test_negligible_gaussians_are_pruned_with_their_optimizer_state():
             opts[name].state[p]["exp_avg"].shape[0] == 4
 
 
+def test_at_densify_until_nothing_grows_and_the_last_pruning_precedes_the_opacity_reset():
+    """A run whose validation keeps improving never stops growth; at densify_until (also a reset step) the budget
+    adds nothing and prunes on the pre-reset weights, where the default strategy densifies once more."""
+    cfg = DensifyConfig(densify_from=10, densify_until=40, densify_every=10, grad_threshold=1e-4,
+                        opacity_reset_every=40, max_gaussians=1000, prune_opacity=0.0)
+    psnrs = iter(range(20, 40))
+    opacities_seen = []
+
+    def contributions(g):  # the last pruning must see the opacities before the reset lowers them
+        opacities_seen.append(float(g.opacities.detach().min()))
+        return torch.arange(len(g), dtype=torch.float32)
+
+    g = _gaussians()
+    strategy = BudgetStrategy(cfg, BudgetConfig(patience=3, prune_fraction=0.001), 1.0,
+                              torch.Generator().manual_seed(0), lambda gg: float(next(psnrs)), contributions)
+    log = _drive(strategy, g, _optimizers(g), 40)
+    assert strategy.growth_stopped_at is None and sum(c["cloned"] + c["split"] for c in log[:39]) > 0
+    last = log[39]
+    assert last["cloned"] == last["split"] == 0 and last["reset"] == 1 and last["pruned_negligible"] >= 1
+    assert opacities_seen[-1] > 0.5  # sigmoid(2.0) = 0.88 before the reset, not the reset value
+    g2 = _gaussians()
+    default_log = _drive(DensifyStrategy(cfg, 1.0, torch.Generator().manual_seed(0)), g2, _optimizers(g2), 40)
+    assert default_log[39]["cloned"] + default_log[39]["split"] > 0
+
+
 # ---- end to end on a synthetic dataset ---------------------------------------------------------------------------
 
 

@@ -12,7 +12,10 @@ schedule and the same ``max_gaussians`` cap) with two additions, both at densifi
    and the least-contributing ones are pruned as long as their summed weight stays within ``prune_fraction`` of the
    total: together they cannot move the renders by more than that share of the blended colour.
 
-Pruning also runs once more at ``densify_until`` (the last chance to remove Gaussians before the model is fixed).
+Pruning also runs once more at ``densify_until`` (the last chance to remove Gaussians before the model is fixed),
+before that step's scheduled opacity reset, and nothing grows at that step: growth ends with densification, as in
+3DGS (the default strategy also densifies at ``densify_until``; with a reset at the same step the last pruning used to be
+skipped and a run whose growth never stopped ended at the cap).
 The strategy needs two callables from the trainer, so it does not depend on the data layout:
 ``validate(gaussians) -> float`` (validation PSNR, dB) and ``contributions(gaussians) -> (N,) tensor``.
 """
@@ -126,9 +129,13 @@ class BudgetStrategy(DensifyStrategy):
             self.checks.append({"step": s, "validation_psnr": psnr, "gaussians": len(gaussians), "growth_stopped": stop})
             if stop:
                 self.growth_stopped_at = s
-        if self.growth_stopped_at is None:
+        final = s == cfg.densify_until
+        if final:  # the last chance to prune: before the scheduled opacity reset, whose faint Gaussians all look alike
+            pruned = self._prune_negligible(gaussians, optimizers)
+        if self.growth_stopped_at is None and not final:
             changes = super().step_post_backward(step, gaussians, optimizers, means2d_grad, radii, width, height)
-        else:  # no more growth: keep the transparent-Gaussian pruning and the opacity resets of the schedule
+        else:  # no more growth (growth also ends at densify_until, as in 3DGS): keep the transparent-Gaussian
+            # pruning and the opacity resets of the schedule
             changes = {"cloned": 0, "split": 0, "pruned": 0, "reset": 0}
             if at_densify:
                 prune = gaussians.opacities.detach() < cfg.prune_opacity
@@ -143,7 +150,9 @@ class BudgetStrategy(DensifyStrategy):
         if changes.get("reset"):
             self.history = []
         # right after an opacity reset every Gaussian is faint and the weights say little: no pruning at that step
-        if (at_densify or s == cfg.densify_until) and not changes.get("reset"):
+        if final:
+            changes["pruned_negligible"] = pruned
+        elif at_densify and not changes.get("reset"):
             changes["pruned_negligible"] = self._prune_negligible(gaussians, optimizers)
         return changes
 
