@@ -41,7 +41,7 @@ class BudgetConfig:
     # Smallest validation PSNR gain (dB) over the best earlier check that counts as an improvement.
     min_gain_db: float = 0.05
     # Share of the total blending weight that the pruned (least-contributing) Gaussians may carry together.
-    prune_fraction: float = 0.01
+    prune_fraction: float = 0.03
 
     def __post_init__(self) -> None:
         if self.patience < 1:
