@@ -43,7 +43,8 @@ def main(verbose: bool) -> None:
 @click.option("--linear", "linear_input", is_flag=True, help="The images are linear (RAW), not sRGB.")
 @click.option("--max-gaussians", type=click.IntRange(1), default=None, help="Hard cap on the number of Gaussians.")
 @click.option("--tolerance-db", type=click.FloatRange(0), default=None,
-              help="--model auto: pick the cheapest candidate within this many dB of the best (default 0.25).")
+              help="--model auto: held-out PSNR the choice may give up against the best candidate (default 0.25; "
+                   "the coordinate search's two decisions, BRDF then SH degree, get half each).")
 @click.option("--selection-search", type=click.Choice(["coordinate", "grid"]), default=None,
               help="--model auto: candidate search (default coordinate).")
 @click.option("--gaussian-budget", is_flag=True,
