@@ -229,6 +229,34 @@ def test_sh_light_starts_dark_but_learns():
     assert _scalar(lf.coeffs.grad[0].abs().min()) > 0  # gradient passes the clamp at exactly 0
 
 
+def test_dead_sh_light_comes_back_when_the_loss_wants_light():
+    # every normal below 0: the plain clamp would give no gradient at all and the light would stay off for good
+    lf = LowFrequencyLight(1).double()
+    with torch.no_grad():
+        lf.coeffs[0] = -0.2
+    n = torch.nn.functional.normalize(torch.randn(50, 3, dtype=torch.float64,
+                                                  generator=torch.Generator().manual_seed(4)), dim=-1)
+    target = torch.full((50, 3), 0.3, dtype=torch.float64)
+    out = lf(n)
+    assert out.detach().abs().max().item() == 0.0
+    ((out - target) ** 2).sum().backward()  # wants more light: d loss / d out = -0.6 < 0 everywhere
+    # the gradient an unclamped light would get: sum over the normals of -0.6 * Y_0^0
+    np.testing.assert_allclose(lf.coeffs.grad[0].numpy(), [-0.6 * SH_C0 * 50] * 3, rtol=1e-12)
+    opt = torch.optim.Adam(lf.parameters(), lr=0.02)
+    for _ in range(300):
+        opt.zero_grad()
+        ((lf(n) - target) ** 2).mean().backward()
+        opt.step()
+    assert lf(n).detach().mean().item() == pytest.approx(0.3, abs=0.02)  # revived and fitted
+    # a gradient asking for less light where the light is already off does not reach c
+    lf.zero_grad()
+    with torch.no_grad():
+        lf.coeffs.zero_()
+        lf.coeffs[0] = -0.2
+    lf(n).sum().backward()
+    assert lf.coeffs.grad.abs().max().item() == 0.0
+
+
 def test_sh_light_is_non_negative_with_finite_gradient():
     lf = LowFrequencyLight(1).double()
     with torch.no_grad():

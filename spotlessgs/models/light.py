@@ -258,12 +258,33 @@ def light_prior_loss(light: SpotLight, t_prior: torch.Tensor | Sequence[float], 
     return light.light_prior_loss(t_prior, weight)
 
 
+class _ReviveClamp(torch.autograd.Function):
+    """max(0, x) whose backward also passes, where x < 0, the gradient components that would raise x.
+
+    A plain clamp gives no gradient where x < 0: once every normal's cᵀY is negative (measured: the constant term of
+    a selection proxy's light went below 0 in its first steps, while the spotlight model was still too bright), the
+    low-frequency light is zero everywhere and stays so for good, and higher SH degrees added later never learn. Here,
+    where the light is off, a gradient asking for more light (∂loss/∂out < 0) still reaches c; one asking for less
+    does not (the light is already 0 there). The forward value is the plain clamp.
+    """
+
+    @staticmethod
+    def forward(ctx, x: torch.Tensor) -> torch.Tensor:
+        ctx.save_for_backward(x)
+        return torch.where(x >= 0, x, torch.zeros_like(x))
+
+    @staticmethod
+    def backward(ctx, grad: torch.Tensor) -> torch.Tensor:
+        (x,) = ctx.saved_tensors
+        return torch.where(x >= 0, grad, grad.clamp_max(0.0))
+
+
 class LowFrequencyLight(nn.Module):
     """Low-frequency incident light L_lf(n̂) = max(0, cᵀ Y(n̂)) with real SH of degree 0..3, evaluated at the normal.
 
-    c (K, 3), K = (degree+1)², is initialised at 0. Non-negativity uses a `where` clamp whose gradient passes at
-    exactly 0, so the all-zero initialisation still receives gradient; regions where cᵀY < 0 give no light and no
-    gradient (the shared coefficients keep learning from the other normals). The research code multiplies L_lf by
+    c (K, 3), K = (degree+1)², is initialised at 0. The clamp's gradient passes where cᵀY ≥ 0 (so the all-zero
+    initialisation learns) and, where cᵀY < 0, only when the loss asks for more light (:class:`_ReviveClamp`): a light
+    pushed below 0 everywhere early on can come back. The research code multiplies L_lf by
     max(0, n̂·l̂) with l̂ the spotlight direction: `shading` keeps that choice by applying the cosine to the sum
     (L_spot + L_lf), see `spotlessgs.models.shading`.
     """
@@ -277,8 +298,7 @@ class LowFrequencyLight(nn.Module):
     def radiance(self, normals: torch.Tensor) -> torch.Tensor:
         """Unit normals (N, 3), world frame → non-negative RGB radiance (N, 3)."""
         _check_points(normals, "normals")
-        raw = eval_sh(self.coeffs, normals, self.degree)
-        return torch.where(raw >= 0, raw, torch.zeros_like(raw))
+        return _ReviveClamp.apply(eval_sh(self.coeffs, normals, self.degree))
 
     def forward(self, normals: torch.Tensor) -> torch.Tensor:
         """Same as `radiance`."""
