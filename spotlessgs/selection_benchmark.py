@@ -10,6 +10,10 @@ Per dataset folder (room = folder name), under ``OUT/<room>/``:
 * ``spotless/``: the fixed SpotlessGS model, default strategy;
 * ``spotless-budget/``: SpotlessGS with the Gaussian budget (the fields of ``spotless train --gaussian-budget``).
 
+With several ``--seed`` values every seed is measured as above under ``OUT/seed-<s>/`` and ``OUT`` gets the summary
+over seeds (:func:`aggregate_seeds`): per run the mean, minimum and maximum of each figure, every seed's choice, and
+the verdicts on the means (single runs differ by ~0.15 dB, as much as the bounds' margins).
+
 Each run is scored like :mod:`spotlessgs.benchmark`: every view relit in this process (relit FPS over all views), the
 test views scored against the ground truth raw and after one exposure gain (``psnr_aligned``, the figure the verdicts
 use). Writes ``OUT/selection_benchmark.json`` (numbers + provenance), ``OUT/selection_benchmark.md`` (a table per
@@ -323,6 +327,125 @@ def run_selection_benchmark(data_dirs: list[Path], out: Path, settings: Benchmar
     return results
 
 
+# Figures of a run that the summary over seeds gives as mean / min / max.
+SEED_FIGURES = ("gaussians", "train_seconds", "relit_fps", "psnr", "psnr_aligned")
+
+
+def _spread(values: list[float]) -> dict[str, float]:
+    return {"mean": sum(values) / len(values), "min": min(values), "max": max(values)}
+
+
+def aggregate_seeds(per_seed: dict[int, dict[str, Any]]) -> dict[str, dict[str, Any]]:
+    """Summary of :func:`run_selection_benchmark`'s results over seeds, per room.
+
+    Args:
+        per_seed: seed -> that seed's results (the same rooms in each).
+    Returns:
+        room -> ``choices`` (seed -> chosen candidate), ``runs`` (run key -> figure -> mean / min / max over the
+        seeds, figures of :data:`SEED_FIGURES`), ``deltas`` (``selection_db``, ``budget_db``, ``budget_reduction_pct``:
+        one value per seed, in seed order) and ``verdicts`` (:func:`selection_verdict` / :func:`budget_verdict` on
+        the means).
+    """
+    if not per_seed:
+        raise ValueError("aggregate_seeds: no seeds")
+    seeds = sorted(per_seed)
+    room_sets = {s: set(per_seed[s]["rooms"]) for s in seeds}
+    if len({frozenset(r) for r in room_sets.values()}) != 1:
+        raise ValueError(f"aggregate_seeds: the seeds measured different rooms: {room_sets}")
+    summary: dict[str, dict[str, Any]] = {}
+    for name in per_seed[seeds[0]]["rooms"]:
+        rooms = [per_seed[s]["rooms"][name] for s in seeds]
+        runs = {key: {f: _spread([float(r["runs"][key][f]) for r in rooms]) for f in SEED_FIGURES}
+                for key in RUN_FOLDERS}
+        tolerance = rooms[0]["selection"]["tolerance_db"]
+        mean = {key: {f: runs[key][f]["mean"] for f in SEED_FIGURES} for key in runs}
+        summary[name] = {
+            "choices": {str(s): r["selection"]["chosen"] for s, r in zip(seeds, rooms)},
+            "runs": runs,
+            "deltas": {
+                "selection_db": [r["verdicts"]["selection"]["delta_db"] for r in rooms],
+                "budget_db": [r["verdicts"]["budget"]["delta_db"] for r in rooms],
+                "budget_reduction_pct": [r["verdicts"]["budget"]["reduction_pct"] for r in rooms]},
+            "verdicts": {
+                "selection": selection_verdict(mean["chosen"]["psnr_aligned"], mean["spotless"]["psnr_aligned"],
+                                               tolerance),
+                "budget": budget_verdict(max(1, round(mean["spotless"]["gaussians"])),
+                                         max(1, round(mean["budget"]["gaussians"])),
+                                         mean["spotless"]["psnr_aligned"], mean["budget"]["psnr_aligned"])}}
+    return summary
+
+
+def seeds_markdown(summary: dict[str, dict[str, Any]], settings: BenchmarkSettings, seeds: list[int]) -> str:
+    """Per room: every seed's choice, a table of mean [min, max] per run, the per-seed deltas and the verdicts on
+    the means."""
+    def cell(spread, spec):
+        return f"{format(spread['mean'], spec)} [{format(spread['min'], spec)}, {format(spread['max'], spec)}]"
+
+    lines = [f"Preset {settings.preset}, iterations {settings.iterations or 'of the preset'}, "
+             f"{settings.threads} thread(s), seeds {', '.join(map(str, seeds))}: mean [min, max] over the seeds. "
+             "Relit PSNR of the test views against the ground truth; aligned = after one exposure gain. Relit FPS "
+             "over every view. Each seed's own report: seed-<s>/selection_benchmark.md.", ""]
+    for name, room in summary.items():
+        choices = ", ".join(f"seed {s}: {c}" for s, c in room["choices"].items())
+        deltas = room["deltas"]
+        lines += [f"## {name}", "", f"Chosen: {choices}.", "",
+                  "| run | Gaussians | train s | relit PSNR aligned | relit FPS |", "|---|---|---|---|---|"]
+        for key, r in room["runs"].items():
+            lines.append(f"| {key} | {cell(r['gaussians'], '.0f')} | {cell(r['train_seconds'], '.1f')} | "
+                         f"{cell(r['psnr_aligned'], '.2f')} | {cell(r['relit_fps'], '.1f')} |")
+        lines += ["", "Per seed: choice vs spotless " + " / ".join(_signed(d, ".2f") for d in deltas["selection_db"])
+                  + " dB; budget " + " / ".join(_signed(d, ".2f") for d in deltas["budget_db"]) + " dB at "
+                  + " / ".join(_signed(-d, ".1f") for d in deltas["budget_reduction_pct"]) + "% Gaussians.", "",
+                  "On the means:"]
+        lines += [f"- {v}" for v in verdict_lines(room["verdicts"]["selection"], room["verdicts"]["budget"])]
+        lines.append("")
+    return "\n".join(lines)
+
+
+def seed_budget_points(summary: dict[str, dict[str, Any]]) -> list:
+    """BudgetPoints of the mean default and budget SpotlessGS run of every room (PSNR range over the seeds)."""
+    from spotlessgs.training.budget_plot import BudgetPoint
+
+    points = []
+    for name, room in summary.items():
+        for strategy, key in (("default", "spotless"), ("budget", "budget")):
+            r = room["runs"][key]
+            points.append(BudgetPoint(name, strategy, max(1, round(r["gaussians"]["mean"])),
+                                      r["psnr_aligned"]["mean"], r["relit_fps"]["mean"],
+                                      psnr_range=(r["psnr_aligned"]["min"], r["psnr_aligned"]["max"])))
+    return points
+
+
+def run_seeds(data_dirs: list[Path], out: Path, settings: BenchmarkSettings, seeds: list[int]) -> dict[str, Any]:
+    """:func:`run_selection_benchmark` for each seed; one seed writes to ``out`` itself, several to
+    ``out/seed-<s>/`` plus the summary (:func:`aggregate_seeds`) in ``out``'s ``selection_benchmark.json`` / ``.md``
+    and ``budget.png``.
+
+    Returns the single seed's results, or ``settings``, ``seeds``, ``bounds``, ``rooms`` (the summary) and
+    ``provenance``.
+    """
+    from spotlessgs.training.budget_plot import plot_budget
+
+    if not seeds:
+        raise ValueError("run_seeds: no seeds given")
+    if len(set(seeds)) != len(seeds):
+        raise ValueError(f"run_seeds: a seed is given twice: {list(seeds)}")
+    if len(seeds) == 1:
+        return run_selection_benchmark(data_dirs, out, dataclasses.replace(settings, seed=seeds[0]))
+    per_seed = {s: run_selection_benchmark(data_dirs, out / f"seed-{s}", dataclasses.replace(settings, seed=s))
+                for s in seeds}
+    summary = aggregate_seeds(per_seed)
+    results = {"settings": {**dataclasses.asdict(settings), "seed": None}, "seeds": sorted(seeds),
+               "bounds": {"budget_min_reduction_pct": BUDGET_MIN_REDUCTION_PCT,
+                          "budget_max_loss_db": BUDGET_MAX_LOSS_DB},
+               "rooms": summary, "provenance": provenance(seeds=sorted(seeds))}
+    write_json(out / RESULTS_JSON, results)
+    write_text(out / RESULTS_MD, seeds_markdown(summary, settings, sorted(seeds)))
+    plot_budget(seed_budget_points(summary), out / PLOT,
+                title=f"Gaussian budget: default vs budget strategy (mean of {len(seeds)} seeds)")
+    return results
+
+
 @click.command()
 @click.option("--data", "data_dirs", required=True, multiple=True,
               type=click.Path(exists=True, file_okay=False, path_type=Path),
@@ -333,15 +456,20 @@ def run_selection_benchmark(data_dirs: list[Path], out: Path, settings: Benchmar
 @click.option("--width", "image_width", type=click.IntRange(8), default=None,
               help="Override the training image width (pixels).")
 @click.option("--threads", default=1, show_default=True, type=click.IntRange(1))
-@click.option("--seed", default=0, show_default=True, type=int)
+@click.option("--seed", "seeds", default=(0,), show_default=True, type=int, multiple=True,
+              help="Seed of training, selection holdout and view order; repeat to measure several seeds and "
+                   "summarise them (OUT/seed-<s>/ each).")
 @click.option("--min-proxy-iterations", type=click.IntRange(1), default=None,
               help="Shortest selection proxy run (default: the selection's; small only for tests).")
-def main(data_dirs, out, preset, iterations, image_width, threads, seed, min_proxy_iterations):
+def main(data_dirs, out, preset, iterations, image_width, threads, seeds, min_proxy_iterations):
     """Measure automatic model selection and the Gaussian budget against SpotlessGS."""
     logging.basicConfig(level=logging.INFO, format="%(levelname)s %(name)s: %(message)s")
-    settings = BenchmarkSettings(preset, iterations, image_width, threads, seed, min_proxy_iterations)
-    results = run_selection_benchmark(list(data_dirs), out, settings)
-    click.echo(markdown_report(results["rooms"], settings))
+    settings = BenchmarkSettings(preset, iterations, image_width, threads, seeds[0], min_proxy_iterations)
+    results = run_seeds(list(data_dirs), out, settings, list(seeds))
+    if len(seeds) == 1:
+        click.echo(markdown_report(results["rooms"], settings))
+    else:
+        click.echo(seeds_markdown(results["rooms"], settings, sorted(seeds)))
 
 
 if __name__ == "__main__":

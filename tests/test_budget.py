@@ -280,3 +280,8 @@ def test_budget_plot_draws_every_point_and_rejects_bad_input(tmp_path):
         BudgetPoint("r", "s", 0, 1.0, 1.0)
     with pytest.raises(ValueError, match="relit_fps is not finite"):
         BudgetPoint("r", "s", 5, 1.0, math.inf)
+    with pytest.raises(ValueError, match="must be finite and contain relit_psnr"):
+        BudgetPoint("r", "s", 5, 18.0, 1.0, psnr_range=(18.1, 18.4))  # the mean lies outside its runs' range
+    ranged = [BudgetPoint("r", "default", 20000, 18.2, 3.0, psnr_range=(18.0, 18.4)),
+              BudgetPoint("r", "budget", 9000, 18.0, 5.0, psnr_range=(17.9, 18.05))]
+    assert plot_budget(ranged, tmp_path / "ranged.png").is_file()

@@ -6,14 +6,15 @@ from __future__ import annotations
 import json
 import math
 import shutil
+from pathlib import Path
 
 import pytest
 from click.testing import CliRunner
 
 from conftest import synthetic_box_dataset
 from spotlessgs.selection_benchmark import (
-    PLOT, RESULTS_JSON, RESULTS_MD, ROW_FILE, RUN_FOLDERS, BenchmarkSettings, budget_verdict, main,
-    run_selection_benchmark, selection_verdict, train_config, verdict_lines,
+    PLOT, RESULTS_JSON, RESULTS_MD, ROW_FILE, RUN_FOLDERS, BenchmarkSettings, aggregate_seeds, budget_verdict, main,
+    run_seeds, run_selection_benchmark, selection_verdict, train_config, verdict_lines,
 )
 
 pytestmark = pytest.mark.usefixtures("one_torch_thread")
@@ -201,3 +202,79 @@ def test_datasets_are_refused_with_clear_errors(bench, tmp_path):
     (no_gt / "transforms.json").write_text(json.dumps(meta))
     with pytest.raises(ValueError, match="no_gt: no test view has a ground-truth image"):
         run_selection_benchmark([no_gt], tmp_path / "o3", SETTINGS)
+
+
+# ---- several seeds ----------------------------------------------------------------------------------------------
+
+
+def _seed_result(chosen, spotless_psnr, chosen_psnr, budget_psnr, budget_gaussians):
+    """A one-room result of run_selection_benchmark with hand-made numbers."""
+    def run(psnr, gaussians):
+        return {"gaussians": gaussians, "train_seconds": 100.0, "relit_fps": 20.0, "psnr": psnr - 8,
+                "psnr_aligned": psnr}
+    runs = {"spotless": run(spotless_psnr, 20000), "chosen": run(chosen_psnr, 20000),
+            "budget": run(budget_psnr, budget_gaussians)}
+    room = {"selection": {"chosen": chosen, "tolerance_db": 0.25}, "runs": runs}
+    room["verdicts"] = {"selection": selection_verdict(chosen_psnr, spotless_psnr, 0.25),
+                        "budget": budget_verdict(20000, budget_gaussians, spotless_psnr, budget_psnr)}
+    return {"rooms": {"bedroom": room}}
+
+
+def test_seed_summary_judges_the_means_not_single_runs():
+    # seed 0 misses the budget bound (-0.3 dB), seed 1 meets it (-0.1 dB): the mean loss -0.2 dB is at the bound
+    per_seed = {1: _seed_result("sh0-mlp", 18.5, 18.4, 18.4, 12000), 0: _seed_result("sh1-lambert", 18.9, 18.5,
+                                                                                     18.6, 14000)}
+    room = aggregate_seeds(per_seed)["bedroom"]
+    assert room["choices"] == {"0": "sh1-lambert", "1": "sh0-mlp"}
+    assert room["runs"]["spotless"]["psnr_aligned"] == pytest.approx({"mean": 18.7, "min": 18.5, "max": 18.9})
+    assert room["runs"]["budget"]["gaussians"] == pytest.approx({"mean": 13000, "min": 12000, "max": 14000})
+    assert room["deltas"]["budget_db"] == pytest.approx([-0.3, -0.1])  # seed order
+    assert room["deltas"]["budget_reduction_pct"] == pytest.approx([30.0, 40.0])
+    assert room["deltas"]["selection_db"] == pytest.approx([-0.4, -0.1])
+    budget = room["verdicts"]["budget"]
+    assert budget["delta_db"] == pytest.approx(-0.2) and budget["reduction_pct"] == pytest.approx(35.0)
+    assert budget["met"]
+    selection = room["verdicts"]["selection"]  # mean choice 18.45 vs 18.7: -0.25, at the tolerance
+    assert selection["delta_db"] == pytest.approx(-0.25) and selection["within"]
+    per_seed[0] = _seed_result("sh1-lambert", 18.9, 18.4, 18.5, 14000)
+    room = aggregate_seeds(per_seed)["bedroom"]
+    assert not room["verdicts"]["budget"]["met"] and not room["verdicts"]["selection"]["within"]
+
+
+def test_seed_summary_refuses_mismatched_seeds():
+    with pytest.raises(ValueError, match="no seeds"):
+        aggregate_seeds({})
+    other = _seed_result("a", 1.0, 1.0, 1.0, 5)
+    other["rooms"]["kitchen"] = other["rooms"].pop("bedroom")
+    with pytest.raises(ValueError, match="different rooms"):
+        aggregate_seeds({0: _seed_result("a", 1.0, 1.0, 1.0, 5), 1: other})
+    with pytest.raises(ValueError, match="a seed is given twice"):
+        run_seeds([], Path("unused"), SETTINGS, [3, 3])
+
+
+def test_several_seeds_measure_each_seed_and_summarise(bench, tmp_path, monkeypatch):
+    import spotlessgs.training.trainer as trainer
+
+    rooms, out, _output = bench
+    copy = tmp_path / "out"
+    shutil.copytree(out, copy / "seed-0")  # seed 0 is measured already: reused, not retrained
+    trained = []
+    real_train = trainer.train
+    monkeypatch.setattr(trainer, "train", lambda data, run_dir, *a, **k: (trained.append(run_dir),
+                                                                          real_train(data, run_dir, *a, **k))[1])
+    result = CliRunner().invoke(main, [a for room in rooms for a in ("--data", str(room))]
+                                + ["--out", str(copy), *ARGS, "--seed", "0", "--seed", "7"])
+    assert result.exit_code == 0, result.output + repr(result.exception)
+    assert trained and all(copy / "seed-7" in Path(d).parents for d in trained)
+    summary = json.loads((copy / RESULTS_JSON).read_text())
+    assert summary["seeds"] == [0, 7] and set(summary["rooms"]) == {"room_a", "room_b"}
+    for name, room in summary["rooms"].items():
+        single = [json.loads((copy / f"seed-{s}" / RESULTS_JSON).read_text())["rooms"][name] for s in (0, 7)]
+        assert json.loads((copy / "seed-7" / RESULTS_JSON).read_text())["provenance"]["seed"] == 7
+        psnrs = [r["runs"]["budget"]["psnr_aligned"] for r in single]
+        assert room["runs"]["budget"]["psnr_aligned"]["mean"] == pytest.approx(sum(psnrs) / 2)
+        assert room["choices"] == {"0": single[0]["selection"]["chosen"], "7": single[1]["selection"]["chosen"]}
+        _finite_numbers(room)
+    md = (copy / RESULTS_MD).read_text()
+    assert "seeds 0, 7" in md and md.count("On the means:") == 2 and "On the means:" in result.output
+    assert (copy / PLOT).read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"

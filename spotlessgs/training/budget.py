@@ -29,19 +29,21 @@ from dataclasses import dataclass
 import torch
 
 from spotlessgs.models.gaussians import GaussianParams
+from spotlessgs.training.config import TrainConfig
 from spotlessgs.training.strategy import DensifyConfig, DensifyStrategy
 
 
 @dataclass(frozen=True)
 class BudgetConfig:
-    """Growth-stop and pruning settings of the Gaussian budget (TrainConfig ``budget_*`` fields)."""
+    """Growth-stop and pruning settings of the Gaussian budget (TrainConfig ``budget_*`` fields, whose defaults
+    these are)."""
 
     # Validation checks without a gain of at least min_gain_db before growth stops.
-    patience: int = 3
+    patience: int = TrainConfig.budget_patience
     # Smallest validation PSNR gain (dB) over the best earlier check that counts as an improvement.
-    min_gain_db: float = 0.05
+    min_gain_db: float = TrainConfig.budget_min_gain_db
     # Share of the total blending weight that the pruned (least-contributing) Gaussians may carry together.
-    prune_fraction: float = 0.03
+    prune_fraction: float = TrainConfig.budget_prune_fraction
 
     def __post_init__(self) -> None:
         if self.patience < 1:

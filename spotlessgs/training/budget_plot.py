@@ -2,7 +2,8 @@
 
 One point per run (e.g. the default strategy and the budget on each room): left panel relit PSNR against the number
 of Gaussians, right panel relit frames per second against the number of Gaussians; runs of one room share a colour,
-the marker says the strategy. Written atomically (PNG or PDF by the file name).
+the marker says the strategy; a point that is the mean of repeated runs shows their PSNR range as an error bar.
+Written atomically (PNG or PDF by the file name).
 """
 
 from __future__ import annotations
@@ -28,6 +29,8 @@ class BudgetPoint:
     relit_psnr: float
     # Relit rendering speed (frames per second).
     relit_fps: float
+    # (low, high) relit PSNR over repeated runs when the point is their mean: drawn as an error bar (None = one run).
+    psnr_range: tuple[float, float] | None = None
 
     def __post_init__(self) -> None:
         if self.gaussians < 1:
@@ -35,6 +38,11 @@ class BudgetPoint:
         for name in ("relit_psnr", "relit_fps"):
             if not math.isfinite(getattr(self, name)):
                 raise ValueError(f"BudgetPoint {self.room}/{self.strategy}: {name} is not finite")
+        if self.psnr_range is not None:
+            low, high = self.psnr_range
+            if not (math.isfinite(low) and math.isfinite(high) and low <= self.relit_psnr <= high):
+                raise ValueError(f"BudgetPoint {self.room}/{self.strategy}: psnr_range {self.psnr_range} must be "
+                                 f"finite and contain relit_psnr {self.relit_psnr}")
 
 
 def plot_budget(points: list[BudgetPoint], out_path: str | Path, title: str = "Gaussian budget") -> Path:
@@ -58,6 +66,10 @@ def plot_budget(points: list[BudgetPoint], out_path: str | Path, title: str = "G
             ax.plot([p.gaussians for p in mine], [getattr(p, field) for p in mine], "-", color=colours[room],
                     alpha=0.5)
             for p in mine:
+                if field == "relit_psnr" and p.psnr_range is not None:
+                    ax.errorbar(p.gaussians, p.relit_psnr, yerr=[[p.relit_psnr - p.psnr_range[0]],
+                                                                  [p.psnr_range[1] - p.relit_psnr]],
+                                color=colours[room], capsize=3, alpha=0.7)
                 ax.scatter(p.gaussians, getattr(p, field), color=colours[room], marker=markers[p.strategy],
                            label=f"{room} / {p.strategy}")
         ax.set_xlabel("Gaussians")

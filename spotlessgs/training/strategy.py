@@ -18,21 +18,22 @@ from torch import nn
 
 from spotlessgs.models.gaussians import GaussianParams
 from spotlessgs.rasterizer import quat_to_rotmat
+from spotlessgs.training.config import TrainConfig
 
 
 @dataclass(frozen=True)
 class DensifyConfig:
-    """Densification settings (see TrainConfig for the meaning of each)."""
+    """Densification settings (see TrainConfig for the meaning of each; the defaults are TrainConfig's)."""
 
-    densify_from: int = 300
-    densify_until: int = 2000
-    densify_every: int = 100
-    grad_threshold: float = 2e-4
-    percent_dense: float = 0.01
-    prune_opacity: float = 0.005
-    opacity_reset_every: int = 1000
-    reset_opacity_value: float = 0.01
-    max_gaussians: int = 60_000
+    densify_from: int = TrainConfig.densify_from
+    densify_until: int = TrainConfig.densify_until
+    densify_every: int = TrainConfig.densify_every
+    grad_threshold: float = TrainConfig.densify_grad_threshold
+    percent_dense: float = TrainConfig.percent_dense
+    prune_opacity: float = TrainConfig.prune_opacity
+    opacity_reset_every: int = TrainConfig.opacity_reset_every
+    reset_opacity_value: float = TrainConfig.reset_opacity_value
+    max_gaussians: int = TrainConfig.max_gaussians
     # After an opacity reset, Gaussians larger than this fraction of the scene extent are pruned too.
     prune_scale: float = 0.1
 
