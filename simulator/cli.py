@@ -94,6 +94,27 @@ def generate(kind, out_dir, seed):
     click.echo(f"wrote {path}")
 
 
+@main.command("add-noise")
+@click.option("--data", "data_dir", required=True, type=click.Path(exists=True, file_okay=False, path_type=Path),
+              help="A finished dataset with linear renders (exr/).")
+@click.option("--out", "out_dir", required=True, type=click.Path(file_okay=False, path_type=Path),
+              help="Folder for the noisy copy (resumed when it holds one made with the same settings).")
+@click.option("--shot", default=0.01, show_default=True, type=click.FloatRange(0),
+              help="Shot-noise variance per unit of linear signal (1e-4 low gain ... 0.012 high gain).")
+@click.option("--read", default=0.012, show_default=True, type=click.FloatRange(0),
+              help="Read-noise standard deviation in linear intensity.")
+@click.option("--seed", default=0, show_default=True, type=int)
+def add_noise(data_dir, out_dir, shot, read, seed):
+    """Copy a dataset with camera sensor noise (shot + read) added to its spotlight-only images."""
+    from simulator.sensor_noise import SensorNoise, add_sensor_noise_to_dataset
+
+    try:
+        written = add_sensor_noise_to_dataset(data_dir, out_dir, SensorNoise(shot, read), seed)
+    except ValueError as err:
+        raise click.ClickException(str(err)) from err
+    click.echo(f"{out_dir}: wrote {written} noisy image(s)")
+
+
 @main.command()
 @click.option("--scene", "scene_path", required=True, type=click.Path(exists=True, dir_okay=False, path_type=Path))
 @click.option("--future-dir", type=click.Path(exists=True, file_okay=False, path_type=Path), default=None)

@@ -1,0 +1,129 @@
+"""Camera sensor noise for a rendered dataset: what a robot's camera adds at the high gain of a dark scene.
+
+Cycles renders are clean (denoised), while a real camera in a dark tunnel runs at high gain: its images are noisy,
+most of all in the dark corners the spotlight does not reach. This module adds the standard heteroscedastic model of
+shot and read noise in linear intensity (Foi et al. 2008, "Practical Poissonian-Gaussian noise modeling"; the
+parametrisation of Brooks et al. 2019, "Unprocessing images for learned raw denoising")::
+
+    y = x + n,   n ~ N(0, shot · x + read²),   then clipped to [0, 1], sRGB-encoded and quantised to 8 bits
+
+to the spotlight-only images of a dataset. :func:`add_sensor_noise_to_dataset` derives a noisy copy of a finished
+dataset from its linear renders (``exr/``), so the same renders can be used clean and noisy: the copy's ``images/``
+are noisy, everything else (ground truth, EXRs, poses, point cloud, transforms.json) is copied unchanged, and
+``sensor_noise.json`` records the parameters. Noise of frame k comes from its own generator (seed, frame index), so a
+rerun writes the same bytes and an interrupted run resumes frame by frame.
+"""
+
+from __future__ import annotations
+
+import math
+import shutil
+from dataclasses import asdict, dataclass
+from pathlib import Path
+
+import numpy as np
+
+from spotlessgs.io.atomic import write_json
+from spotlessgs.io.colorspace import linear_to_srgb
+from spotlessgs.io.exr import read_frame_exr
+from spotlessgs.io.images import write_png
+from spotlessgs.io.seeding import numpy_rng
+
+NOISE_RECORD = "sensor_noise.json"
+# Everything of a dataset folder that the noisy copy takes over unchanged (images/ is written anew).
+COPIED = ("gt", "exr", "sparse", "points3d.ply", "plan.json", "transforms.json")
+
+
+@dataclass(frozen=True)
+class SensorNoise:
+    """Shot and read noise in linear intensity (image values in [0, 1]).
+
+    Attributes:
+        shot: variance of the signal-dependent (Poisson) part per unit of signal; Brooks et al. sample it between
+            1e-4 (low gain) and 0.012 (high gain).
+        read: standard deviation of the signal-independent (read / quantisation) part.
+    """
+
+    shot: float = 0.01
+    read: float = 0.012
+
+    def __post_init__(self) -> None:
+        for name in ("shot", "read"):
+            value = getattr(self, name)
+            if not (math.isfinite(value) and value >= 0):
+                raise ValueError(f"SensorNoise: {name} must be finite and >= 0, got {value}")
+
+    def std(self, linear: np.ndarray) -> np.ndarray:
+        """Noise standard deviation at each linear intensity (same shape)."""
+        return np.sqrt(self.shot * np.clip(linear, 0.0, None) + self.read ** 2)
+
+
+def add_sensor_noise(linear: np.ndarray, noise: SensorNoise, rng: np.random.Generator) -> np.ndarray:
+    """A noisy copy of a linear image.
+
+    Args:
+        linear: (H, W, 3) linear intensities (finite; values above 1 are clipped by the sensor).
+        noise: the noise model; rng: the generator (one per frame for reproducible datasets).
+    Returns:
+        (H, W, 3) float32 in [0, 1].
+    """
+    x = np.asarray(linear, dtype=np.float64)
+    if x.ndim != 3 or x.shape[2] != 3:
+        raise ValueError(f"add_sensor_noise: expected an (H, W, 3) image, got shape {x.shape}")
+    if not np.isfinite(x).all():
+        raise ValueError("add_sensor_noise: the image has non-finite values")
+    noisy = x + noise.std(x) * rng.standard_normal(x.shape)
+    return np.clip(noisy, 0.0, 1.0).astype(np.float32)
+
+
+def add_sensor_noise_to_dataset(data: str | Path, out: str | Path, noise: SensorNoise, seed: int = 0) -> int:
+    """Write a copy of the finished dataset ``data`` to ``out`` whose spotlight-only images carry sensor noise.
+
+    Returns the number of images written now (frames already written by an earlier run with the same settings are
+    kept). Raises ValueError naming the folder when ``data`` is not a finished dataset with linear renders, when
+    ``out`` is ``data``, or when ``out`` holds a noisy copy made with other settings.
+    """
+    from spotlessgs.io.transforms import read_transforms
+
+    data, out = Path(data), Path(out)
+    if not (data / "transforms.json").is_file():
+        raise ValueError(f"{data}: not a finished dataset (no transforms.json)")
+    if out.resolve() == data.resolve():
+        raise ValueError(f"{out}: the noisy copy must go to another folder than its source")
+    meta = read_transforms(data / "transforms.json")
+    record = {"source": str(data.resolve()), "seed": int(seed), **asdict(noise),
+              "model": "y = x + N(0, shot*x + read^2) in linear intensity, clipped to [0, 1], 8-bit sRGB"}
+    record_path = out / NOISE_RECORD
+    if record_path.is_file():
+        import json
+
+        old = json.loads(record_path.read_text())
+        if old != record:
+            raise ValueError(f"{out}: holds a noisy copy made with other settings ({old}); use a new folder")
+    frames = []
+    for index, frame in enumerate(meta.frames()):
+        if frame.exr_file_path is None:
+            raise ValueError(f"{data}: frame {frame.file_path} has no linear render (exr_file_path)")
+        frames.append((index, frame))
+    out.mkdir(parents=True, exist_ok=True)
+    write_json(record_path, record)
+    for name in COPIED:
+        src, dst = data / name, out / name
+        if not src.exists() or dst.exists():
+            continue
+        if src.is_dir():
+            shutil.copytree(src, dst.with_name(dst.name + ".partial"), dirs_exist_ok=True)
+            dst.with_name(dst.name + ".partial").rename(dst)
+        else:
+            shutil.copy2(src, dst.with_name(dst.name + ".partial"))
+            dst.with_name(dst.name + ".partial").replace(dst)
+    written = 0
+    for index, frame in frames:
+        target = out / frame.file_path
+        if target.is_file():
+            continue
+        linear = read_frame_exr(data / frame.exr_file_path).uneven
+        noisy = add_sensor_noise(linear, noise, numpy_rng(seed, f"sensor-noise/{index}"))
+        write_png(target, linear_to_srgb(noisy))
+        written += 1
+    return written

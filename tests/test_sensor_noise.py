@@ -1,0 +1,136 @@
+"""Camera sensor noise (simulator.sensor_noise): the noise statistics of the model, and the noisy copy of a dataset
+(only the spotlight-only images change; reruns resume and reproduce the same bytes; bad input is refused)."""
+
+from __future__ import annotations
+
+import json
+import math
+
+import numpy as np
+import pytest
+from click.testing import CliRunner
+
+from simulator.sensor_noise import NOISE_RECORD, SensorNoise, add_sensor_noise, add_sensor_noise_to_dataset
+from spotlessgs.io.cameras import Intrinsics
+from spotlessgs.io.colorspace import linear_to_srgb, srgb_to_linear
+from spotlessgs.io.exr import FrameEXR, write_frame_exr
+from spotlessgs.io.images import read_image, write_png
+from spotlessgs.io.transforms import FrameRecord, write_transforms
+
+
+def test_noise_has_the_model_mean_and_standard_deviation():
+    noise = SensorNoise(shot=0.01, read=0.012)
+    x = np.full((300, 300, 3), 0.25)
+    y = add_sensor_noise(x, noise, np.random.default_rng(0))
+    assert y.dtype == np.float32 and y.shape == x.shape
+    expected_std = math.sqrt(0.01 * 0.25 + 0.012**2)  # 0.0514: far from the clipping bounds at 0.25
+    assert y.mean() == pytest.approx(0.25, abs=5e-4)
+    assert y.std() == pytest.approx(expected_std, rel=0.02)
+    # the variance grows linearly with the signal (shot noise): at 0.64 it is 0.01 * 0.64 + read^2
+    y = add_sensor_noise(np.full((300, 300, 3), 0.64), noise, np.random.default_rng(1))
+    assert y.std() == pytest.approx(math.sqrt(0.0064 + 0.012**2), rel=0.02)
+
+
+def test_noise_is_clipped_like_a_sensor_and_reproducible():
+    noise = SensorNoise(shot=0.0, read=0.05)
+    black = add_sensor_noise(np.zeros((200, 200, 3)), noise, np.random.default_rng(2))
+    assert black.min() == 0.0 and black.max() <= 1.0
+    assert black.mean() == pytest.approx(0.05 / math.sqrt(2 * math.pi), rel=0.03)  # E[max(0, N(0, s))]
+    white = add_sensor_noise(np.full((10, 10, 3), 3.0), noise, np.random.default_rng(2))
+    assert (white == 1.0).all()  # a saturated pixel stays clipped
+    x = np.random.default_rng(3).uniform(0, 1, (8, 8, 3))
+    np.testing.assert_array_equal(add_sensor_noise(x, noise, np.random.default_rng(9)),
+                                  add_sensor_noise(x, noise, np.random.default_rng(9)))
+    np.testing.assert_array_equal(add_sensor_noise(x, SensorNoise(0.0, 0.0), np.random.default_rng(9)),
+                                  x.astype(np.float32))
+
+
+@pytest.mark.parametrize("call, match", [
+    (lambda: SensorNoise(shot=-0.1), "shot must be finite and >= 0"),
+    (lambda: SensorNoise(read=math.nan), "read must be finite and >= 0"),
+    (lambda: add_sensor_noise(np.zeros((4, 4)), SensorNoise(), np.random.default_rng(0)), r"\(H, W, 3\)"),
+    (lambda: add_sensor_noise(np.full((2, 2, 3), np.inf), SensorNoise(), np.random.default_rng(0)), "non-finite"),
+])
+def test_bad_noise_input_is_refused(call, match):
+    with pytest.raises(ValueError, match=match):
+        call()
+
+
+def _dataset(root, frames=3, height=24, width=32):
+    """A finished dataset with frame EXRs (linear uneven + gt), PNGs and transforms.json; returns the uneven linears."""
+    rng = np.random.default_rng(11)
+    records, linears = [], []
+    for k in range(frames):
+        uneven = rng.uniform(0.0, 0.8, (height, width, 3)).astype(np.float32)
+        gt = rng.uniform(0.2, 0.6, (height, width, 3)).astype(np.float32)
+        name = f"frame_{k:05d}"
+        write_frame_exr(root / "exr" / f"{name}.exr", FrameEXR(uneven=uneven, gt=gt,
+                                                                 depth=np.ones((height, width), np.float32),
+                                                                 normal=np.zeros((height, width, 3), np.float32)))
+        write_png(root / "images" / f"{name}.png", linear_to_srgb(uneven))
+        write_png(root / "gt" / f"{name}.png", linear_to_srgb(gt))
+        c2w = np.eye(4)
+        c2w[0, 3] = 0.1 * k
+        records.append(FrameRecord(f"images/{name}.png", c2w, gt_file_path=f"gt/{name}.png",
+                                   exr_file_path=f"exr/{name}.exr"))
+        linears.append(uneven)
+    write_transforms(root / "transforms.json", Intrinsics.from_fov(75.0, width, height), records, None)
+    return linears
+
+
+def test_noisy_copy_changes_only_the_spotlight_images_and_resumes(tmp_path):
+    src, out = tmp_path / "clean", tmp_path / "noisy"
+    linears = _dataset(src)
+    noise = SensorNoise(shot=0.01, read=0.012)
+    assert add_sensor_noise_to_dataset(src, out, noise, seed=4) == 3
+    for k, linear in enumerate(linears):
+        name = f"frame_{k:05d}.png"
+        assert (out / "gt" / name).read_bytes() == (src / "gt" / name).read_bytes()
+        noisy = srgb_to_linear(read_image(out / "images" / name))
+        clean = srgb_to_linear(read_image(src / "images" / name))
+        residual = noisy - linear
+        # the residual is the model's noise (plus 8-bit quantisation, ~0.004 at most in linear here)
+        assert np.abs(noisy - clean).mean() > 0.02
+        assert residual.std() == pytest.approx(float(np.sqrt(noise.shot * linear + noise.read**2).mean()), rel=0.2)
+    assert (out / "transforms.json").read_bytes() == (src / "transforms.json").read_bytes()
+    record = json.loads((out / NOISE_RECORD).read_text())
+    assert record["shot"] == 0.01 and record["read"] == 0.012 and record["seed"] == 4
+    # a rerun writes nothing; an interrupted run (a frame missing) writes that frame again, with the same bytes
+    before = (out / "images" / "frame_00001.png").read_bytes()
+    assert add_sensor_noise_to_dataset(src, out, noise, seed=4) == 0
+    (out / "images" / "frame_00001.png").unlink()
+    assert add_sensor_noise_to_dataset(src, out, noise, seed=4) == 1
+    assert (out / "images" / "frame_00001.png").read_bytes() == before
+    # other noise frames differ
+    other = tmp_path / "other-seed"
+    add_sensor_noise_to_dataset(src, other, noise, seed=5)
+    assert (other / "images" / "frame_00001.png").read_bytes() != before
+
+
+def test_noisy_copy_refuses_bad_folders(tmp_path):
+    src = tmp_path / "clean"
+    _dataset(src, frames=2)
+    with pytest.raises(ValueError, match="another folder than its source"):
+        add_sensor_noise_to_dataset(src, src, SensorNoise())
+    with pytest.raises(ValueError, match=r"not a finished dataset \(no transforms.json\)"):
+        add_sensor_noise_to_dataset(tmp_path / "missing", tmp_path / "o", SensorNoise())
+    add_sensor_noise_to_dataset(src, tmp_path / "o2", SensorNoise(0.01, 0.01))
+    with pytest.raises(ValueError, match="made with other settings"):
+        add_sensor_noise_to_dataset(src, tmp_path / "o2", SensorNoise(0.02, 0.01))
+    meta = json.loads((src / "transforms.json").read_text())
+    meta["frames"][1].pop("exr_file_path", None)
+    (src / "transforms.json").write_text(json.dumps(meta))
+    with pytest.raises(ValueError, match="has no linear render"):
+        add_sensor_noise_to_dataset(src, tmp_path / "o3", SensorNoise())
+
+
+def test_command_line(tmp_path):
+    from simulator.cli import main
+
+    src = tmp_path / "clean"
+    _dataset(src, frames=2)
+    result = CliRunner().invoke(main, ["add-noise", "--data", str(src), "--out", str(tmp_path / "noisy"),
+                                       "--shot", "0.005", "--read", "0.01", "--seed", "3"])
+    assert result.exit_code == 0, result.output + repr(result.exception)
+    assert "2 noisy image(s)" in result.output
+    assert json.loads((tmp_path / "noisy" / NOISE_RECORD).read_text())["shot"] == 0.005
