@@ -162,6 +162,24 @@ def test_growth_stops_after_patience_checks_without_gain_and_cap_holds():
     assert again.growth_stopped_at == 50 and again.checks == strategy.checks
 
 
+def test_no_opacity_reset_after_the_growth_stop():
+    """Resets every 20 steps; growth stops at the check of step 40 (three checks without gain after the reset at 20
+    restarted the history): the resets at steps 40, 60, 80 and 100 do not happen."""
+    cfg = DensifyConfig(densify_from=10, densify_until=100, densify_every=10, grad_threshold=1e-4,
+                        opacity_reset_every=20, reset_opacity_value=0.01, max_gaussians=200, prune_opacity=0.005)
+    g = _gaussians()
+    psnrs = iter([20.0, 21.0, 21.0, 21.0])  # checks at 10, 20 (gain), 30, 40 (the reset at 20 restarted the history)
+    strategy = BudgetStrategy(cfg, BudgetConfig(patience=1, min_gain_db=0.05, prune_fraction=0.0), 1.0,
+                              torch.Generator().manual_seed(0), lambda gg: next(psnrs), lambda gg: torch.ones(len(gg)))
+    log = _drive(strategy, g, _optimizers(g), 100)
+    assert strategy.growth_stopped_at == 40
+    assert [s + 1 for s, c in enumerate(log) if c["reset"]] == [20]
+    # the default strategy under the same schedule keeps resetting
+    g2 = _gaussians()
+    default_log = _drive(DensifyStrategy(cfg, 1.0, torch.Generator().manual_seed(0)), g2, _optimizers(g2), 100)
+    assert [s + 1 for s, c in enumerate(default_log) if c["reset"]] == [20, 40, 60, 80, 100]
+
+
 def test_negligible_gaussians_are_pruned_with_their_optimizer_state():
     cfg = DensifyConfig(densify_from=10, densify_until=20, densify_every=10, grad_threshold=1e9,  # no growth
                         opacity_reset_every=0, max_gaussians=100, prune_opacity=0.0)

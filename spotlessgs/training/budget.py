@@ -6,7 +6,8 @@ schedule and the same ``max_gaussians`` cap) with two additions, both at densifi
 1. **Growth stop.** Before densifying, the validation PSNR (held-out training views under the learned spotlight) is
    measured. Growth (clone/split) stops for good once ``patience`` consecutive checks bring no gain of at least
    ``min_gain_db`` over the best earlier value. An opacity reset lowers every opacity and so the PSNR for a while:
-   the history restarts after each reset.
+   the history restarts after each reset. After a growth stop there are no more opacity resets (nothing would
+   regrow what the pruning of the faint Gaussians removes).
 2. **Contribution pruning.** Each Gaussian's total blending weight Σ_views Σ_pixels α T over (a subset of) the fitted
    views is computed (:func:`~spotlessgs.training.validation.gaussian_contributions`). The Gaussians are sorted by it
    and the least-contributing ones are pruned as long as their summed weight stays within ``prune_fraction`` of the
@@ -137,7 +138,11 @@ class BudgetStrategy(DensifyStrategy):
         if self.growth_stopped_at is None and not final:
             changes = super().step_post_backward(step, gaussians, optimizers, means2d_grad, radii, width, height)
         else:  # no more growth (growth also ends at densify_until, as in 3DGS): keep the transparent-Gaussian
-            # pruning and the opacity resets of the schedule
+            # pruning; the scheduled opacity reset only while growth has not stopped (at densify_until, as the
+            # default strategy): a reset makes every Gaussian faint so that densification can replace the floaters it
+            # uncovers, and after a growth stop the opacity pruning would only remove what no growth replaces
+            # (measured: a bedroom run that stopped growing at the step-1000 reset fell from 16,863 to 4,909 Gaussians
+            # and lost 0.35 dB of relit PSNR)
             changes = {"cloned": 0, "split": 0, "pruned": 0, "reset": 0}
             if at_densify:
                 prune = gaussians.opacities.detach() < cfg.prune_opacity
@@ -145,7 +150,8 @@ class BudgetStrategy(DensifyStrategy):
                 if prune.any():
                     changes["pruned"] = int(prune.sum())
                     self._keep(gaussians, optimizers, ~prune)
-            if cfg.opacity_reset_every > 0 and s % cfg.opacity_reset_every == 0:
+            if (cfg.opacity_reset_every > 0 and s % cfg.opacity_reset_every == 0
+                    and self.growth_stopped_at is None):
                 self._reset_opacity(gaussians, optimizers)
                 self.last_reset_step = s
                 changes["reset"] = 1
