@@ -99,8 +99,8 @@ class TrainConfig:
     # Budget: at each densification step, prune the least-contributing Gaussians whose summed contribution (alpha ·
     # transmittance summed over pixels of the contribution views) is at most this fraction of all Gaussians' total.
     # Measured on the 36-frame quick bedroom / storage room (relit aligned PSNR vs the default strategy): 0.01 kept
-    # -20% / -41% Gaussians at -0.11 / -0.25 dB, 0.02 -24% / -43% at -0.23 / -0.40 dB, 0.03 -31% / -66% at
-    # -0.27 / -0.21 dB (single runs; the storage row is not monotone, so run-to-run noise is ~0.15 dB).
+    # -20% / -41% Gaussians at -0.11 / -0.25 dB, 0.02 -24% / -43% at -0.23 / -0.40 dB (single runs; run-to-run noise
+    # is ~0.15 dB); 0.03, mean of 3 seeds (README): -58% / -51% at -0.26 / -0.07 dB.
     budget_prune_fraction: float = 0.03
     # Budget: number of fitted views (evenly spaced) over which contributions are summed.
     budget_contribution_views: int = 16
