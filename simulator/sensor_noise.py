@@ -16,6 +16,7 @@ rerun writes the same bytes and an interrupted run resumes frame by frame.
 
 from __future__ import annotations
 
+import json
 import math
 import shutil
 from dataclasses import asdict, dataclass
@@ -23,7 +24,7 @@ from pathlib import Path
 
 import numpy as np
 
-from spotlessgs.io.atomic import write_json
+from spotlessgs.io.atomic import atomic_path, write_json
 from spotlessgs.io.colorspace import linear_to_srgb
 from spotlessgs.io.exr import read_frame_exr
 from spotlessgs.io.images import write_png
@@ -95,8 +96,6 @@ def add_sensor_noise_to_dataset(data: str | Path, out: str | Path, noise: Sensor
               "model": "y = x + N(0, shot*x + read^2) in linear intensity, clipped to [0, 1], 8-bit sRGB"}
     record_path = out / NOISE_RECORD
     if record_path.is_file():
-        import json
-
         old = json.loads(record_path.read_text())
         if old != record:
             raise ValueError(f"{out}: holds a noisy copy made with other settings ({old}); use a new folder")
@@ -115,8 +114,8 @@ def add_sensor_noise_to_dataset(data: str | Path, out: str | Path, noise: Sensor
             shutil.copytree(src, dst.with_name(dst.name + ".partial"), dirs_exist_ok=True)
             dst.with_name(dst.name + ".partial").rename(dst)
         else:
-            shutil.copy2(src, dst.with_name(dst.name + ".partial"))
-            dst.with_name(dst.name + ".partial").replace(dst)
+            with atomic_path(dst) as tmp:
+                shutil.copy2(src, tmp)
     written = 0
     for index, frame in frames:
         target = out / frame.file_path
