@@ -54,6 +54,8 @@ BUDGET_MAX_LOSS_DB = 0.2
 # Slack of the verdict comparisons (dB and %): a value exactly at a bound counts as within / met despite float
 # rounding (e.g. 20.1 - 20.3 = -0.2000000000000028).
 EPS = 1e-9
+# The bounds as recorded in the results JSON.
+BOUNDS = {"budget_min_reduction_pct": BUDGET_MIN_REDUCTION_PCT, "budget_max_loss_db": BUDGET_MAX_LOSS_DB}
 
 
 @dataclass(frozen=True)
@@ -318,8 +320,7 @@ def run_selection_benchmark(data_dirs: list[Path], out: Path, settings: Benchmar
                          "rooms are named by folder name")
     rooms = {name: measure_room(Path(d).resolve(), out / name, settings) for name, d in zip(names, data_dirs)}
     results = {"settings": dataclasses.asdict(settings),
-               "bounds": {"budget_min_reduction_pct": BUDGET_MIN_REDUCTION_PCT,
-                          "budget_max_loss_db": BUDGET_MAX_LOSS_DB},
+               "bounds": BOUNDS,
                "rooms": rooms, "provenance": provenance(seed=settings.seed)}
     write_json(out / RESULTS_JSON, results)
     write_text(out / RESULTS_MD, markdown_report(rooms, settings))
@@ -436,8 +437,7 @@ def run_seeds(data_dirs: list[Path], out: Path, settings: BenchmarkSettings, see
                 for s in seeds}
     summary = aggregate_seeds(per_seed)
     results = {"settings": {**dataclasses.asdict(settings), "seed": None}, "seeds": sorted(seeds),
-               "bounds": {"budget_min_reduction_pct": BUDGET_MIN_REDUCTION_PCT,
-                          "budget_max_loss_db": BUDGET_MAX_LOSS_DB},
+               "bounds": BOUNDS,
                "rooms": summary, "provenance": provenance(seeds=sorted(seeds))}
     write_json(out / RESULTS_JSON, results)
     write_text(out / RESULTS_MD, seeds_markdown(summary, settings, sorted(seeds)))
@@ -465,11 +465,8 @@ def main(data_dirs, out, preset, iterations, image_width, threads, seeds, min_pr
     """Measure automatic model selection and the Gaussian budget against SpotlessGS."""
     logging.basicConfig(level=logging.INFO, format="%(levelname)s %(name)s: %(message)s")
     settings = BenchmarkSettings(preset, iterations, image_width, threads, seeds[0], min_proxy_iterations)
-    results = run_seeds(list(data_dirs), out, settings, list(seeds))
-    if len(seeds) == 1:
-        click.echo(markdown_report(results["rooms"], settings))
-    else:
-        click.echo(seeds_markdown(results["rooms"], settings, sorted(seeds)))
+    run_seeds(list(data_dirs), out, settings, list(seeds))
+    click.echo((out / RESULTS_MD).read_text())
 
 
 if __name__ == "__main__":
