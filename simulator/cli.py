@@ -51,6 +51,9 @@ def main(verbose: bool) -> None:
               help="Light bounces (0 = direct light only).")
 @click.option("--ambient", default=0.0, show_default=True, type=click.FloatRange(0), 
               help="World light strength in the spotlight-only render.")
+@click.option("--lambertian", is_flag=True,
+              help="Render every surface as an ideal Lambertian reflector (specular layer off, metallic 0): a room "
+                   "with only diffuse materials.")
 @click.option("--seed", default=0, show_default=True, type=int)
 @click.option("--preset", default="uneven", show_default=True, type=click.Choice(["uneven", "saturated"]),
               help="Spotlight strength: uneven, or saturated (clips highlights).")
@@ -60,14 +63,15 @@ def main(verbose: bool) -> None:
 @click.option("--device", default="auto", show_default=True, type=click.Choice(["auto", "cpu", "gpu"]))
 @click.option("-q", "--quiet", is_flag=True, help="No progress bar.")
 def render(scene_path, out_dir, future_dir, texture_dir, allow_missing, room, frames, width, height, h_fov_deg, samples,
-           no_denoise, bounces, ambient, seed, preset, shard, threads, device, quiet):
+           no_denoise, bounces, ambient, lambertian, seed, preset, shard, threads, device, quiet):
     """Render the spotlight-only and the evenly lit image of every pose of a room's camera loop."""
     from simulator.front3d import LoadOptions
     from simulator.render_pipeline import ExecutionOptions, RenderConfig, render_dataset
 
     config = RenderConfig.from_preset(
         preset, frames=frames, width=width, height=height, h_fov_deg=h_fov_deg, samples=samples,
-        denoise=not no_denoise, max_bounces=bounces, ambient=ambient, seed=seed, room=room,
+        denoise=not no_denoise, max_bounces=bounces, ambient=ambient, lambertian=lambertian, seed=seed,
+        room=room,
     )
     summary = render_dataset(
         scene_path, out_dir, config,

@@ -58,6 +58,9 @@ class RenderConfig:
         denoise: OpenImageDenoise on both renders.
         max_bounces: light bounces (0 = direct light only: no bounce light at all).
         ambient: world strength in the spotlight-only render (0 = a dark room).
+        lambertian: render every surface as an ideal Lambertian reflector (the Principled BSDF's specular layer off,
+            metallic 0; colours and textures kept): a room with only diffuse materials. Blender's default dielectric
+            keeps a 4 % Fresnel specular layer even at roughness 0.9, which is not Lambertian.
         seed: the command seed; poses, render noise and point sampling each derive their own generator from it.
         preset: name of the spotlight preset (``uneven`` or ``saturated``), recorded in the dataset.
         spotlight: the camera-mounted spotlight.
@@ -75,6 +78,7 @@ class RenderConfig:
     denoise: bool = True
     max_bounces: int = 4
     ambient: float = 0.0
+    lambertian: bool = False
     seed: int = 0
     preset: str = "uneven"
     spotlight: SpotlightConfig = field(default_factory=SpotlightConfig)
@@ -139,6 +143,8 @@ def frame_done(out_dir: Path, index: int) -> bool:
 def _fingerprint(scene_path: Path, config: RenderConfig) -> dict[str, Any]:
     """The settings that determine the output (JSON-able)."""
     cfg = dataclasses.asdict(config)
+    if not cfg["lambertian"]:
+        del cfg["lambertian"]  # recorded only when set: datasets rendered before the option existed still resume
     return {"scene": str(scene_path.resolve()), "config": to_jsonable(cfg)}
 
 
@@ -245,7 +251,7 @@ def render_dataset(
         blender = renderer.blender_version()
         room_scene = dataclasses.replace(scene, objects=objects)
         built = scene_builder.build_scene(room_scene, config.spotlight, config.ground_truth.ceiling_glow,
-                                          config.intrinsics())
+                                          config.intrinsics(), lambertian=config.lambertian)
         from tqdm import tqdm
 
         bar = tqdm(todo, desc=f"render {scene_path.parent.name}", unit="frame", disable=not execution.progress)
@@ -311,6 +317,7 @@ def finalize_dataset(
             "max_bounces": config.max_bounces,
             "view_transform": "Standard",
             "ambient": config.ambient,
+            "lambertian": config.lambertian,
             "ground_truth_lighting": to_jsonable(dataclasses.asdict(config.ground_truth)),
             "trajectory": to_jsonable(dataclasses.asdict(config.trajectory)),
             "h_fov_deg": config.h_fov_deg,

@@ -150,6 +150,8 @@ def test_other_settings_in_the_same_folder_are_refused(dataset):
 
     with pytest.raises(DatasetFolderError, match="differs in: samples"):
         _render(dataset, samples=8)
+    with pytest.raises(DatasetFolderError, match="differs in: lambertian"):
+        _render(dataset, lambertian=True)
 
 
 def test_shards_render_disjoint_parts_and_complete_together(tmp_path):
@@ -165,3 +167,58 @@ def test_shards_render_disjoint_parts_and_complete_together(tmp_path):
     rec = pycolmap.Reconstruction(str(out / "sparse" / "0"))
     assert rec.num_images() == 3
     assert os.path.getsize(out / "points3d.ply") > 0
+
+
+def _look_at_blender(eye, target) -> np.ndarray:
+    """(4, 4) camera-to-world in the Blender convention (camera looks along -z, y up) from ``eye`` to ``target``."""
+    eye, target = np.asarray(eye, float), np.asarray(target, float)
+    back = eye - target
+    back /= np.linalg.norm(back)
+    right = np.cross([0.0, 1.0, 0.0] if abs(back[2]) > 0.99 else [0.0, 0.0, 1.0], back)
+    right /= np.linalg.norm(right)
+    up = np.cross(back, right)
+    c2w = np.eye(4)
+    c2w[:3, 0], c2w[:3, 1], c2w[:3, 2], c2w[:3, 3] = right, up, back, eye
+    return c2w
+
+
+def _floor_radiance_from_two_directions(lambertian: bool) -> tuple[float, float]:
+    """Lamp-lit radiance of one floor point seen from straight above and from a grazing 20 deg elevation.
+
+    The floor is a glossy metal (roughness 0.3, metallic 1) and there is no bounce light, so only the material model
+    decides whether the two radiances agree.
+    """
+    from simulator.blender import renderer, scene_builder
+    from simulator.lighting import SpotlightConfig
+    from simulator.scene_model import LightFixture, Material, MeshObject, Scene
+    from spotlessgs.io.cameras import Intrinsics
+
+    scene_builder.reset_blender()
+    settings = renderer.CyclesSettings(width=24, height=18, samples=64, denoise=False, max_bounces=0, threads=2)
+    renderer.configure(settings)
+    floor = MeshObject(
+        name="floor", source="test", category="Floor",
+        vertices=np.array([[-5, -5, 0], [5, -5, 0], [5, 5, 0], [-5, 5, 0]], float),
+        faces=np.array([[0, 1, 2], [0, 2, 3]]),
+        material=Material(name="brushed_steel", base_color=(0.6, 0.6, 0.6), roughness=0.3, metallic=1.0),
+    )
+    scene = Scene(scene_id="plane", source=Path("plane"), objects=[floor],
+                  lights=[LightFixture(name="lamp", kind="point", position=(0.0, 0.0, 1.0), power_w=60.0, size=0.05)],
+                  rooms=[])
+    built = scene_builder.build_scene(scene, SpotlightConfig(), 0.0, Intrinsics.from_fov(30.0, 24, 18),
+                                      lambertian=lambertian)
+    target = np.array([0.4, 0.0, 0.0])
+    radiance = []
+    for eye in (target + [0.0, 0.0, 2.0], target + 2.0 * np.array([np.cos(np.radians(20)), 0.0,
+                                                                    np.sin(np.radians(20))])):
+        pair = renderer.render_pair(built, _look_at_blender(eye, target), settings, seed=0)
+        radiance.append(float(pair.gt[7:11, 10:14].mean()))  # the pixels around the image centre = the target
+    return radiance[0], radiance[1]
+
+
+def test_lambertian_option_makes_radiance_independent_of_the_view_direction():
+    """An ideal diffuse reflector has the same radiance in every direction; Blender's metal does not."""
+    top, grazing = _floor_radiance_from_two_directions(lambertian=True)
+    assert top > 0.05 and abs(grazing / top - 1.0) < 0.05, (top, grazing)
+    top, grazing = _floor_radiance_from_two_directions(lambertian=False)
+    assert abs(grazing / top - 1.0) > 0.3, (top, grazing)

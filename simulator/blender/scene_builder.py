@@ -48,10 +48,13 @@ def _image(path) -> bpy.types.Image:
     return img
 
 
-def build_material(mat: Material, built: BuiltScene, ceiling_glow: float = 0.0) -> bpy.types.Material:
+def build_material(mat: Material, built: BuiltScene, ceiling_glow: float = 0.0,
+                   lambertian: bool = False) -> bpy.types.Material:
     """A Principled-BSDF material; emissive surfaces register their strength socket in ``built``.
 
     ``ceiling_glow`` > 0 makes the surface emit for indirect rays only (camera rays see the plain BSDF).
+    ``lambertian`` turns the specular layer off and the metalness to 0: the BSDF is then exactly Blender's Lambertian
+    Diffuse BSDF (same colour and texture).
     """
     bm = bpy.data.materials.new(mat.name)
     nodes, links = bm.node_tree.nodes, bm.node_tree.links
@@ -61,7 +64,9 @@ def build_material(mat: Material, built: BuiltScene, ceiling_glow: float = 0.0) 
     color = (*mat.base_color, 1.0)
     bsdf.inputs["Base Color"].default_value = color
     bsdf.inputs["Roughness"].default_value = float(mat.roughness)
-    bsdf.inputs["Metallic"].default_value = float(mat.metallic)
+    bsdf.inputs["Metallic"].default_value = 0.0 if lambertian else float(mat.metallic)
+    if lambertian:
+        bsdf.inputs["Specular IOR Level"].default_value = 0.0
     if mat.texture is not None:
         tex = nodes.new("ShaderNodeTexImage")
         tex.image = _image(mat.texture)
@@ -150,8 +155,12 @@ def spot_pose_in_blender_camera(spot: SpotlightConfig) -> np.ndarray:
     return pose
 
 
-def build_scene(scene: Scene, spot: SpotlightConfig, ceiling_glow: float, intrinsics) -> BuiltScene:
-    """Create every object of ``scene`` plus the camera and its spotlight in the current (empty) Blender scene."""
+def build_scene(scene: Scene, spot: SpotlightConfig, ceiling_glow: float, intrinsics,
+                lambertian: bool = False) -> BuiltScene:
+    """Create every object of ``scene`` plus the camera and its spotlight in the current (empty) Blender scene.
+
+    ``lambertian``: every material as an ideal Lambertian reflector (see ``build_material``).
+    """
     bscene = bpy.context.scene
     cam_data = bpy.data.cameras.new("camera")
     cam_data.sensor_fit = "HORIZONTAL"
@@ -180,7 +189,7 @@ def build_scene(scene: Scene, spot: SpotlightConfig, ceiling_glow: float, intrin
         glow = ceiling_glow if obj.category.lower() == "ceiling" else 0.0
         key = (obj.material, glow)
         if key not in materials:
-            materials[key] = build_material(obj.material, built, glow)
+            materials[key] = build_material(obj.material, built, glow, lambertian)
         build_mesh(obj, materials[key])
     built.fixtures = [build_fixture(light) for light in scene.lights]
     return built
