@@ -17,7 +17,7 @@ from __future__ import annotations
 
 import os
 import shutil
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Callable, Literal, Mapping, Sequence
 
@@ -58,6 +58,9 @@ class SfmModel:
     points_rgb: np.ndarray  # (P, 3) uint8 colours of the points
     point_errors_px: np.ndarray  # (P,) mean reprojection error of each point over its track (px)
     observations: int  # 2D observations of the points (sum of the track lengths)
+    # (O, 4) every 2D observation: x, y (pixels), reprojection error (px), radius from the image centre as a fraction
+    # of the half-diagonal (0 = centre, 1 = corner)
+    observation_errors: np.ndarray = field(default_factory=lambda: np.zeros((0, 4)))
 
 
 @dataclass(frozen=True)
@@ -81,6 +84,20 @@ class SfmResult:
         """Images registered in the largest sub-model (0 when none)."""
         return len(self.models[0].poses_c2w) if self.models else 0
 
+    def errors_by_radius(self, bins: int = 4) -> list[dict]:
+        """Reprojection error of the observations in ``bins`` equal rings of image radius (fraction of the
+        half-diagonal, corners at 1): ``radius`` [lo, hi), ``observations``, ``mean_error_px`` (None when empty).
+
+        Where in the image the features lie matters: under a camera-mounted spotlight they crowd in the bright centre.
+        """
+        if bins < 1:
+            raise ValueError(f"errors_by_radius: bins must be >= 1, got {bins}")
+        obs = np.concatenate([m.observation_errors for m in self.models]) if self.models else np.zeros((0, 4))
+        ring = np.minimum((obs[:, 3] * bins).astype(int), bins - 1)
+        return [{"radius": [k / bins, (k + 1) / bins], "observations": int((ring == k).sum()),
+                 "mean_error_px": float(obs[ring == k, 2].mean()) if (ring == k).any() else None}
+                for k in range(bins)]
+
     def summary(self, true_c2w: Mapping[str, np.ndarray] | None = None, order: Sequence[str] | None = None) -> dict:
         """JSON-ready statistics; with true poses (name → (4, 4) c2w, OpenCV axes) also trajectory errors.
 
@@ -96,6 +113,7 @@ class SfmResult:
             "points3d": self.points3d,
             "models": len(self.models),
             "largest_model_images": self.largest_model_images,
+            "reprojection_error_by_radius": self.errors_by_radius(),
         }
         if true_c2w is not None:
             errs = self.trajectory_errors(true_c2w, order)
@@ -263,12 +281,22 @@ def _result_from_models(models: Mapping[int, object], total: int, all_models: bo
 
 def _model_from_reconstruction(rec) -> SfmModel:
     """Poses (camera-to-world, OpenCV axes), points, colours, point errors and observation count of one sub-model."""
-    poses = {}
+    poses, observed = {}, []
     for image_id in rec.reg_image_ids():
         image = rec.image(image_id)
         cam_from_world = np.eye(4)
         cam_from_world[:3, :4] = image.cam_from_world().matrix()
         poses[image.name] = np.linalg.inv(cam_from_world)
+        camera = rec.camera(image.camera_id)
+        half_diagonal = 0.5 * float(np.hypot(camera.width, camera.height))
+        for p2d in image.points2D:
+            if not p2d.has_point3D():
+                continue
+            xy = np.asarray(p2d.xy, dtype=np.float64)
+            projected = camera.img_from_cam(image.cam_from_world() * rec.points3D[p2d.point3D_id].xyz)
+            error = np.inf if projected is None else float(np.linalg.norm(np.asarray(projected) - xy))
+            radius = float(np.hypot(xy[0] - 0.5 * camera.width, xy[1] - 0.5 * camera.height)) / half_diagonal
+            observed.append((xy[0], xy[1], error, radius))
     points = list(rec.points3D.values())
     return SfmModel(
         poses_c2w=poses,
@@ -276,4 +304,24 @@ def _model_from_reconstruction(rec) -> SfmModel:
         points_rgb=np.array([p.color for p in points], dtype=np.uint8).reshape(-1, 3),
         point_errors_px=np.array([p.error for p in points], dtype=np.float64),
         observations=int(sum(p.track.length() for p in points)),
+        observation_errors=np.array(observed, dtype=np.float64).reshape(-1, 4),
     )
+
+
+def load_sfm_result(sparse_root: str | os.PathLike, total_images: int | None = None) -> SfmResult:
+    """The :class:`SfmResult` of a finished run from its COLMAP models (``sparse_root/<k>/``, as written by
+    :func:`run_sfm` under ``work_dir/sparse``); ``total_images`` defaults to the registered ones.
+
+    Raises:
+        FileNotFoundError: ``sparse_root`` holds no COLMAP model.
+    """
+    import pycolmap
+
+    root = Path(sparse_root)
+    dirs = sorted(d for d in root.iterdir() if d.is_dir()) if root.is_dir() else []
+    dirs = [d for d in dirs if (d / "images.bin").is_file() or (d / "images.txt").is_file()]
+    if not dirs:
+        raise FileNotFoundError(f"{root}: no COLMAP model (expected numbered folders with images.bin)")
+    models = {k: pycolmap.Reconstruction(str(d)) for k, d in enumerate(dirs)}
+    registered = sum(r.num_reg_images() for r in models.values())
+    return _result_from_models(models, total=registered if total_images is None else total_images)

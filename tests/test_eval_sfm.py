@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 from PIL import Image
 
-from evaluation.sfm import SfmConfig, run_sfm
+from evaluation.sfm import SfmConfig, load_sfm_result, run_sfm
 from evaluation.trajectory import pool_trajectory_errors
 from evaluation.synthetic import render_room_sequence
 from spotlessgs.io.cameras import Intrinsics, opengl_to_opencv_c2w
@@ -40,6 +40,41 @@ def test_all_images_register_with_accurate_poses(room_images, tmp_path, matcher)
     # COLMAP's own statistics of one model: mean point error, observations over registered images
     assert result.reprojection_error_px == pytest.approx(model.point_errors_px.mean())
     assert result.observations_per_image == pytest.approx(model.observations / len(names))
+    # every observation, re-projected by us: one row per observation, radius = distance from the centre / half-diagonal
+    obs = model.observation_errors
+    assert obs.shape == (model.observations, 4) and np.isfinite(obs).all()
+    assert 0.0 <= obs[:, 3].min() and obs[:, 3].max() <= 1.0
+    assert np.hypot(obs[:, 0] - intr.width / 2, obs[:, 1] - intr.height / 2) == pytest.approx(
+        obs[:, 3] * np.hypot(intr.width, intr.height) / 2)
+    rings = result.errors_by_radius(bins=4)
+    assert sum(r["observations"] for r in rings) == model.observations
+    assert sum(r["observations"] * (r["mean_error_px"] or 0.0) for r in rings) / model.observations == \
+        pytest.approx(obs[:, 2].mean())
+    # reading the models back from the work folder gives the same statistics
+    again = load_sfm_result(tmp_path / "work" / "sparse", total_images=len(names))
+    assert (again.reprojection_error_px, again.observations_per_image, again.registered_images) == \
+        (result.reprojection_error_px, result.observations_per_image, result.registered_images)
+    np.testing.assert_allclose(again.models[0].observation_errors[:, 2].mean(), obs[:, 2].mean())
+    # the ring table of `python -m evaluation.sfm_rings` shows the same counts and errors
+    from click.testing import CliRunner
+
+    from evaluation.sfm_rings import main as rings_main
+
+    out = CliRunner().invoke(rings_main, [f"even={tmp_path / 'work' / 'sparse'}", "--bins", "2"])
+    assert out.exit_code == 0, out.output
+    halves = result.errors_by_radius(bins=2)
+    row = out.output.strip().splitlines()[-1]
+    assert row.startswith(f"| even | {model.observations} | {result.reprojection_error_px:.3f} | ")
+    for ring in halves:
+        assert f"{100.0 * ring['observations'] / model.observations:.0f}% · {ring['mean_error_px']:.3f}" in row
+    # COLMAP's point error is the mean re-projection error over the point's track: weighted by the track lengths,
+    # the point errors average to the mean of our per-observation errors
+    import pycolmap
+
+    rec = pycolmap.Reconstruction(str(tmp_path / "work" / "sparse" / "0"))
+    points = list(rec.points3D.values())
+    weighted = np.average([p.error for p in points], weights=[p.track.length() for p in points])
+    assert obs[:, 2].mean() == pytest.approx(weighted, rel=1e-9)
     traj = summary["trajectory"]
     # the room is 5 m wide and the path 1.7 m long: a few millimetres after Sim3 alignment
     assert traj["ate_rmse"] < 0.02 and traj["rre_mean_deg"] < 0.5 and traj["num_poses"] == len(names)
@@ -64,6 +99,8 @@ def test_uninformative_images_register_nothing(tmp_path):
 
 
 def test_errors(tmp_path):
+    with pytest.raises(FileNotFoundError, match="no COLMAP model"):
+        load_sfm_result(tmp_path)
     Image.fromarray(np.zeros((60, 80, 3), np.uint8)).save(tmp_path / "a.png")
     intr = Intrinsics(50.0, 50.0, 40.0, 30.0, 100, 30)
     with pytest.raises(ValueError, match=r"a.png: image is 80x60 but the intrinsics are for 100x30"):
