@@ -180,6 +180,29 @@ def test_no_opacity_reset_after_the_growth_stop():
     assert [s + 1 for s, c in enumerate(default_log) if c["reset"]] == [20, 40, 60, 80, 100]
 
 
+def test_after_the_growth_stop_contributions_prune_only_at_the_stop_and_at_densify_until():
+    """Growth stops at the check of step 30; contribution pruning ran at every densification step before (10, 20),
+    then only at the stop (30) and at densify_until (100), not at 40..90, where pruning would compound."""
+    cfg = DensifyConfig(densify_from=10, densify_until=100, densify_every=10, grad_threshold=1e9,  # no growth
+                        opacity_reset_every=0, max_gaussians=200, prune_opacity=0.0)
+    psnrs = iter([20.0, 20.0, 20.0])
+    asked = []
+
+    def contributions(gg):
+        asked.append(len(gg))
+        return torch.arange(1.0, len(gg) + 1.0)
+
+    g = _gaussians()
+    strategy = BudgetStrategy(cfg, BudgetConfig(patience=2, min_gain_db=0.05, prune_fraction=0.2), 1.0,
+                              torch.Generator().manual_seed(0), lambda gg: next(psnrs), contributions)
+    log = _drive(strategy, g, _optimizers(g), 100)
+    assert strategy.growth_stopped_at == 30
+    assert [s + 1 for s, c in enumerate(log) if "pruned_negligible" in c] == [10, 20, 30, 100]
+    # weights 1..n; each pruning removes the smallest within 20 % of the total: 8 -> 5 (1+2+3 <= 7.2) -> 3 -> 2 -> 2
+    assert [c["pruned_negligible"] for c in log if "pruned_negligible" in c] == [3, 2, 1, 0] and len(g) == 2
+    assert asked == [8, 5, 3, 2]
+
+
 def test_negligible_gaussians_are_pruned_with_their_optimizer_state():
     cfg = DensifyConfig(densify_from=10, densify_until=20, densify_every=10, grad_threshold=1e9,  # no growth
                         opacity_reset_every=0, max_gaussians=100, prune_opacity=0.0)
