@@ -125,7 +125,8 @@ def test_json_has_every_room_and_run_with_finite_numbers(bench):
         assert room["runs"]["budget"]["strategy"] == "budget"
         for run in room["runs"].values():
             assert run["steps"] == 40 and run["gaussians"] >= 1 and run["relit_views"] == 14
-            for key in ("train_seconds", "ms_per_step", "relit_fps", "psnr", "psnr_aligned"):
+            for key in ("train_seconds", "ms_per_step", "relit_fps", "relit_fps_after_training", "psnr",
+                        "psnr_aligned"):
                 assert math.isfinite(run[key]) and run[key] > 0, (name, key, run[key])
             assert run["psnr_aligned"] >= run["psnr"] - 1e-6  # the best exposure gain cannot lower the PSNR
         _finite_numbers({k: v for k, v in room.items() if k != "data"})
@@ -162,7 +163,14 @@ def test_rerun_reuses_finished_runs_and_refuses_other_settings(bench, monkeypatc
     after = run_selection_benchmark(rooms, out, SETTINGS)
     assert calls == []
     assert {p: p.stat().st_mtime_ns for p in out.glob("*/*/train_summary.json")} == summaries
-    assert after["rooms"] == before["rooms"]
+    # everything is reused except the paired relit FPS, which is measured again on every invocation
+    def without_paired_fps(rooms):
+        return {name: {**room, "runs": {k: {f: v for f, v in r.items() if f != "relit_fps"}
+                                        for k, r in room["runs"].items()}}
+                for name, room in rooms.items()}
+
+    assert without_paired_fps(after["rooms"]) == without_paired_fps(before["rooms"])
+    assert all(r["relit_fps"] > 0 for room in after["rooms"].values() for r in room["runs"].values())
     with pytest.raises(ValueError, match="trained with other settings; use a new --out"):
         # other thread count: the selection's settings match (its decision is reused), the trained runs' do not
         run_selection_benchmark(rooms, out, BenchmarkSettings("tiny", 40, 32, 2, 0, 8))
@@ -278,3 +286,23 @@ def test_several_seeds_measure_each_seed_and_summarise(bench, tmp_path, monkeypa
     md = (copy / RESULTS_MD).read_text()
     assert "seeds 0, 7" in md and md.count("On the means:") == 2 and "On the means:" in result.output
     assert (copy / PLOT).read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+
+
+def test_paired_relit_fps_alternates_the_runs_and_keeps_each_ones_best_round(monkeypatch, tmp_path):
+    import spotlessgs.reproduce.tasks as tasks
+    from spotlessgs.selection_benchmark import paired_relit_fps
+
+    timings = iter([10.0, 30.0, 14.0, 12.0, 11.0, 31.0])  # round 0: a, b, c; round 1: a, b, c
+    calls = []
+
+    def fake_relight(run_dir, which, out_dir):
+        calls.append((run_dir.name, which))
+        assert out_dir.parent != run_dir  # a scratch folder, never the run's own relit/
+        return {"fps": next(timings)}
+
+    monkeypatch.setattr(tasks, "relight_views", fake_relight)
+    runs = {"a": tmp_path / "ra", "b": tmp_path / "rb", "c": tmp_path / "rc"}
+    assert paired_relit_fps(runs, rounds=2) == {"a": 12.0, "b": 30.0, "c": 31.0}
+    assert calls == [("ra", "all"), ("rb", "all"), ("rc", "all")] * 2
+    with pytest.raises(ValueError, match="rounds"):
+        paired_relit_fps(runs, rounds=0)
