@@ -506,6 +506,19 @@ def test_check_sfm():
     assert worse.status == "disagrees" and worse.text.endswith("as many registered, higher error.")
     none = check_sfm("c", _sfm(None, None, 0), _sfm(None, None, 0), "relit")
     assert none.status == "unknown" and "no image registered in either sequence" in none.text
+    # with the observations' rings the higher error is shown where it comes from (the verdict is unchanged)
+    def rings(n_inner, err_inner, n_outer, err_outer):
+        return [{"radius": [0.0, 0.5], "observations": n_inner, "mean_error_px": err_inner},
+                {"radius": [0.5, 1.0], "observations": n_outer, "mean_error_px": err_outer}]
+
+    relit = {**_sfm(0.3, 100.0, 8), "reprojection_error_by_radius": rings(50, 0.25, 50, 0.35)}
+    original = {**_sfm(0.2, 60.0, 8), "reprojection_error_by_radius": rings(90, 0.18, 10, 0.4)}
+    ringed = check_sfm("c", relit, original, "relit")
+    assert ringed.status == "disagrees"
+    assert ringed.text.endswith("original: 0–0.5 90% · 0.180, 0.5–1 10% · 0.400; "
+                                "relit: 0–0.5 50% · 0.250, 0.5–1 50% · 0.350.")
+    assert "as many registered, higher error. Reprojection error by image radius" in ringed.text
+    assert check_sfm("c", relit, _sfm(0.2, 60.0, 8), "relit").text.endswith("higher error.")  # original lacks rings
 
 
 def test_agreement_notes_on_hand_made_results():

@@ -393,8 +393,28 @@ def check_sfm(claim: str, relit: dict[str, Any], original: dict[str, Any], relit
     if not (_finite(ea) and _finite(eb)):
         return Agreement(claim, "unknown", body + " — equal registration, reprojection error missing.")
     status = "agrees" if ea <= eb else "disagrees"
-    return Agreement(claim, status, body + (" — as many registered, lower or equal error." if ea <= eb
-                                            else " — as many registered, higher error."))
+    text = body + (" — as many registered, lower or equal error." if ea <= eb else " — as many registered, higher error.")
+    if ea > eb:
+        text += _sfm_rings_sentence({"original": original, relit_label: relit, "ground truth": reference or {}})
+    return Agreement(claim, status, text)
+
+
+def _sfm_rings_sentence(summaries: dict[str, dict[str, Any]]) -> str:
+    """" Reprojection error by image radius ...": where in the image each sequence's observations lie and how well
+    they re-project there (SfM summaries' ``reprojection_error_by_radius``); empty when a summary lacks it."""
+    parts = []
+    for label, summary in summaries.items():
+        rings = summary.get("reprojection_error_by_radius")
+        if not rings:
+            if label == "ground truth":
+                continue
+            return ""
+        total = sum(r["observations"] for r in rings) or 1
+        cells = [f"{r['radius'][0]:g}–{r['radius'][1]:g} {100.0 * r['observations'] / total:.0f}% · "
+                 f"{format_cell(r['mean_error_px'])}" for r in rings]
+        parts.append(f"{label}: " + ", ".join(cells))
+    return (" Reprojection error by image radius (radius as a fraction of the half-diagonal: share of the "
+            "observations · mean px) — " + "; ".join(parts) + ".")
 
 
 def check_at_least(claim: str, ours: dict[str, Any], reference: dict[str, Any], keys: dict[str, bool],
