@@ -279,6 +279,14 @@ def _result_from_models(models: Mapping[int, object], total: int, all_models: bo
     )
 
 
+def ring_cell(ring: dict, total_observations: int) -> str:
+    """One ring of :meth:`SfmResult.errors_by_radius` as text: share of the observations · mean error (px),
+    e.g. ``32% · 0.153``."""
+    error = ring["mean_error_px"]
+    share = 100.0 * ring["observations"] / max(total_observations, 1)
+    return f"{share:.0f}% · " + ("n/a" if error is None else f"{error:.3f}")
+
+
 def _model_from_reconstruction(rec) -> SfmModel:
     """Poses (camera-to-world, OpenCV axes), points, colours, point errors and observation count of one sub-model."""
     poses, observed = {}, []

@@ -18,15 +18,14 @@ import click
 
 def ring_table(runs: dict[str, Path], bins: int) -> str:
     """Markdown table of :meth:`evaluation.sfm.SfmResult.errors_by_radius` for every labelled sparse folder."""
-    from evaluation.sfm import load_sfm_result
+    from evaluation.sfm import load_sfm_result, ring_cell
 
     rows = []
     for label, sparse in runs.items():
         result = load_sfm_result(sparse)
         rings = result.errors_by_radius(bins)
         total = sum(r["observations"] for r in rings)
-        cells = [f"{100.0 * r['observations'] / max(total, 1):.0f}% · "
-                 + ("n/a" if r["mean_error_px"] is None else f"{r['mean_error_px']:.3f}") for r in rings]
+        cells = [ring_cell(r, total) for r in rings]
         mean = "n/a" if result.reprojection_error_px is None else f"{result.reprojection_error_px:.3f}"
         rows.append(f"| {label} | {total} | {mean} | " + " | ".join(cells) + " |")
     edges = [f"r {k / bins:.2f}–{(k + 1) / bins:.2f}" for k in range(bins)]

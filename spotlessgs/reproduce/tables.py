@@ -402,6 +402,8 @@ def check_sfm(claim: str, relit: dict[str, Any], original: dict[str, Any], relit
 def _sfm_rings_sentence(summaries: dict[str, dict[str, Any]]) -> str:
     """" Reprojection error by image radius ...": where in the image each sequence's observations lie and how well
     they re-project there (SfM summaries' ``reprojection_error_by_radius``); empty when a summary lacks it."""
+    from evaluation.sfm import ring_cell
+
     parts = []
     for label, summary in summaries.items():
         rings = summary.get("reprojection_error_by_radius")
@@ -409,9 +411,8 @@ def _sfm_rings_sentence(summaries: dict[str, dict[str, Any]]) -> str:
             if label == "ground truth":
                 continue
             return ""
-        total = sum(r["observations"] for r in rings) or 1
-        cells = [f"{r['radius'][0]:g}–{r['radius'][1]:g} {100.0 * r['observations'] / total:.0f}% · "
-                 f"{format_cell(r['mean_error_px'])}" for r in rings]
+        total = sum(r["observations"] for r in rings)
+        cells = [f"{r['radius'][0]:g}–{r['radius'][1]:g} {ring_cell(r, total)}" for r in rings]
         parts.append(f"{label}: " + ", ".join(cells))
     return (" Reprojection error by image radius (radius as a fraction of the half-diagonal: share of the "
             "observations · mean px) — " + "; ".join(parts) + ".")
