@@ -40,7 +40,7 @@ def _ours(table: dict) -> list[list]:
 
 def test_report_has_every_table_with_finite_numbers(tiny_run):
     out, seconds, output = tiny_run
-    assert "ran 25 stage(s), skipped 0" in output
+    assert "ran 28 stage(s), skipped 0" in output
     report = (out / "REPORT.md").read_text()
     for heading in ("### Table I —", "### Table II —", "### Table III —", "### Table IV —", "### Runtime",
                     "## Agreement with the paper's ordering"):
@@ -81,7 +81,8 @@ def test_results_json_structure(tiny_run):
     results = json.loads((out / "results.json").read_text())
     assert {"preset", "config", "datasets", "cyclegan", "tables", "agreement", "paper", "figures", "stage_seconds",
             "provenance"} <= set(results)
-    assert results["preset"] == "tiny" and set(results["datasets"]) == {"bedroom-uneven", "bedroom-saturated"}
+    assert results["preset"] == "tiny" and set(results["datasets"]) == {"bedroom-uneven", "bedroom-saturated",
+                                                                        "bedroom-uneven-noisy"}
     ds = results["datasets"]["bedroom-uneven"]
     assert set(ds["methods"]) == {"3dgs", "darkgs", "darkgs-calibrated", "darkgs+sh", "darkgs+brdf", "spotless",
                                   "auto"}
@@ -115,6 +116,34 @@ def test_results_json_structure(tiny_run):
     assert all("bedroom" not in d for d in results["cyclegan"]["uneven_dirs"] + results["cyclegan"]["even_dirs"])
 
 
+def test_sensor_noise_copy_for_table_three(tiny_run):
+    """The uneven renders with camera noise: same ground truth and poses, noisy inputs, SpotlessGS only, in Table III
+    and the SfM acceptance note."""
+    import numpy as np
+
+    from spotlessgs.io.images import read_image
+
+    out, _, _ = tiny_run
+    clean, noisy = out / "datasets" / "bedroom-uneven", out / "datasets" / "bedroom-uneven-noisy"
+    assert (noisy / "transforms.json").read_bytes() == (clean / "transforms.json").read_bytes()
+    name = sorted(p.name for p in (clean / "gt").iterdir())[0]
+    assert np.array_equal(read_image(noisy / "gt" / name), read_image(clean / "gt" / name))
+    frame = sorted(p.name for p in (clean / "images").iterdir())[0]
+    difference = np.abs(read_image(noisy / "images" / frame) - read_image(clean / "images" / frame))
+    assert 0.003 < float(difference.mean()) < 0.1  # noise, not a different image
+    results = json.loads((out / "results.json").read_text())
+    entry = results["datasets"]["bedroom-uneven-noisy"]
+    assert set(entry["methods"]) == {"spotless"} and entry["baselines2d"] == {}
+    assert entry["sensor_noise"]["shot"] == 0.002 and entry["input"]["sfm"]["total_images"] == 12
+    t3 = [r for r in _ours(results["tables"]["table3"]) if r[0] == "bedroom-uneven-noisy"]
+    assert [r[1] for r in t3][:2] == ["Original (spotlight-lit)", "SpotlessGS (ours)"]
+    claims = {a["claim"]: a for a in results["agreement"]}
+    sfm = claims["Acceptance on bedroom-uneven-noisy: SfM on SpotlessGS's relit sequence at least as good as on "
+                 "the original"]
+    assert sfm["status"] in ("agrees", "disagrees", "unknown") and "relit (SpotlessGS)" in sfm["text"]
+    assert not [c for c in claims if c.startswith("Table I ordering on bedroom-uneven-noisy")]
+
+
 def test_figures_exist(tiny_run):
     out, _, _ = tiny_run
     from PIL import Image
@@ -130,7 +159,7 @@ def test_rerun_skips_everything_and_redoes_an_interrupted_stage(tiny_run):
     config = preset("tiny")
     start = time.perf_counter()
     again = reproduce(config, out, jobs=2)
-    assert again.ran == [] and len(again.skipped) == 25 and time.perf_counter() - start < 5.0
+    assert again.ran == [] and len(again.skipped) == 28 and time.perf_counter() - start < 5.0
 
     # Interrupt one training stage: its marker is gone and a half-written file is left in its run folder.
     stage = "train/bedroom-uneven/3dgs"

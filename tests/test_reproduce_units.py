@@ -107,6 +107,21 @@ def test_config_errors():
         ReproduceConfig(methods=("autox",))
     with pytest.raises(FileNotFoundError, match="shipped room 'bedroom' not found"):
         ReproduceConfig(scenes_dir=Path("/nonexistent")).scene_file("bedroom")
+    with pytest.raises(ValueError, match="sensor_noise must be \\(shot, read\\)"):
+        ReproduceConfig(sensor_noise=(0.01, -1.0))
+    with pytest.raises(ValueError, match="sensor_noise needs the 'uneven' variant"):
+        ReproduceConfig(variants=("saturated",), baseline_variants=("saturated",))
+    with pytest.raises(ValueError, match=r"noisy_methods: unknown \['ours'\]"):
+        ReproduceConfig(noisy_methods=("ours",))
+
+
+def test_sensor_noise_copies_are_extra_datasets():
+    quick = preset("quick", scenes=("bedroom", "office"), gan_rooms=("living_room", "corridor"))
+    assert quick.noisy_datasets() == [("bedroom", "uneven-noisy"), ("office", "uneven-noisy")]
+    assert quick.all_datasets() == quick.datasets() + quick.noisy_datasets()
+    assert quick.methods_for("uneven-noisy") == ("spotless",) and quick.methods_for("saturated") == quick.methods
+    clean = preset("quick", sensor_noise=None, variants=("saturated",), baseline_variants=("saturated",))
+    assert clean.noisy_datasets() == [] and clean.all_datasets() == [("bedroom", "saturated")]
 
 
 def test_cli_options_to_config():
@@ -117,6 +132,8 @@ def test_cli_options_to_config():
     assert config_from_options("tiny", (), 0, None, False) == preset("tiny")
     with pytest.raises(ValueError, match="gan_rooms needs at least two rooms"):
         config_from_options("quick", ("bedroom", "living_room", "office", "storage_room"), 0, None, False)
+    assert c.sensor_noise is None  # the noisy copies serve Table III only
+    assert config_from_options("tiny", (), 0, None, False, no_sensor_noise=True) == preset("tiny", sensor_noise=None)
 
 
 def test_cli_reports_refused_folder_and_bad_options(tmp_path):
@@ -152,8 +169,19 @@ def test_pipeline_graph_shape(tmp_path):
     graph = build_graph(config, tmp_path)
     names = set(graph.stages)
     # 2 renders + 7 trainings and 1 inputs' evaluation per dataset (2 datasets), 2 GAN renders, the GAN, 3 baselines
-    # on the uneven set, report
-    assert len(names) == 2 + 14 + 2 + 2 + 1 + 3 + 1
+    # on the uneven set, the sensor-noise copy with its SpotlessGS run and inputs' evaluation, report
+    assert len(names) == 2 + 14 + 2 + 2 + 1 + 3 + 3 + 1
+    noise = graph["noise/bedroom-uneven-noisy"]
+    assert noise.function == "spotlessgs.reproduce.tasks:add_noise_copy" and not noise.clean_on_retry
+    assert noise.deps == ("render/bedroom-uneven",)
+    assert noise.kwargs == {"data_dir": str(tmp_path / "datasets" / "bedroom-uneven"),
+                            "out_dir": str(tmp_path / "datasets" / "bedroom-uneven-noisy"), "shot": 0.002,
+                            "read": 0.004, "seed": 0}
+    assert sorted(n for n in names if "uneven-noisy" in n) == [
+        "eval-inputs/bedroom-uneven-noisy", "noise/bedroom-uneven-noisy", "train/bedroom-uneven-noisy/spotless"]
+    assert graph["train/bedroom-uneven-noisy/spotless"].deps == ("noise/bedroom-uneven-noisy",)
+    assert graph["eval-inputs/bedroom-uneven-noisy"].deps == ("noise/bedroom-uneven-noisy",)
+    assert len(build_graph(preset("tiny", sensor_noise=None), tmp_path).stages) == len(names) - 3
     # the uneven inputs are scored once per dataset, with the methods' evaluation settings, after its render only
     inputs = graph["eval-inputs/bedroom-saturated"]
     assert inputs.function == "spotlessgs.reproduce.tasks:evaluate_inputs"
@@ -165,8 +193,8 @@ def test_pipeline_graph_shape(tmp_path):
     for stage in (graph["train/bedroom-saturated/3dgs"], graph["baseline2d/bedroom-uneven/clahe"]):
         assert {k: stage.kwargs[k] for k in ("sfm", "sfm_matcher", "lpips", "seed")} == {
             k: inputs.kwargs[k] for k in ("sfm", "sfm_matcher", "lpips", "seed")}
-    assert sorted(n for n in names if n.startswith("eval-inputs/")) == ["eval-inputs/bedroom-saturated",
-                                                                        "eval-inputs/bedroom-uneven"]
+    assert sorted(n for n in names if n.startswith("eval-inputs/")) == [
+        "eval-inputs/bedroom-saturated", "eval-inputs/bedroom-uneven", "eval-inputs/bedroom-uneven-noisy"]
     no_sfm = build_graph(preset("tiny", sfm=False, lpips=False, seed=4), tmp_path)["eval-inputs/bedroom-uneven"]
     assert (no_sfm.kwargs["sfm"], no_sfm.kwargs["lpips"], no_sfm.kwargs["seed"]) == (False, False, 4)
     auto = graph["train/bedroom-uneven/auto"]
@@ -540,6 +568,38 @@ def test_agreement_notes_on_hand_made_results():
     assert notes["Auto on bedroom-uneven: no more Gaussians than SpotlessGS"].status == "agrees"
 
 
+def _with_noisy_copy():
+    """_collected() plus a sensor-noise copy on which only SpotlessGS was trained (its original barely registers)."""
+    collected = _collected()
+    spotless = collected["datasets"]["bedroom-uneven"]["methods"]["spotless"]
+    collected["datasets"]["bedroom-uneven-noisy"] = {
+        "room": "bedroom", "variant": "uneven-noisy", "sensor_noise": {"shot": 0.002, "read": 0.004, "written": 12},
+        "input": _metrics(11.0, 0.40, 0.60, _sfm(0.45, 50.0, 3)),
+        "methods": {"spotless": {**spotless, "metrics": _metrics(16.3, 0.65, 0.40, _sfm(0.5, 420.0, 12))}},
+        "baselines2d": {}}
+    return collected
+
+
+def test_sensor_noise_copy_in_tables_and_notes():
+    collected = _with_noisy_copy()
+    t1, t2, t3 = table1(collected), table2(collected), table3(collected)
+    assert [r[1] for r in t1.rows if r[0] == "bedroom-uneven-noisy"] == ["Input (spotlight-lit)", "SpotlessGS (ours)"]
+    assert not [r for r in t2.rows if r[0] == "bedroom-uneven-noisy"]  # one run is no ablation
+    noisy_sfm = [r for r in t3.rows if r[0] == "bedroom-uneven-noisy"]
+    assert [(r[1], r[4]) for r in noisy_sfm] == [("Original (spotlight-lit)", 3), ("SpotlessGS (ours)", 12)]
+    assert any(n.startswith("bedroom-uneven-noisy: the uneven renders with camera sensor noise (shot variance 0.002")
+               for n in t3.notes)
+    notes = {n.claim: n for n in agreement_notes(collected)}
+    sfm = notes["Acceptance on bedroom-uneven-noisy: SfM on SpotlessGS's relit sequence at least as good as on the "
+                "original"]
+    assert sfm.status == "agrees" and "12 registered images" in sfm.text
+    assert notes["Acceptance on bedroom-uneven-noisy: SpotlessGS beats Original on aligned metrics"].status == "agrees"
+    # orderings that need methods not trained on the copy are not checked there (no "cannot check" noise)
+    noisy_claims = [c for c in notes if "bedroom-uneven-noisy" in c]
+    assert len(noisy_claims) == 2
+    assert len(notes) - 2 == len(agreement_notes(_collected()))
+
+
 def test_format_cell():
     assert format_cell(None) == "n/a" and format_cell(float("inf")) == "n/a" and format_cell(1.23456, 2) == "1.23"
     assert format_cell(3) == "3" and format_cell(True) == "yes"
@@ -588,16 +648,31 @@ def test_collect_reads_the_inputs_once_per_dataset_from_their_stage(tmp_path):
                                                                       if k != "decisions"},
                                                             "seconds": 1.0, "peak_rss_mb": 1.0})
             write_json(tmp_path / "runs" / ds / method / "run.json", {"model": method})
+    # the sensor-noise copy: its own inputs' evaluation and noise record, SpotlessGS only
+    noisy = "bedroom-uneven-noisy"
+    write_marker(tmp_path, f"noise/{noisy}", {"result": {"shot": 0.002, "read": 0.004, "written": 12},
+                                              "seconds": 1.0, "peak_rss_mb": 1.0})
+    write_marker(tmp_path, f"eval-inputs/{noisy}", {"result": {"metrics": _metrics(5.0, sfm=_sfm(0.4, 50.0, 3))},
+                                                    "seconds": 2.0, "peak_rss_mb": 1.0})
+    write_marker(tmp_path, f"train/{noisy}/spotless", {"result": {k: v for k, v in hand["methods"]["spotless"].items()
+                                                                 if k != "decisions"},
+                                                       "seconds": 1.0, "peak_rss_mb": 1.0})
+    write_json(tmp_path / "runs" / noisy / "spotless" / "run.json", {"model": "spotless"})
     collected = collect(tmp_path, config)
+    assert list(collected["datasets"]) == ["bedroom-uneven", "bedroom-saturated", noisy]
+    assert set(collected["datasets"][noisy]["methods"]) == {"spotless"}
+    assert collected["datasets"][noisy]["sensor_noise"]["shot"] == 0.002
+    assert collected["datasets"][noisy]["input"]["psnr_aligned"] == 5.0
     for variant, psnr in (("uneven", 11.0), ("saturated", 7.0)):
         ds = collected["datasets"][f"bedroom-{variant}"]
         assert ds["input"] == _metrics(psnr, 0.5, 0.5, _sfm(1.0, 350.0, 11))
         assert all("input" not in m["metrics"] for m in ds["methods"].values())
     t1 = table1(collected)
     assert [r[1:4] for r in t1.rows if r[1] == "Input (spotlight-lit)"] == [["Input (spotlight-lit)", 10.0, 0.4],
-                                                                             ["Input (spotlight-lit)", 6.0, 0.4]]
+                                                                             ["Input (spotlight-lit)", 6.0, 0.4],
+                                                                             ["Input (spotlight-lit)", 4.0, 0.4]]
     assert [r[1:4] for r in table3(collected).rows if r[1] == "Original (spotlight-lit)" and r[0].startswith("bed")] \
-        == [["Original (spotlight-lit)", 1.0, 350.0]] * 2
+        == [["Original (spotlight-lit)", 1.0, 350.0]] * 2 + [["Original (spotlight-lit)", 0.4, 50.0]]
     notes = {n.claim: n for n in agreement_notes(collected)}
     beats = notes["Acceptance on bedroom-saturated: SpotlessGS beats Original on aligned metrics"]
     assert beats.status == "agrees" and "psnr_aligned 16.500 vs 7.000" in beats.text

@@ -11,9 +11,10 @@ from spotlessgs.reproduce.config import SHIPPED_ROOMS, ReproduceConfig, preset
 
 
 def config_from_options(preset_name: str, scenes: tuple[str, ...], seed: int, scenes_dir: Path | None,
-                        no_sfm: bool) -> ReproduceConfig:
+                        no_sfm: bool, no_sensor_noise: bool = False) -> ReproduceConfig:
     """The config for the command's options. With ``scenes``, the Cycle-GAN's rooms are the preset's minus the test
-    rooms, topped up from the other shipped rooms to two."""
+    rooms, topped up from the other shipped rooms to two. The sensor-noise copies serve Table III: ``no_sfm`` drops
+    them too."""
     base = preset(preset_name)
     overrides: dict = {"seed": seed}
     if scenes:
@@ -25,6 +26,8 @@ def config_from_options(preset_name: str, scenes: tuple[str, ...], seed: int, sc
         overrides["scenes_dir"] = scenes_dir
     if no_sfm:
         overrides["sfm"] = False
+    if no_sfm or no_sensor_noise:
+        overrides["sensor_noise"] = None
     return base.replace(**overrides)
 
 
@@ -41,14 +44,16 @@ def config_from_options(preset_name: str, scenes: tuple[str, ...], seed: int, sc
 @click.option("--seed", default=0, show_default=True, type=int)
 @click.option("--scenes-dir", type=click.Path(exists=True, file_okay=False, path_type=Path), default=None,
               help="Folder with <room>/house.json (default: the repository's scenes/).")
-@click.option("--no-sfm", is_flag=True, help="Skip the SfM evaluation (Table III).")
-def reproduce(preset_name, scenes, out_dir, jobs, seed, scenes_dir, no_sfm):
+@click.option("--no-sfm", is_flag=True, help="Skip the SfM evaluation (Table III) and the sensor-noise copies.")
+@click.option("--no-sensor-noise", is_flag=True,
+              help="Skip the copy of each uneven dataset with camera sensor noise (Table III's robot-camera rows).")
+def reproduce(preset_name, scenes, out_dir, jobs, seed, scenes_dir, no_sfm, no_sensor_noise):
     """Render, train, evaluate and write REPORT.md with the paper's Tables I-IV, runtime and figures."""
     from spotlessgs.reproduce.executor import StageFailedError
     from spotlessgs.reproduce.pipeline import reproduce as run_pipeline
 
     try:
-        config = config_from_options(preset_name, scenes, seed, scenes_dir, no_sfm)
+        config = config_from_options(preset_name, scenes, seed, scenes_dir, no_sfm, no_sensor_noise)
     except ValueError as exc:
         raise click.BadParameter(str(exc)) from exc
     start = time.perf_counter()

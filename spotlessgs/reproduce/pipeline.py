@@ -4,6 +4,7 @@ Output folder layout::
 
     OUT/reproduce.json                    the resolved config (a rerun with another config is refused)
     OUT/datasets/<room>-<variant>/        rendered test datasets (simulator)
+    OUT/datasets/<room>-uneven-noisy/     the uneven dataset with camera sensor noise (config.sensor_noise)
     OUT/datasets/gan-<room>/              other rooms' renders for the Cycle-GAN
     OUT/inputs/<room>-<variant>/          the uneven inputs' evaluation, once per dataset (results.json, sfm/)
     OUT/runs/<room>-<variant>/<method>/   training runs (+ relit/, eval/ without the inputs, curve/; auto:
@@ -20,7 +21,7 @@ import json
 from pathlib import Path
 
 from spotlessgs.io.atomic import write_json
-from spotlessgs.reproduce.config import ReproduceConfig
+from spotlessgs.reproduce.config import NOISY_VARIANT, ReproduceConfig
 from spotlessgs.reproduce.executor import RunReport, execute
 from spotlessgs.reproduce.stages import Stage, StageGraph
 from spotlessgs.reproduce.tasks import AUTO_METHOD
@@ -34,6 +35,11 @@ INPUTS_STAGE = "eval-inputs"
 def dataset_id(room: str, variant: str) -> str:
     """Name of a test dataset: ``bedroom-uneven``."""
     return f"{room}-{variant}"
+
+
+def dataset_stage(variant: str, ds: str) -> str:
+    """The stage that writes dataset ``ds``: ``noise/<ds>`` for a sensor-noise copy, ``render/<ds>`` otherwise."""
+    return f"noise/{ds}" if variant == NOISY_VARIANT else f"render/{ds}"
 
 
 def build_graph(config: ReproduceConfig, out: Path) -> StageGraph:
@@ -69,22 +75,31 @@ def build_graph(config: ReproduceConfig, out: Path) -> StageGraph:
                     "even_dirs": [str(out / "datasets" / f"gan-{r}" / "gt") for r in target],
                     "out_dir": str(out / "cyclegan"), "cyclegan_preset": config.cyclegan_preset,
                     "steps": config.cyclegan_steps, "seed": config.seed}))
-    for room, variant in config.datasets():
+    for room, variant in config.noisy_datasets():
+        ds, source = dataset_id(room, variant), dataset_id(room, "uneven")
+        shot, read = config.sensor_noise
+        stages.append(Stage(
+            f"noise/{ds}", f"{TASKS}:add_noise_copy", deps=(f"render/{source}",), output=out / "datasets" / ds,
+            clean_on_retry=False,
+            kwargs={"data_dir": str(out / "datasets" / source), "out_dir": str(out / "datasets" / ds),
+                    "shot": float(shot), "read": float(read), "seed": config.seed}))
+    for room, variant in config.all_datasets():
         ds = dataset_id(room, variant)
-        for method in config.methods:
+        for method in config.methods_for(variant):
             run_dir = out / "runs" / ds / method
             selection = ({"selection_min_proxy_iterations": config.selection_min_proxy_iterations}
                          if method == AUTO_METHOD else {})
             stages.append(Stage(
-                f"train/{ds}/{method}", f"{TASKS}:train_method", deps=(f"render/{ds}",), output=run_dir,
+                f"train/{ds}/{method}", f"{TASKS}:train_method", deps=(dataset_stage(variant, ds),), output=run_dir,
                 kwargs={"data_dir": str(out / "datasets" / ds), "run_dir": str(run_dir), "variant": method,
                         "train_preset": config.train_preset, "iterations": config.train_iterations,
                         "image_width": config.train_width, "curve_fractions": tuple(config.curve_fractions),
                         **selection, **common}))
-    for room, variant in config.datasets():
+    for room, variant in config.all_datasets():
         ds = dataset_id(room, variant)
         stages.append(Stage(
-            f"{INPUTS_STAGE}/{ds}", f"{TASKS}:evaluate_inputs", deps=(f"render/{ds}",), output=out / "inputs" / ds,
+            f"{INPUTS_STAGE}/{ds}", f"{TASKS}:evaluate_inputs", deps=(dataset_stage(variant, ds),),
+            output=out / "inputs" / ds,
             kwargs={"data_dir": str(out / "datasets" / ds), "out_dir": str(out / "inputs" / ds), **common}))
     for room, variant in config.datasets():
         if variant not in config.baseline_variants:

@@ -9,7 +9,7 @@ from typing import Any
 from spotlessgs.io.atomic import write_json, write_text
 from spotlessgs.io.provenance import provenance
 from spotlessgs.reproduce import paper
-from spotlessgs.reproduce.config import ReproduceConfig
+from spotlessgs.reproduce.config import NOISY_VARIANT, ReproduceConfig
 from spotlessgs.reproduce.figures import qualitative_grid, speed_error_plot
 from spotlessgs.reproduce.stages import MARKER_DIR, read_marker
 from spotlessgs.reproduce.tables import Agreement, Table, agreement_notes, all_tables
@@ -43,11 +43,13 @@ def collect(out: Path, config: ReproduceConfig) -> dict[str, Any]:
     if "cyclegan" in config.baselines:
         collected["cyclegan"] = read_marker(out, "cyclegan/train")["result"] | {
             "stage_seconds": read_marker(out, "cyclegan/train")["seconds"]}
-    for room, variant in config.datasets():
+    for room, variant in config.all_datasets():
         ds = dataset_id(room, variant)
         entry: dict[str, Any] = {"room": room, "variant": variant, "methods": {}, "baselines2d": {},
                                  "input": read_marker(out, f"{INPUTS_STAGE}/{ds}")["result"]["metrics"]}
-        for method in config.methods:
+        if variant == NOISY_VARIANT:
+            entry["sensor_noise"] = read_marker(out, f"noise/{ds}")["result"]
+        for method in config.methods_for(variant):
             marker = read_marker(out, f"train/{ds}/{method}")
             entry["methods"][method] = marker["result"]
             entry["methods"][method]["stage"] = {"seconds": marker["seconds"], "peak_rss_mb": marker["peak_rss_mb"]}
@@ -78,7 +80,11 @@ def render_markdown(config: ReproduceConfig, tables: list[Table], notes: list[Ag
         f"{config.frames} frames at {config.width}x{config.height}, {config.samples} samples; trainer preset "
         f"`{config.train_preset}`" + (f" with {config.train_iterations} iterations" if config.train_iterations else "")
         + f"; Cycle-GAN preset `{config.cyclegan_preset}` trained on {', '.join(config.gan_rooms)}; "
-        f"seed {config.seed}.",
+        f"seed {config.seed}."
+        + (f" Sensor-noise copies of the uneven datasets (`<room>-{NOISY_VARIANT}`, shot variance "
+           f"{config.sensor_noise[0]:g}, read noise {config.sensor_noise[1]:g} in linear intensity; Table III's "
+           f"robot-camera case, as the paper's SfM test is on a real camera): "
+           f"{', '.join(config.noisy_methods)}." if config.sensor_noise is not None else ""),
         "",
         f"Paper figures are from the {paper.SOURCE} (Table III: its real-world sequence); they come from other data "
         "(and a GPU), so compare orderings, "
@@ -116,7 +122,7 @@ def write_report(out: Path) -> dict[str, Any]:
     tables = all_tables(collected)
     notes = agreement_notes(collected)
     figures: dict[str, str] = {}
-    for room, variant in config.datasets():
+    for room, variant in config.all_datasets():
         ds = dataset_id(room, variant)
         data_dir = out / "datasets" / ds
         test_views = [f.name for f in read_dataset(data_dir).test_frames if f.gt_path is not None]

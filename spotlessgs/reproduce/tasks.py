@@ -75,6 +75,15 @@ def render_room(scene_file: str, out_dir: str, variant: str, frames: int, width:
     return summary
 
 
+def add_noise_copy(data_dir: str, out_dir: str, shot: float, read: float, seed: int, threads: int) -> dict[str, Any]:
+    """Write (or resume) the copy of a finished dataset whose spotlight-only images carry camera sensor noise
+    (simulator.sensor_noise.add_sensor_noise_to_dataset; the ground truth and poses are the source's)."""
+    from simulator.sensor_noise import SensorNoise, add_sensor_noise_to_dataset
+
+    written = add_sensor_noise_to_dataset(data_dir, out_dir, SensorNoise(shot=shot, read=read), seed=seed)
+    return {"source": data_dir, "shot": shot, "read": read, "written": written}
+
+
 # ---------------------------------------------------------------------------------------------------------------------
 # 3D methods: train (with intermediate scores), relight, evaluate
 
