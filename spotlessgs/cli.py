@@ -99,13 +99,15 @@ def budget_overrides(gaussian_budget: bool) -> dict:
               help="Output folder (default RUN/relit).")
 @click.option("--exr", is_flag=True, help="Also write linear float EXR images (no clipping).")
 @click.option("--device", default="auto", show_default=True, type=click.Choice(["auto", "cpu", "cuda"]))
+@click.option("--no-low-frequency", is_flag=True,
+              help="Leave the learned low-frequency (SH / ambient) light out: the image is reflectance x L0 alone.")
 @click.option("-q", "--quiet", is_flag=True)
-def relight(run_dir, l0, which, out_dir, exr, device, quiet):
+def relight(run_dir, l0, which, out_dir, exr, device, no_low_frequency, quiet):
     """Relight a trained run under even light (paper eq. 8) and write PNGs named like the dataset's images."""
     from spotlessgs.rendering import render_run
 
     click.echo(json.dumps(render_run(run_dir, "relit", which, out_dir, l0=l0 or "auto", exr=exr, progress=not quiet,
-                                     device=device), indent=2))
+                                     device=device, low_frequency=not no_low_frequency), indent=2))
 
 
 @main.command()

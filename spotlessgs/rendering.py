@@ -116,6 +116,7 @@ def render_run(
     exr: bool = False,
     progress: bool = True,
     device: str = "auto",
+    low_frequency: bool = True,
 ) -> dict[str, Any]:
     """Render views of a run at the dataset's native resolution.
 
@@ -127,6 +128,8 @@ def render_run(
         l0: linear RGB relighting radiance (relit mode), or ``"auto"``: white, scaled so that about 1% of relit
             pixels reach 1 (see AUTO_L0_*); the value used is reported.
         exr: also write linear float EXR files (``<name>.exr`` with channels R, G, B).
+        low_frequency: relit mode: False leaves the learned low-frequency light out (image = R·L0 alone), to see what
+            the reflectance alone gives; the automatic L0 is then chosen for that image.
     Returns:
         a summary (views, L0, seconds per view, frames per second, clipped fraction), also written as
         ``RUN/<relit|render>.json`` (outside the image folder, which holds images only).
@@ -137,6 +140,8 @@ def render_run(
 
     if mode not in ("relit", "spot"):
         raise ValueError(f"mode must be relit or spot, got {mode!r}")
+    if mode != "relit" and not low_frequency:
+        raise ValueError("low_frequency=False only applies to relit mode")
     if isinstance(l0, str) and l0 != "auto":
         raise ValueError(f"l0 must be 'auto' or three numbers, got {l0!r}")
     run_dir = Path(run_dir)
@@ -165,14 +170,18 @@ def render_run(
                                num_threads=config.num_threads)
             return res.image.float().cpu().numpy()
         both = raster(k, parts.features(views.c2w[k].to(dev)))
-        return both[..., :3] * np.asarray(light, dtype=np.float32) + both[..., 3:]
+        return both[..., :3] * np.asarray(light, dtype=np.float32) + low_part(both)
+
+    def low_part(both: np.ndarray) -> np.ndarray:
+        """The R·L_lf channels of a six-channel render, zero when the low-frequency light is left out."""
+        return both[..., 3:] if low_frequency else np.zeros_like(both[..., 3:])
 
     relight: list[float] | None = None
     if mode == "relit" and parts is not None:
         if isinstance(l0, str):
             sample = [indices[i] for i in np.linspace(0, len(indices) - 1, min(AUTO_L0_VIEWS, len(indices))).astype(int)]
             both = [raster(k, parts.features(views.c2w[k].to(dev))) for k in sample]
-            relight = auto_l0([b[..., :3] for b in both], [b[..., 3:] for b in both])
+            relight = auto_l0([b[..., :3] for b in both], [low_part(b) for b in both])
         else:
             relight = [float(v) for v in l0]
             if len(relight) != 3 or any(not np.isfinite(v) or v < 0 for v in relight):
@@ -195,7 +204,7 @@ def render_run(
     if mode == "relit" and fraction > CLIP_WARN_FRACTION:
         log.warning("%.2f%% of relit pixels exceed 1 and are clipped in the PNGs; lower --l0 (now %s) or use --exr",
                     100 * fraction, relight)
-    summary = {"mode": mode, "views": which, "count": len(indices), "l0": relight,
+    summary = {"mode": mode, "views": which, "count": len(indices), "l0": relight, "low_frequency": low_frequency,
                "l0_mode": "auto" if isinstance(l0, str) else "given", "width": width, "height": height,
                "seconds_per_view": seconds / max(len(indices), 1), "fps": len(indices) / max(seconds, 1e-9),
                "clipped_fraction": fraction, "num_gaussians": len(g), "device": str(dev), "out_dir": str(out)}

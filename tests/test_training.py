@@ -185,6 +185,22 @@ def test_tiny_training_does_real_work(bedroom, tmp_path):
 
     assert aligned_psnr(relit) > aligned_psnr(inputs) + 1.0
 
+    # Relit image = R·L0 + R·L_lf: leaving the low-frequency light out removes exactly the L0 = 0 image.
+    from spotlessgs.io.exr import read_exr
+
+    def linear(l0, low_frequency, name):
+        out = tmp_path / name
+        summary = render_run(run, "relit", "test", out, l0=l0, exr=True, progress=False, low_frequency=low_frequency)
+        assert summary["low_frequency"] is low_frequency
+        return np.stack([np.stack([read_exr(out / (Path(n).stem + ".exr"))[c] for c in "RGB"], -1) for n in names])
+
+    full, reflectance = linear([1.0, 1.0, 1.0], True, "full"), linear([1.0, 1.0, 1.0], False, "no_lf")
+    low_only = linear([0.0, 0.0, 0.0], True, "low_only")
+    assert low_only.mean() > 1e-3 * full.mean()  # the SH light learned something
+    np.testing.assert_allclose(full, reflectance + low_only, atol=1e-5)
+    with pytest.raises(ValueError, match="only applies to relit"):
+        render_run(run, "spot", "test", tmp_path / "spot", low_frequency=False, progress=False)
+
 
 @pytest.mark.blender
 def test_resume_equals_an_uninterrupted_run(bedroom, tmp_path):

@@ -127,8 +127,9 @@ def write_report(out: Path) -> dict[str, Any]:
         data_dir = out / "datasets" / ds
         test_views = [f.name for f in read_dataset(data_dir).test_frames if f.gt_path is not None]
         rel = f"figures/qualitative_{ds}.png"
-        qualitative_grid(out / rel, data_dir, out / "runs" / ds, collected["datasets"][ds]["methods"], test_views)
-        figures[f"Qualitative comparison, {ds} (input / 3DGS / DarkGS / ours / ours auto / ground truth)"] = rel
+        columns = qualitative_grid(out / rel, data_dir, out / "runs" / ds, collected["datasets"][ds]["methods"],
+                                   test_views)
+        figures[f"Qualitative comparison, {ds} ({' / '.join(columns)})"] = rel
     speed_error_plot(out / "figures" / "speed_vs_error.png", collected)
     figures["Test PSNR (exposure-aligned) against training time; one point per curve milestone"] = \
         "figures/speed_vs_error.png"

@@ -98,9 +98,9 @@ class TrainConfig:
     budget_min_gain_db: float = 0.05
     # Budget: at each densification step, prune the least-contributing Gaussians whose summed contribution (alpha ·
     # transmittance summed over pixels of the contribution views) is at most this fraction of all Gaussians' total.
-    # Measured on the 36-frame quick bedroom / storage room (relit aligned PSNR vs the default strategy): 0.01 kept
-    # -20% / -41% Gaussians at -0.11 / -0.25 dB, 0.02 -24% / -43% at -0.23 / -0.40 dB (single runs; run-to-run noise
-    # is ~0.15 dB); 0.03, mean of 3 seeds (README): -58% / -51% at -0.26 / -0.07 dB.
+    # Measured on the 36-frame quick bedroom / storage room (relit aligned PSNR vs the default strategy, mean of 3
+    # seeds, README): 0.03 -40% / -37% Gaussians at -0.19 / -0.05 dB; 0.02 on the bedroom -31% at -0.24 dB (seed-to-
+    # seed noise ~0.1 dB is as large as the difference).
     budget_prune_fraction: float = 0.03
     # Budget: number of fitted views (evenly spaced) over which contributions are summed.
     budget_contribution_views: int = 16
