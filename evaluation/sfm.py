@@ -292,8 +292,9 @@ def _model_from_reconstruction(rec) -> SfmModel:
     poses, observed = {}, []
     for image_id in rec.reg_image_ids():
         image = rec.image(image_id)
+        rigid = image.cam_from_world()
         cam_from_world = np.eye(4)
-        cam_from_world[:3, :4] = image.cam_from_world().matrix()
+        cam_from_world[:3, :4] = rigid.matrix()
         poses[image.name] = np.linalg.inv(cam_from_world)
         camera = rec.camera(image.camera_id)
         half_diagonal = 0.5 * float(np.hypot(camera.width, camera.height))
@@ -301,7 +302,7 @@ def _model_from_reconstruction(rec) -> SfmModel:
             if not p2d.has_point3D():
                 continue
             xy = np.asarray(p2d.xy, dtype=np.float64)
-            projected = camera.img_from_cam(image.cam_from_world() * rec.points3D[p2d.point3D_id].xyz)
+            projected = camera.img_from_cam(rigid * rec.points3D[p2d.point3D_id].xyz)
             error = np.inf if projected is None else float(np.linalg.norm(np.asarray(projected) - xy))
             radius = float(np.hypot(xy[0] - 0.5 * camera.width, xy[1] - 0.5 * camera.height)) / half_diagonal
             observed.append((xy[0], xy[1], error, radius))
