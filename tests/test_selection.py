@@ -17,7 +17,8 @@ from spotlessgs.training.config import preset
 from spotlessgs.training.trainer import validation_steps
 from spotlessgs.training.validation import held_out_score, holdout_blocks
 from spotlessgs.training.selection import (
-    SELECTION_FILE, CandidateResult, SelectionConfig, appearance_parameters, candidate_model, choose, cost_rank,
+    SELECTION_FILE, CandidateResult, SelectionConfig, appearance_parameters, candidate_model, choose, choose_light,
+    cost_rank,
     format_selection_table, phase_tolerance, proxy_config, run_decisions, selection_config,
 )
 
@@ -72,6 +73,7 @@ def test_candidates_are_spotlight_models_with_an_sh_light():
     ({"validation_every": 1}, "validation_every"), ({"search": "random"}, "search"),
     ({"sh_degrees": (0, 5)}, "sh_degrees"), ({"sh_degrees": ()}, "sh_degrees"),
     ({"holdout": "pixels"}, "holdout must be"), ({"holdout_fraction": 1.0}, "holdout_fraction"),
+    ({"min_low_frequency_share": 1.0}, "min_low_frequency_share"), ({"share_views": 0}, "share_views"),
 ])
 def test_selection_config_rejects_bad_values(kwargs, match):
     with pytest.raises(ValueError, match=match):
@@ -115,6 +117,101 @@ def test_a_dark_criterion_candidate_is_compared_on_its_dark_pixels():
     # on all pixels degree 0 is best; on the dark ones degree 3 is, and degree 0 is 0.2 dB behind it
     assert choose(light, 0.125).name == "auto-sh1-lambert" and choose(light, 0.25).name == "auto-sh0-lambert"
     assert _result(0, "lambert", 24.2).score == 24.2  # default criterion: all held-out pixels
+
+
+def _light(degree, dark):
+    return dataclasses.replace(_result(degree, "lambert", 24.0), validation_psnr_dark=dark, criterion="dark")
+
+
+def test_the_light_decision_follows_the_measured_need_for_a_low_frequency_light():
+    cfg = SelectionConfig(tolerance_db=0.3)  # 0.15 dB per decision
+    close = [_light(0, 29.70), _light(3, 29.60)]  # degree 3 0.10 dB behind: within the tolerance
+    assert choose_light(close, True, cfg).sh_degree == 3  # the light is needed: the highest degree
+    assert choose_light(close, False, cfg).sh_degree == 0  # not needed: the lowest degree
+    assert choose_light([_light(0, 29.0), _light(3, 30.0)], False, cfg).sh_degree == 0  # whatever the scores
+    # needed, but the highest degree is beyond the tolerance of the best: the cheapest within it
+    assert choose_light([_light(0, 29.70), _light(3, 29.50)], True, cfg).sh_degree == 0
+    # grid: both BRDFs at both degrees; needed -> degree 3, and the cheaper BRDF within the tolerance of the best
+    grid = [_light(0, 29.0), _light(3, 29.5),
+            dataclasses.replace(_light(0, 29.2), name="auto-sh0-mlp", brdf="mlp"),
+            dataclasses.replace(_light(3, 29.6), name="auto-sh3-mlp", brdf="mlp")]
+    assert choose_light(grid, True, SelectionConfig(tolerance_db=0.2, search="grid")).name == "auto-sh3-lambert"
+    assert choose_light(grid, True, SelectionConfig(tolerance_db=0.05, search="grid")).name == "auto-sh3-mlp"
+    assert choose_light(grid, False, SelectionConfig(tolerance_db=0.05, search="grid")).name == "auto-sh0-mlp"
+    with pytest.raises(ValueError, match="no candidates"):
+        choose_light([], True, cfg)
+
+
+def _random_scene(model, n=60, seed=0):
+    from spotlessgs.models.gaussians import GaussianParams
+    from spotlessgs.models.relightable import RelightableScene
+
+    import numpy as np
+
+    rng = np.random.default_rng(seed)
+    xyz = rng.uniform(-1, 1, (n, 3)) + np.array([0.0, 0.0, 4.0])
+    g = GaussianParams.from_point_cloud(xyz, rng.integers(30, 256, (n, 3)).astype(np.uint8), rng.normal(size=(n, 3)))
+    return RelightableScene.create(model, g, seed=seed)
+
+
+def test_split_lights_halves_sum_to_the_spotlight_lit_colour():
+    from spotlessgs.models.shading import shade
+
+    scene = _random_scene(candidate_model(2, "mlp"))
+    app = scene.appearance
+    with torch.no_grad():
+        app.lf_light.coeffs.normal_(0.0, 0.3, generator=torch.Generator().manual_seed(2))
+        parts = shade(scene.config, scene.gaussians, app.light, app.lf_light, app.brdf, torch.eye(4),
+                      split_lights=True)
+        full = shade(scene.config, scene.gaussians, app.light, app.lf_light, app.brdf, torch.eye(4))
+    assert parts.shape == (60, 6) and float(parts[:, 3:].abs().sum()) > 0
+    torch.testing.assert_close(parts[:, :3] + parts[:, 3:], full, rtol=1e-5, atol=1e-6)
+    with pytest.raises(ValueError, match="split_lights"):
+        shade(scene.config, scene.gaussians, app.light, app.lf_light, app.brdf, torch.eye(4), relight_l0=[1.0] * 3,
+              split_lights=True)
+
+
+def test_low_frequency_share_is_what_the_light_adds_to_the_renders():
+    """Independently: 1 - Σ(render without the low-frequency light) / Σ(render with it), through scene.render."""
+    from spotlessgs.training.light_need import low_frequency_share
+
+    scene = _random_scene(candidate_model(3, "lambert"))
+    K = torch.tensor([[30.0, 0.0, 16.0], [0.0, 30.0, 12.0], [0.0, 0.0, 1.0]])
+    c2ws = torch.stack([torch.eye(4), torch.eye(4)])
+    c2ws[1, 0, 3] = 0.4  # a second camera, moved sideways
+    viewmats = torch.linalg.inv(c2ws)
+    lf = scene.appearance.lf_light.coeffs
+    with torch.no_grad():
+        lf.zero_()
+        assert low_frequency_share(scene, c2ws, viewmats, K, [0, 1], 32, 24) == 0.0
+        dark = sum(float(scene.render(c2ws[k], viewmats[k], K, 32, 24).image.double().sum()) for k in (0, 1))
+        lf[0] = torch.tensor([0.8, 0.5, 0.3])
+        lf[1:] = 0.1
+        lit = sum(float(scene.render(c2ws[k], viewmats[k], K, 32, 24).image.double().sum()) for k in (0, 1))
+        share = low_frequency_share(scene, c2ws, viewmats, K, [0, 1], 32, 24)
+    assert 0.05 < share < 0.95 and share == pytest.approx(1.0 - dark / lit, rel=1e-5)
+    with pytest.raises(ValueError, match="no views"):
+        low_frequency_share(scene, c2ws, viewmats, K, [], 32, 24)
+
+
+def test_dark_level_is_the_dark_end_of_each_view_over_its_bright_end():
+    from spotlessgs.training.light_need import dark_level
+
+    # one view of 10 x 10 blocks of 2 x 2 px: block brightness 0.01 * (index + 1), so the 20th-percentile block
+    # (torch.quantile, linear interpolation: position 0.2 * 99 = 19.8) is 0.208 and the 99th (98.01) 0.9901
+    steps = (torch.arange(100, dtype=torch.float32) + 1) * 0.01
+    view = steps.reshape(10, 10).repeat_interleave(2, 0).repeat_interleave(2, 1)[..., None].expand(20, 20, 3)
+    assert dark_level(view[None], 2) == pytest.approx(0.208 / 0.9901, rel=1e-5)
+    # zero-mean noise inside a block does not move it; a black frame is skipped; the median over views
+    noise = torch.tensor([[0.005, -0.005], [-0.005, 0.005]]).repeat(10, 10)[..., None]
+    black = torch.zeros(20, 20, 3)
+    half = view * torch.cat([torch.zeros(10, 20), torch.ones(10, 20)])[..., None]  # half the view unlit: level 0
+    assert dark_level(torch.stack([view + noise, black, view, half]), 2) == pytest.approx(0.208 / 0.9901, rel=1e-4)
+    assert dark_level(torch.stack([half, black]), 2) == 0.0 and dark_level(black[None], 2) == 0.0
+    with pytest.raises(ValueError, match="block"):
+        dark_level(view[None], 0)
+    with pytest.raises(ValueError, match="V, H, W, 3"):
+        dark_level(view, 2)
 
 
 def test_proxies_average_their_scores_and_speed_up_the_low_frequency_light():
@@ -200,23 +297,28 @@ def test_train_model_auto_writes_the_decision_prints_the_table_and_trains_the_ch
     assert res.exit_code == 0, res.output
     decision = json.loads((out / SELECTION_FILE).read_text())
     names = [c["name"] for c in decision["candidates"]]
-    # coordinate search: Lambert and MLP at SH degree 0, then the four degrees with the winning BRDF
+    # coordinate search: Lambert and MLP at SH degree 0, then the lowest and highest degree with the winning BRDF
     phases = [c["phase"] for c in decision["candidates"]]
-    assert phases == ["reflectance"] * 2 + ["light"] * 4
+    assert phases == ["reflectance"] * 2 + ["light"] * 2
     assert names[:2] == ["auto-sh0-lambert", "auto-sh0-mlp"]
     reflectance, light = decision["candidates"][:2], decision["candidates"][2:]
     lam, mlp = (c["validation_psnr"] for c in reflectance)
     brdf = "lambert" if lam >= max(lam, mlp) - 0.15 else "mlp"  # each of the two decisions: half the tolerance
-    assert names[2:] == [f"auto-sh{d}-{brdf}" for d in range(4)]
+    assert names[2:] == [f"auto-sh{d}-{brdf}" for d in (0, 3)]
     assert decision["settings"]["proxy_iterations"] == 100 and decision["tolerance_db"] == 0.3
     assert decision["settings"]["reflectance_proxy_iterations"] == 100  # 15 % of 300 < the 100-step minimum
     assert decision["phase_tolerance_db"] == 0.15
-    assert [c["criterion"] for c in decision["candidates"]] == ["all"] * 2 + ["dark"] * 4
-    best = max(c["validation_psnr_dark"] for c in light)  # the SH degree is decided on the darkest held-out pixels
-    chosen = next(c for c in light if c["name"] == decision["chosen"])
-    assert chosen["validation_psnr_dark"] >= best - 0.15
-    assert all(c["validation_psnr_dark"] < best - 0.15 for c in light if c["sh_degree"] < chosen["sh_degree"])
-    assert decision["chosen"] in res.output and "val PSNR" in res.output
+    assert [c["criterion"] for c in decision["candidates"]] == ["all"] * 2 + ["dark"] * 2
+    # the need for a low-frequency light, measured on the degree-3 proxy, decides between the two degrees
+    need = decision["low_frequency_light"]
+    assert need["measured_on"] == f"auto-sh3-{brdf}-light"
+    assert 0 <= need["low_frequency_share"] <= 1 and 0 <= need["dark_level"] <= 1
+    needed = need["dark_level"] >= 0.01 and need["low_frequency_share"] >= 0.01
+    assert need["needed"] == needed
+    dark0, dark3 = (c["validation_psnr_dark"] for c in light)  # the darkest held-out pixels
+    want = 3 if needed and dark3 >= max(dark0, dark3) - 0.15 else 0
+    assert decision["chosen"] == f"auto-sh{want}-{brdf}"
+    assert decision["chosen"] in res.output and "val PSNR" in res.output and "low-frequency light" in res.output
     info = json.loads((out / "run.json").read_text())
     assert info["model"] == decision["chosen"] and ModelConfig(**info["model_config"]).name == decision["chosen"]
     summary = json.loads((out / "train_summary.json").read_text())

@@ -217,6 +217,7 @@ def shade(
     brdf: LambertianBRDF | LearnedBRDF | None,
     c2w: torch.Tensor,
     relight_l0: torch.Tensor | Sequence[float] | None = None,
+    split_lights: bool = False,
 ) -> torch.Tensor:
     """Linear RGB colour of every Gaussian seen from camera `c2w`, (N, 3); differentiable; never clipped above.
 
@@ -229,9 +230,14 @@ def shade(
         c2w: (4, 4) camera-to-world, OpenCV axes.
         relight_l0: None to render under the learned spotlight, or L0 (3,) to relight (see module docstring);
             "3dgs" ignores it (its relit output is its normal render).
+        split_lights: under the spotlight only: return (N, 6), the colour lit by the spotlight alone and by the
+            low-frequency light alone, [f̃·cos·L_spot, f̃·cos·L_lf]; the two halves sum to the (N, 3) colour.
     """
     cfg = resolve_variant(variant)
     check_c2w(c2w)
+    if split_lights and (cfg.light_model == "none" or relight_l0 is not None):
+        raise ValueError(f"split_lights needs a spotlight-lit render of a lit variant, not {cfg.name!r}"
+                         + (" relit" if relight_l0 is not None else ""))
     if cfg.light_model == "none":
         return vanilla_colours(gaussians, c2w, cfg.colour_sh_degree)
     _check_modules(cfg, light, lf_light, brdf, relit=relight_l0 is not None)
@@ -247,6 +253,10 @@ def shade(
         reflect = relit_reflectance(albedo, rough, metal, normals, brdf, cfg.relight_directions)
         return reflect * (l0 + low_frequency)
     spot, light_dirs = light.incident(gaussians.means, c2w)
+    if split_lights:
+        lit = spot_lit_colours(albedo, rough, metal, normals, view_dirs, light_dirs,
+                               torch.ones_like(spot), torch.zeros_like(low_frequency), brdf)  # f̃·cos
+        return torch.cat([lit * spot, lit * low_frequency], dim=1)
     return spot_lit_colours(albedo, rough, metal, normals, view_dirs, light_dirs, spot, low_frequency, brdf)
 
 

@@ -13,20 +13,31 @@ views, ``holdout="views"``, hid the BRDF behind geometry error: on the glossy st
 ~11.7 dB). A shared base model (Lambert, SH degree 0) is fitted once for ``base_fraction`` of the full schedule; the
 candidates start from its Gaussians and spotlight (:mod:`spotlessgs.training.warm_start`), so they differ in the
 compared components only. A candidate's error is the spotlight-lit PSNR of the held-out pixels, averaged over
-``validation_average`` scores in the last third of its proxy run; the SH degree is decided on the darkest half of the
+``validation_average`` scores in the last third of its proxy run; in the light phase it is the darkest half of the
 held-out pixels (``light_criterion``), where the low-frequency light dominates, and the proxies train that light at
 ``proxy_light_lr_scale`` times its learning rate so that it can move in a few hundred steps. Each decision picks the
 cheapest candidate within half of ``tolerance_db`` of the best (:func:`phase_tolerance`), so that the BRDF and the
 SH decisions together give up at most ``tolerance_db``.
 
+The SH degree also needs a signal the held-out pixels do not give: whether the scene has ambient or bounce light at
+all. Held-out scores of degrees 0-3 differed by 0.1-0.2 dB in no consistent order on the bounce-lit bedroom, whose
+relit images nevertheless gain 0.16-0.19 dB from degree 3. So the light phase asks two questions without ground
+truth (:func:`measure_light_need`, :mod:`spotlessgs.training.light_need`): are the parts of the training images the
+spotlight misses lit at all (``min_dark_level``), and does the highest-degree proxy use its low-frequency light
+(``min_low_frequency_share`` of its spotlight-lit rendered radiance)? Both yes: the highest degree, unless its
+held-out score falls beyond the tolerance; otherwise the lowest (:func:`choose_light`). The degrees cost the same per
+step within timing noise (48 vs 3 SH coefficients next to thousands of Gaussians), so the highest degree is the cheap
+answer whenever the light exists.
+
 Search (``SelectionConfig.search``), ``coordinate`` (default): phase "reflectance" trains the Lambertian and the MLP
-BRDF at SH degree 0 for ``reflectance_proxy_fraction`` each and keeps the cheaper one within its tolerance; phase
-"light" continues that winner with every SH degree for ``proxy_fraction`` each, and the final choice is made among
-these (equally long) runs. Cost with the defaults: 0.1 + 2 × 0.15 + 4 × 0.05 = 0.6 of the full run's steps, at the
-cheaper per-step cost of runs without densification (measured ~40% of a quick run's time). ``grid`` trains every
-(degree, BRDF) pair for ``reflectance_proxy_fraction`` (1.3 runs' steps). Every trained candidate, with its phase, is
-in the decision file ``RUN/model_selection.json``; proxy runs live in ``RUN/selection/<candidate>[-light]/`` (their
-checkpoints are removed when the search ends).
+BRDF at the lowest SH degree for ``reflectance_proxy_fraction`` each and keeps the cheaper one within its tolerance;
+phase "light" continues that winner with the lowest and the highest SH degree for ``proxy_fraction`` each, and the
+final choice is made between these (equally long) runs. Cost with the defaults: 0.1 + 2 × 0.15 + 2 × 0.05 = 0.5 of
+the full run's steps, at the cheaper per-step cost of runs without densification (~30% of a quick run's time).
+``grid`` trains every (degree, BRDF) pair for ``reflectance_proxy_fraction`` (1.3 runs' steps) and applies the same
+light rule, measured on the highest-degree Lambertian candidate. Every trained candidate, with its phase, and the
+light measurements are in the decision file ``RUN/model_selection.json``; proxy runs live in
+``RUN/selection/<candidate>[-light]/`` (their checkpoints are removed when the search ends).
 """
 
 from __future__ import annotations
@@ -46,7 +57,7 @@ from spotlessgs.training.config import TrainConfig
 log = logging.getLogger(__name__)
 
 SELECTION_FILE = "model_selection.json"
-SELECTION_VERSION = 3
+SELECTION_VERSION = 4
 BRDFS = ("lambert", "mlp")
 
 
@@ -91,7 +102,22 @@ class SelectionConfig:
     # the end of the full bedroom run), so no SH degree could show what it buys. (Scaling the BRDF's rate as well
     # made the MLP lead by 0.16-0.25 dB on the diffuse rooms, against 0.40 dB on the glossy one: not used.)
     proxy_light_lr_scale: float = 10.0
-    # "coordinate" (SH degrees with Lambert, then the MLP BRDF at the chosen degree) or "grid" (every pair).
+    # Does the scene need a low-frequency light (ambient or bounce)? Two measurements without ground truth, both
+    # must say so (spotlessgs.training.light_need): the dark level of the training images (the 20th-percentile
+    # 8x8-block brightness over the 99th, median over views) at least min_dark_level, and the share of the
+    # spotlight-lit rendered radiance (over share_views training views) that the highest-degree proxy's
+    # low-frequency light carries at least min_low_frequency_share. If so, the highest SH degree (unless its held-out
+    # score is beyond the phase tolerance of the best), else the lowest. Measured on the 36-frame quick rooms:
+    # dark level 0.057-0.059 (bedroom, Lambertian bedroom), 0.031 (storage room), 0 (bedroom without bounce light;
+    # 0.003 with sensor noise of read sigma 0.004); proxy share (seed 0) 0.083, 0.083, 0.040, 0.001. The share alone
+    # fails on tiny images, where the light makes up for a spotlight not fitted yet (64-px bedroom without bounce
+    # light: share 0.22, dark level 0). The held-out pixels cannot rank the degrees themselves: degrees 0-3 scored
+    # within 0.1-0.2 dB of each other in no consistent order over 3 seeds, while degree 3 relit the bounce-lit
+    # bedroom 0.16-0.19 dB better than the degree 0-2 that rule had picked.
+    min_dark_level: float = 0.01
+    min_low_frequency_share: float = 0.01
+    share_views: int = 12
+    # "coordinate" (the BRDF at the lowest SH degree, then the SH degree with that BRDF) or "grid" (every pair).
     search: str = "coordinate"
     # Candidate SH degrees of the low-frequency light.
     sh_degrees: tuple[int, ...] = (0, 1, 2, 3)
@@ -118,6 +144,13 @@ class SelectionConfig:
             raise ValueError(f"SelectionConfig: validation_average must be >= 1, got {self.validation_average}")
         if self.light_criterion not in ("dark", "all"):
             raise ValueError(f"SelectionConfig: light_criterion must be 'dark' or 'all', got {self.light_criterion!r}")
+        if not 0 <= self.min_dark_level < 1:
+            raise ValueError(f"SelectionConfig: min_dark_level must be in [0, 1), got {self.min_dark_level}")
+        if not 0 <= self.min_low_frequency_share < 1:
+            raise ValueError(f"SelectionConfig: min_low_frequency_share must be in [0, 1), "
+                             f"got {self.min_low_frequency_share}")
+        if self.share_views < 1:
+            raise ValueError(f"SelectionConfig: share_views must be >= 1, got {self.share_views}")
         if self.search not in ("coordinate", "grid"):
             raise ValueError(f"SelectionConfig: search must be 'coordinate' or 'grid', got {self.search!r}")
         if not self.sh_degrees or any(d not in (0, 1, 2, 3) for d in self.sh_degrees):
@@ -177,6 +210,54 @@ def choose(results: Sequence[CandidateResult], tolerance_db: float) -> Candidate
     best = max(r.score for r in results)
     good = [r for r in results if r.score >= best - tolerance_db]
     return min(good, key=lambda r: cost_rank(r.model))
+
+
+def choose_light(results: Sequence[CandidateResult], light_needed: bool,
+                 selection: SelectionConfig) -> CandidateResult:
+    """The final choice among the last phase's candidates, given whether the scene needs a low-frequency light.
+
+    Not needed (no ambient or bounce light to model): the candidates of the lowest SH degree compete
+    (:func:`choose`). Needed: those of the highest degree compete, provided the best of them is within the phase
+    tolerance of the best candidate overall; if not (that light fits noise), every candidate competes. (Degree 0 has
+    an RGB constant ambient, so it also serves a faint uniform one.)
+
+    Args:
+        results: the candidates of the final phase (light phase: one BRDF, lowest and highest degree; grid: all).
+        light_needed: :func:`measure_light_need`'s verdict.
+    """
+    if not results:
+        raise ValueError("choose_light: no candidates were scored")
+    tolerance = phase_tolerance(selection)
+    degrees = [r.sh_degree for r in results]
+    if not light_needed:
+        return choose([r for r in results if r.sh_degree == min(degrees)], tolerance)
+    high = [r for r in results if r.sh_degree == max(degrees)]
+    if max(r.score for r in high) >= max(r.score for r in results) - tolerance:
+        return choose(high, tolerance)
+    return choose(results, tolerance)
+
+
+def measure_light_need(run_dir: Path, selection: SelectionConfig, device: str = "cpu") -> dict:
+    """Whether the scene needs a low-frequency light, measured with the proxy run in ``run_dir`` (its checkpoint).
+
+    Returns:
+        ``dark_level`` (:func:`~spotlessgs.training.light_need.dark_level` of the training images at the training
+        resolution, blocks of the held-out block size), ``low_frequency_share``
+        (:func:`~spotlessgs.training.light_need.low_frequency_share` over ``share_views`` evenly spaced training
+        views), ``measured_on`` (the proxy's folder name) and ``needed`` (both at least their thresholds).
+    """
+    from spotlessgs.training.light_need import dark_level, low_frequency_share
+    from spotlessgs.training.trainer import load_run
+    from spotlessgs.training.validation import block_size, evenly_spaced
+
+    scene, views, config, _info = load_run(run_dir, device=device)
+    dev = scene.gaussians.means.device
+    level = dark_level(views.images[views.train], block_size(views.width, selection.holdout_block))
+    share = low_frequency_share(scene, views.c2w.to(dev), views.viewmats.to(dev), views.K.to(dev),
+                                evenly_spaced(views.train, selection.share_views), views.width, views.height,
+                                config.raster_backend, config.num_threads)
+    return {"dark_level": level, "low_frequency_share": share, "measured_on": Path(run_dir).name,
+            "needed": level >= selection.min_dark_level and share >= selection.min_low_frequency_share}
 
 
 def phase_tolerance(selection: SelectionConfig) -> float:
@@ -281,24 +362,33 @@ def select_model(
     if selection.search == "grid":
         final = [score(candidate_model(d, brdf), reflectance_proxy, base_dir, "grid") for brdf in BRDFS
                  for d in degrees]
+        share_dir = selection_dir / candidate_model(degrees[-1], "lambert").name
     else:
         reflectance = [score(candidate_model(degrees[0], brdf), reflectance_proxy, base_dir, "reflectance")
                        for brdf in BRDFS]
         brdf = choose(reflectance, phase_tolerance(selection)).brdf
         winner_dir = selection_dir / candidate_model(degrees[0], brdf).name
+        # the lowest and the highest degree only: the held-out pixels cannot rank the degrees in between (see
+        # min_dark_level), and the need for a low-frequency light is measured on the highest
         final = [score(candidate_model(d, brdf), proxy, winner_dir, "light", selection.light_criterion)
-                 for d in degrees]
+                 for d in sorted({degrees[0], degrees[-1]})]
+        share_dir = selection_dir / f"{candidate_model(degrees[-1], brdf).name}-light"
+    need = measure_light_need(share_dir, selection, config.device)
     for folder in selection_dir.iterdir():  # proxies keep their metrics and summaries, not their checkpoints
         shutil.rmtree(folder / "checkpoints", ignore_errors=True)
-    chosen = choose(final, phase_tolerance(selection))
+    chosen = choose_light(final, need["needed"], selection)
     best = max(final, key=lambda r: r.score)
     decision = {
         "version": SELECTION_VERSION,
         "criterion": "cheapest candidate (Lambert before MLP BRDF, then lower SH degree) whose spotlight-lit PSNR on "
                      "held-out pixels of the training views (mean of validation_average scores over the last third "
-                     "of each proxy) is within tolerance_db of the best; coordinate search decides the BRDF first "
-                     "(phase 'reflectance', all held-out pixels), then the SH degree (phase 'light', the darkest "
-                     "half of the held-out pixels when light_criterion is 'dark')",
+                     "of each proxy) is within phase_tolerance_db of the best; coordinate search decides the BRDF "
+                     "first (phase 'reflectance', all held-out pixels), then the SH degree (phase 'light', the "
+                     "darkest half of the held-out pixels when light_criterion is 'dark'): the highest degree "
+                     "(if within the tolerance) when the scene needs a low-frequency light (low_frequency_light: "
+                     "the training images' dark level and the highest-degree proxy's share of low-frequency "
+                     "radiance both at least their minimum), else the lowest",
+        "low_frequency_light": need,
         "chosen": chosen.name,
         "chosen_model": dataclasses.asdict(chosen.model),
         "best": best.name,
@@ -333,6 +423,14 @@ def format_selection_table(decision: dict) -> str:
                      f"{c.get('criterion', 'all'):>4} {score(c) - best[phase]:>6.2f} "
                      f"{c['ms_per_step']:>8.1f} {c['appearance_parameters']:>7}")
     tol = decision.get("phase_tolerance_db", decision["tolerance_db"])
+    need = decision.get("low_frequency_light")
+    if need is not None:
+        limits = decision["settings"]["selection"]
+        lines.append(f"low-frequency light {'needed' if need['needed'] else 'not needed'}: dark level "
+                     f"{need['dark_level']:.3f} (min {limits['min_dark_level']:g}), share "
+                     f"{100 * need['low_frequency_share']:.1f}% of {need['measured_on']}'s radiance "
+                     f"(min {100 * limits['min_low_frequency_share']:g}%) -> "
+                     f"{'highest' if need['needed'] else 'lowest'} SH degree")
     lines.append(f"chosen: {decision['chosen']} (cheapest within {tol:g} dB of the best, "
                  f"{decision['best']})")
     return "\n".join(lines)

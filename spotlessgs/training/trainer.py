@@ -34,8 +34,8 @@ from spotlessgs.training.strategy import DensifyConfig, DensifyStrategy
 from spotlessgs.training.warm_start import warm_start_scene
 from spotlessgs.training.budget import BudgetConfig, BudgetStrategy, budget_report
 from spotlessgs.training.validation import (
-    ViewSplit, evenly_spaced, gaussian_contributions, held_out_score, holdout_blocks, split_training_views,
-    validation_psnr,
+    ViewSplit, block_size, evenly_spaced, gaussian_contributions, held_out_score, holdout_blocks,
+    split_training_views, validation_psnr,
 )
 
 log = logging.getLogger(__name__)
@@ -307,7 +307,7 @@ def train(
     images, saturated = views.images.to(device), views.saturated.to(device)
     held_out = None  # (V, H, W) bool pixel blocks never fitted (validation_blocks > 0)
     if config.validation_blocks > 0:
-        block = config.validation_block or max(2, round(views.width / 20))
+        block = block_size(views.width, config.validation_block)
         held_out = holdout_blocks(len(views.names), views.height, views.width, config.validation_blocks, block,
                                   seed).to(device)
     c2ws, viewmats, K = views.c2w.to(device), views.viewmats.to(device), views.K.to(device)

@@ -55,6 +55,11 @@ def split_training_views(train: Sequence[int], every: int) -> ViewSplit:
     return ViewSplit(fit, validation)
 
 
+def block_size(width: int, block: int | None = None) -> int:
+    """Side (px) of a held-out pixel block: ``block`` when given, else 1/20 of the image width (at least 2 px)."""
+    return block or max(2, round(width / 20))
+
+
 def holdout_blocks(views: int, height: int, width: int, fraction: float, block: int, seed: int) -> torch.Tensor:
     """(views, height, width) bool: a seeded random ``fraction`` of the ``block``×``block`` pixel blocks of each view
     (at least one block per view; blocks at the right/bottom edge are cut to the image)."""
