@@ -443,24 +443,24 @@ def test_runtime_table_has_model_chosen_gaussians_and_selection_time():
 def test_auto_against_spotless_notes():
     ds = _collected()["datasets"]["bedroom-uneven"]
     psnr, count = check_auto_vs_spotless("bedroom-uneven", ds)
-    # 16.40 vs 16.50 dB: -0.10 dB, inside 0.25 dB; 60 vs 100 Gaussians: 40 % fewer
+    # 16.40 vs 16.50 dB: -0.10 dB, inside 0.25 + 0.2 dB; 60 vs 100 Gaussians: 40 % fewer
     assert psnr.status == "agrees" and psnr.claim == ("Auto on bedroom-uneven: relit PSNR (aligned) within the "
-                                                      "selection tolerance of SpotlessGS")
-    assert psnr.text.startswith("auto (auto-sh1-lambert) 16.40 dB vs SpotlessGS 16.50 dB: -0.10 dB, within the 0.25 "
-                                "dB selection tolerance")
+                                                      "selection tolerance plus the budget bound of SpotlessGS")
+    assert psnr.text.startswith("auto (auto-sh1-lambert) 16.40 dB vs SpotlessGS 16.50 dB: -0.10 dB, within the 0.45 "
+                                "dB allowed (0.25 dB selection tolerance")
     assert count.status == "agrees"
     assert count.text == "auto (auto-sh1-lambert, Gaussian budget) 60 vs SpotlessGS 100 Gaussians: 40.0 % fewer."
-    ds["methods"]["auto"]["metrics"]["psnr_aligned"] = 16.2  # -0.30 dB: outside
+    ds["methods"]["auto"]["metrics"]["psnr_aligned"] = 16.0  # -0.50 dB: outside
     ds["methods"]["auto"]["decisions"]["Gaussians"] = 125  # 25 % more
     psnr, count = check_auto_vs_spotless("bedroom-uneven", ds)
-    assert psnr.status == "disagrees" and "-0.30 dB, outside the 0.25 dB selection tolerance" in psnr.text
+    assert psnr.status == "disagrees" and "-0.50 dB, outside the 0.45 dB allowed" in psnr.text
     assert count.status == "disagrees" and count.text.endswith("125 vs SpotlessGS 100 Gaussians: 25.0 % more.")
-    ds["methods"]["auto"]["metrics"]["psnr_aligned"] = 16.25  # exactly at the tolerance counts as within
+    ds["methods"]["auto"]["metrics"]["psnr_aligned"] = 16.05  # exactly at the allowance counts as within
     assert check_auto_vs_spotless("bedroom-uneven", ds)[0].status == "agrees"
     ds["methods"]["auto"]["metrics"]["psnr_aligned"] = 16.78  # better than the fixed model
     better = check_auto_vs_spotless("bedroom-uneven", ds)[0]
     assert better.status == "agrees"
-    assert "+0.28 dB, no loss, at least as good as SpotlessGS (selection allowed 0.25 dB" in better.text
+    assert "+0.28 dB, no loss, at least as good as SpotlessGS (0.25 dB selection tolerance" in better.text
     del ds["methods"]["auto"]["selection"]
     ds["methods"]["spotless"]["decisions"]["Gaussians"] = None
     psnr, count = check_auto_vs_spotless("bedroom-uneven", ds)

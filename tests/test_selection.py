@@ -129,8 +129,10 @@ def test_the_light_decision_follows_the_measured_need_for_a_low_frequency_light(
     assert choose_light(close, True, cfg).sh_degree == 3  # the light is needed: the highest degree
     assert choose_light(close, False, cfg).sh_degree == 0  # not needed: the lowest degree
     assert choose_light([_light(0, 29.0), _light(3, 30.0)], False, cfg).sh_degree == 0  # whatever the scores
-    # needed, but the highest degree is beyond the tolerance of the best: the cheapest within it
-    assert choose_light([_light(0, 29.70), _light(3, 29.50)], True, cfg).sh_degree == 0
+    # needed and 0.20 dB behind: beyond the phase's 0.15 dB but the guard allows the whole 0.3 dB (no ranking)
+    assert choose_light([_light(0, 29.70), _light(3, 29.50)], True, cfg).sh_degree == 3
+    # needed, but the highest degree is beyond the whole tolerance of the best: the cheapest within the phase's
+    assert choose_light([_light(0, 29.70), _light(3, 29.35)], True, cfg).sh_degree == 0
     # grid: both BRDFs at both degrees; needed -> degree 3, and the cheaper BRDF within the tolerance of the best
     grid = [_light(0, 29.0), _light(3, 29.5),
             dataclasses.replace(_light(0, 29.2), name="auto-sh0-mlp", brdf="mlp"),
@@ -316,7 +318,7 @@ def test_train_model_auto_writes_the_decision_prints_the_table_and_trains_the_ch
     needed = need["dark_level"] >= 0.01 and need["low_frequency_share"] >= 0.01
     assert need["needed"] == needed
     dark0, dark3 = (c["validation_psnr_dark"] for c in light)  # the darkest held-out pixels
-    want = 3 if needed and dark3 >= max(dark0, dark3) - 0.15 else 0
+    want = 3 if needed and dark3 >= max(dark0, dark3) - 0.3 else 0
     assert decision["chosen"] == f"auto-sh{want}-{brdf}"
     assert decision["chosen"] in res.output and "val PSNR" in res.output and "low-frequency light" in res.output
     info = json.loads((out / "run.json").read_text())

@@ -14,7 +14,7 @@ from click.testing import CliRunner
 from conftest import synthetic_box_dataset
 from spotlessgs.selection_benchmark import (
     PLOT, RESULTS_JSON, RESULTS_MD, ROW_FILE, RUN_FOLDERS, BenchmarkSettings, aggregate_seeds, budget_verdict, main,
-    run_seeds, run_selection_benchmark, selection_verdict, train_config, verdict_lines,
+    light_note, run_seeds, run_selection_benchmark, selection_verdict, train_config, verdict_lines,
 )
 
 pytestmark = pytest.mark.usefixtures("one_torch_thread")
@@ -47,6 +47,14 @@ def test_selection_verdict_is_the_psnr_difference_against_the_tolerance():
     assert selection_verdict(20.1, 20.3, 0.2)["within"]  # at the bound despite float rounding (-0.2000000000000028)
     assert not selection_verdict(20.0, 20.2501, 0.25)["within"]
     assert selection_verdict(30.0, 30.0, 0.0)["within"]
+
+
+def test_light_note_states_the_light_measurements():
+    need = {"dark_level": 0.0574, "low_frequency_share": 0.0831, "measured_on": "auto-sh3-lambert-light",
+            "needed": True}
+    assert light_note(need) == "; low-frequency light needed (dark level 0.057, share 8.3%)"
+    assert light_note({**need, "needed": False}).startswith("; low-frequency light not needed")
+    assert light_note(None) == ""  # a decision from before the light measurements
 
 
 def test_budget_verdict_needs_both_fewer_gaussians_and_little_psnr_loss():
@@ -145,6 +153,8 @@ def test_markdown_and_figure(bench):
     results = json.loads((out / RESULTS_JSON).read_text())
     for name, room in results["rooms"].items():
         assert f"## {name}" in md
+        need = room["selection"]["low_frequency_light"]
+        assert need["measured_on"].startswith("auto-sh3-") and f"dark level {need['dark_level']:.3f}" in md
         for line in verdict_lines(room["verdicts"]["selection"], room["verdicts"]["budget"]):
             assert f"- {line}" in md
     assert md.count("| spotless | spotless | default |") == 2 and "choice vs spotless" in output
