@@ -203,13 +203,22 @@ def test_dark_level_is_the_dark_end_of_each_view_over_its_bright_end():
     # (torch.quantile, linear interpolation: position 0.2 * 99 = 19.8) is 0.208 and the 99th (98.01) 0.9901
     steps = (torch.arange(100, dtype=torch.float32) + 1) * 0.01
     view = steps.reshape(10, 10).repeat_interleave(2, 0).repeat_interleave(2, 1)[..., None].expand(20, 20, 3)
-    assert dark_level(view[None], 2) == pytest.approx(0.208 / 0.9901, rel=1e-5)
-    # zero-mean noise inside a block does not move it; a black frame is skipped; the median over views
-    noise = torch.tensor([[0.005, -0.005], [-0.005, 0.005]]).repeat(10, 10)[..., None]
+    level = 0.208 / 0.9901
+    assert dark_level(view[None], 2) == pytest.approx(level, rel=1e-5)
+    # a strongly coloured view counts with its channel-mean brightness: pure red at three times the grey value
+    red = view * torch.tensor([3.0, 0.0, 0.0])
+    assert dark_level(red[None], 2) == pytest.approx(level, rel=1e-5)
+    # half the view unlit: level 0, also under sensor noise clipped at 0 (two of a block's four pixels at 0 in every
+    # channel; block means would make it 0.01 / 0.99 ~ 0.01); black frames are skipped; the median over views
+    half = view * torch.cat([torch.zeros(10, 20), torch.ones(10, 20)])[..., None]
+    clipped_noise = torch.tensor([[0.02, 0.0], [0.0, 0.02]]).repeat(10, 10)[..., None].expand(20, 20, 3)
+    noisy_half = torch.where(half > 0, half, clipped_noise)
+    assert dark_level(noisy_half[None], 2) == 0.0
     black = torch.zeros(20, 20, 3)
-    half = view * torch.cat([torch.zeros(10, 20), torch.ones(10, 20)])[..., None]  # half the view unlit: level 0
-    assert dark_level(torch.stack([view + noise, black, view, half]), 2) == pytest.approx(0.208 / 0.9901, rel=1e-4)
-    assert dark_level(torch.stack([half, black]), 2) == 0.0 and dark_level(black[None], 2) == 0.0
+    assert dark_level(torch.stack([view, black, red, noisy_half]), 2) == pytest.approx(level, rel=1e-5)
+    assert dark_level(torch.stack([noisy_half, black]), 2) == 0.0 and dark_level(black[None], 2) == 0.0
+    # a block that does not divide the image: edge blocks are cut to the image (the 20 x 20 view in 3-px blocks)
+    assert 0.0 < dark_level(view[None], 3) < 1.0
     with pytest.raises(ValueError, match="block"):
         dark_level(view[None], 0)
     with pytest.raises(ValueError, match="V, H, W, 3"):

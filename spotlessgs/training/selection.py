@@ -108,8 +108,9 @@ class SelectionConfig:
     # spotlight-lit rendered radiance (over share_views training views) that the highest-degree proxy's
     # low-frequency light carries at least min_low_frequency_share. If so, the highest SH degree (unless its held-out
     # score is beyond tolerance_db of the best), else the lowest. Measured on the 36-frame quick rooms:
-    # dark level 0.057-0.059 (bedroom, Lambertian bedroom), 0.031 (storage room), 0 (bedroom without bounce light;
-    # 0.003 with sensor noise of read sigma 0.004); proxy share (seed 0) 0.083, 0.083, 0.040, 0.001. The share alone
+    # dark level 0.054 / 0.049 (bedroom, Lambertian bedroom), 0.026 (storage room), 0 (bedroom without bounce light;
+    # 0.0014 with sensor noise of read sigma 0.012); proxy share over 3 seeds 0.068-0.122 (bedrooms), 0.030-0.049
+    # (storage room), 0.001 (no bounce light, seed 0). The share alone
     # fails on tiny images, where the light makes up for a spotlight not fitted yet (64-px bedroom without bounce
     # light: share 0.22, dark level 0). The held-out pixels cannot rank the degrees themselves: degrees 0-3 scored
     # within 0.1-0.2 dB of each other in no consistent order over 3 seeds, while degree 3 relit the bounce-lit
