@@ -126,8 +126,7 @@ def run_selection(data: Path, room_dir: Path, settings: BenchmarkSettings) -> di
 
     Returns:
         ``chosen``, ``chosen_model`` (ModelConfig fields), ``best``, ``tolerance_db``, ``candidates`` (every scored
-        candidate of the decision), ``low_frequency_light`` (the light phase's measurements; None in decisions
-        older than them) and ``seconds``: wall time of the whole selection (None when the decision was made
+        candidate of the decision), ``low_frequency_light`` (the light phase's measurements) and ``seconds``: wall time of the whole selection (None when the decision was made
         by an earlier invocation that did not record it).
     """
     from spotlessgs.training.selection import SELECTION_FILE, select_model
@@ -144,7 +143,7 @@ def run_selection(data: Path, room_dir: Path, settings: BenchmarkSettings) -> di
         seconds = time.perf_counter() - start
         write_json(timing, {"seconds": seconds})
     return {**{k: decision[k] for k in ("chosen", "chosen_model", "best", "tolerance_db", "candidates")},
-            "low_frequency_light": decision.get("low_frequency_light"), "seconds": seconds}
+            "low_frequency_light": decision["low_frequency_light"], "seconds": seconds}
 
 
 def _check_same_settings(run_dir: Path, config, seed: int) -> None:
@@ -295,10 +294,8 @@ def measure_room(data: Path, room_dir: Path, settings: BenchmarkSettings) -> dic
     return room
 
 
-def light_note(need: dict[str, Any] | None) -> str:
-    """``; low-frequency light needed (dark level 0.057, share 8.3%)`` for a decision's light measurements."""
-    if need is None:
-        return ""
+def light_note(need: dict[str, Any]) -> str:
+    """``; low-frequency light needed (dark level 0.054, share 8.3%)`` for a decision's light measurements."""
     return (f"; low-frequency light {'needed' if need['needed'] else 'not needed'} (dark level "
             f"{need['dark_level']:.3f}, share {100 * need['low_frequency_share']:.1f}%)")
 
@@ -316,7 +313,7 @@ def markdown_report(rooms: dict[str, dict[str, Any]], settings: BenchmarkSetting
         lines += [f"## {name}", "",
                   f"Selection: chose {sel['chosen']} (best held-out PSNR: {sel['best']}, tolerance "
                   f"{sel['tolerance_db']:g} dB) in {fmt(sel['seconds'], '.1f')} s, {len(sel['candidates'])} "
-                  f"candidates{light_note(sel.get('low_frequency_light'))}.", "",
+                  f"candidates{light_note(sel['low_frequency_light'])}.", "",
                   "| run | model | strategy | Gaussians | train s | ms / step | relit PSNR | relit PSNR aligned | "
                   "relit FPS |",
                   "|---|---|---|---|---|---|---|---|---|"]

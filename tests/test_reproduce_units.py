@@ -450,6 +450,11 @@ def test_auto_against_spotless_notes():
                                 "dB allowed (0.25 dB selection tolerance")
     assert count.status == "agrees"
     assert count.text == "auto (auto-sh1-lambert, Gaussian budget) 60 vs SpotlessGS 100 Gaussians: 40.0 % fewer."
+    # the light rule's measurements, where the run recorded them, say why the degree was chosen
+    ds["methods"]["auto"]["selection"]["low_frequency_light"] = {
+        "dark_level": 0.0539, "low_frequency_share": 0.0834, "measured_on": "auto-sh3-lambert-light", "needed": False}
+    assert check_auto_vs_spotless("bedroom-uneven", ds)[0].text.startswith(
+        "auto (auto-sh1-lambert; low-frequency light not needed (dark level 0.054, share 8.3%)) 16.40 dB")
     ds["methods"]["auto"]["metrics"]["psnr_aligned"] = 16.0  # -0.50 dB: outside
     ds["methods"]["auto"]["decisions"]["Gaussians"] = 125  # 25 % more
     psnr, count = check_auto_vs_spotless("bedroom-uneven", ds)

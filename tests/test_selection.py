@@ -95,14 +95,21 @@ def test_proxy_schedule_is_a_fraction_without_densification():
 
 
 def test_table_lists_every_candidate_and_marks_the_choice():
-    decision = {"chosen": "auto-sh1-lambert", "best": "auto-sh1-mlp", "tolerance_db": 0.25,
+    decision = {"chosen": "auto-sh1-lambert", "best": "auto-sh1-mlp", "tolerance_db": 0.25, "phase_tolerance_db": 0.125,
                 "candidates": [dataclasses.asdict(r) for r in (_result(0, "lambert", 19.0),
                                                                _result(1, "lambert", 19.9),
-                                                               _result(1, "mlp", 20.0))]}
+                                                               _result(1, "mlp", 20.0))],
+                "low_frequency_light": {"dark_level": 0.0539, "low_frequency_share": 0.0834,
+                                        "measured_on": "auto-sh1-lambert-light", "needed": True},
+                "settings": {"selection": dataclasses.asdict(SelectionConfig())}}
     lines = format_selection_table(decision).splitlines()
-    assert len(lines) == 5  # header, three candidates, the verdict
+    assert len(lines) == 6  # header, three candidates, the light measurements, the verdict
     assert lines[2].startswith("* auto-sh1-lambert") and "-0.10" in lines[2]
     assert lines[1].startswith("  auto-sh0-lambert") and "-1.00" in lines[1]
+    assert lines[4] == ("low-frequency light needed: dark level 0.054 (min 0.01), share 8.3% of "
+                        "auto-sh1-lambert-light's radiance (min 1%) -> highest SH degree (if within 0.25 dB)")
+    assert lines[5].startswith("chosen: auto-sh1-lambert (SH degree by the light rule, then the cheapest within "
+                               "0.125 dB")
 
 
 def test_each_coordinate_phase_gets_half_the_tolerance_so_the_two_decisions_stay_within_it():
@@ -128,7 +135,10 @@ def test_the_light_decision_follows_the_measured_need_for_a_low_frequency_light(
     close = [_light(0, 29.70), _light(3, 29.60)]  # degree 3 0.10 dB behind: within the tolerance
     assert choose_light(close, True, cfg).sh_degree == 3  # the light is needed: the highest degree
     assert choose_light(close, False, cfg).sh_degree == 0  # not needed: the lowest degree
-    assert choose_light([_light(0, 29.0), _light(3, 30.0)], False, cfg).sh_degree == 0  # whatever the scores
+    # not needed, and degree 0 0.20 dB behind: still within the whole tolerance, degree 0
+    assert choose_light([_light(0, 29.80), _light(3, 30.0)], False, cfg).sh_degree == 0
+    # not needed, but degree 0 is 1 dB behind: the measurement and the held-out pixels disagree, the pixels decide
+    assert choose_light([_light(0, 29.0), _light(3, 30.0)], False, cfg).sh_degree == 3
     # needed and 0.20 dB behind: beyond the phase's 0.15 dB but the guard allows the whole 0.3 dB (no ranking)
     assert choose_light([_light(0, 29.70), _light(3, 29.50)], True, cfg).sh_degree == 3
     # needed, but the highest degree is beyond the whole tolerance of the best: the cheapest within the phase's
@@ -139,7 +149,9 @@ def test_the_light_decision_follows_the_measured_need_for_a_low_frequency_light(
             dataclasses.replace(_light(3, 29.6), name="auto-sh3-mlp", brdf="mlp")]
     assert choose_light(grid, True, SelectionConfig(tolerance_db=0.2, search="grid")).name == "auto-sh3-lambert"
     assert choose_light(grid, True, SelectionConfig(tolerance_db=0.05, search="grid")).name == "auto-sh3-mlp"
-    assert choose_light(grid, False, SelectionConfig(tolerance_db=0.05, search="grid")).name == "auto-sh0-mlp"
+    # not needed: degree 0, whose best is 0.4 dB behind: within 0.45 (then the cheaper BRDF), not within 0.05
+    assert choose_light(grid, False, SelectionConfig(tolerance_db=0.45, search="grid")).name == "auto-sh0-lambert"
+    assert choose_light(grid, False, SelectionConfig(tolerance_db=0.05, search="grid")).name == "auto-sh3-mlp"
     with pytest.raises(ValueError, match="no candidates"):
         choose_light([], True, cfg)
 
@@ -326,8 +338,17 @@ def test_train_model_auto_writes_the_decision_prints_the_table_and_trains_the_ch
     assert 0 <= need["low_frequency_share"] <= 1 and 0 <= need["dark_level"] <= 1
     needed = need["dark_level"] >= 0.01 and need["low_frequency_share"] >= 0.01
     assert need["needed"] == needed
+    from spotlessgs.training.data import load_training_views
+    from spotlessgs.training.light_need import dark_level
+
+    views = load_training_views(box_room, 32)  # the dark level is that of the training images at the run's width
+    assert need["dark_level"] == pytest.approx(dark_level(views.images[views.train], 2), rel=1e-6)
     dark0, dark3 = (c["validation_psnr_dark"] for c in light)  # the darkest held-out pixels
-    want = 3 if needed and dark3 >= max(dark0, dark3) - 0.3 else 0
+    best, picked = max(dark0, dark3), dark3 if needed else dark0
+    if picked >= best - 0.3:  # the light rule's degree, within the whole tolerance
+        want = 3 if needed else 0
+    else:  # else the held-out pixels decide: the cheapest within half of it
+        want = 0 if dark0 >= best - 0.15 else 3
     assert decision["chosen"] == f"auto-sh{want}-{brdf}"
     assert decision["chosen"] in res.output and "val PSNR" in res.output and "low-frequency light" in res.output
     info = json.loads((out / "run.json").read_text())
@@ -347,10 +368,15 @@ def test_train_model_auto_writes_the_decision_prints_the_table_and_trains_the_ch
     assert again.exit_code != 0 and "--resume" in str(again.exception)
     resumed = CliRunner().invoke(main, [*args, "--resume"])
     assert resumed.exit_code == 0, resumed.output
-    with pytest.raises(ValueError, match="other selection settings"):
-        from spotlessgs.training.selection import select_model
+    from spotlessgs.training.selection import select_model
 
+    with pytest.raises(ValueError, match="other selection settings"):
         select_model(box_room, out, _tiny(iterations=300, image_width=32), 0, SelectionConfig(tolerance_db=0.9),
+                     resume=True)
+    old = {**decision, "version": 4}  # a decision of an older selection: refused with what to do, not reused
+    (out / SELECTION_FILE).write_text(json.dumps(old))
+    with pytest.raises(ValueError, match="model selection version 4, this is version 5.*to decide again"):
+        select_model(box_room, out, _tiny(iterations=300, image_width=32), 0, SelectionConfig(tolerance_db=0.3),
                      resume=True)
 
 

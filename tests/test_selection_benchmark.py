@@ -54,7 +54,6 @@ def test_light_note_states_the_light_measurements():
             "needed": True}
     assert light_note(need) == "; low-frequency light needed (dark level 0.057, share 8.3%)"
     assert light_note({**need, "needed": False}).startswith("; low-frequency light not needed")
-    assert light_note(None) == ""  # a decision from before the light measurements
 
 
 def test_budget_verdict_needs_both_fewer_gaussians_and_little_psnr_loss():

@@ -59,26 +59,30 @@ class RelightableScene(nn.Module):
 
     def colours(
         self, c2w: torch.Tensor, mask: torch.Tensor | None = None,
-        relight_l0: torch.Tensor | Sequence[float] | None = None,
+        relight_l0: torch.Tensor | Sequence[float] | None = None, split_lights: bool = False,
     ) -> torch.Tensor:
-        """(N, 3) linear colours of all Gaussians seen from ``c2w`` (OpenCV); zero outside ``mask`` (N,) bool."""
+        """(N, 3) linear colours of all Gaussians seen from ``c2w`` (OpenCV); zero outside ``mask`` (N,) bool.
+        ``split_lights``: (N, 6), lit by the spotlight alone and by the low-frequency light alone (see ``shade``)."""
         app = self.appearance
         if mask is None:
-            return shade(self.config, self.gaussians, app.light, app.lf_light, app.brdf, c2w, relight_l0)
+            return shade(self.config, self.gaussians, app.light, app.lf_light, app.brdf, c2w, relight_l0,
+                         split_lights)
         idx = torch.nonzero(mask).squeeze(1)
-        colours = shade(self.config, self.gaussians.subset(idx), app.light, app.lf_light, app.brdf, c2w, relight_l0)
-        out = colours.new_zeros((len(self.gaussians), 3))
+        colours = shade(self.config, self.gaussians.subset(idx), app.light, app.lf_light, app.brdf, c2w, relight_l0,
+                        split_lights)
+        out = colours.new_zeros((len(self.gaussians), colours.shape[1]))
         return out.index_copy(0, idx, colours)
 
     def render(
         self, c2w: torch.Tensor, viewmat: torch.Tensor, K: torch.Tensor, width: int, height: int, *,
         relight_l0: torch.Tensor | Sequence[float] | None = None, backend: str = "auto",
-        num_threads: int | None = None, background: torch.Tensor | None = None,
+        num_threads: int | None = None, background: torch.Tensor | None = None, split_lights: bool = False,
     ) -> RasterOutput:
-        """Render one view: under the learned spotlight, or relit by L0 when ``relight_l0`` is given."""
+        """Render one view: under the learned spotlight, or relit by L0 when ``relight_l0`` is given;
+        ``split_lights``: a six-channel image, [spotlight part, low-frequency part] (their sum is the normal render)."""
         g = self.gaussians
         scales = g.scales
         mask = frustum_mask(g.means, scales, viewmat, K, width, height)
-        feats = self.colours(c2w, mask=mask, relight_l0=relight_l0)
+        feats = self.colours(c2w, mask=mask, relight_l0=relight_l0, split_lights=split_lights)
         return rasterize(g.means, g.quats, scales, g.opacities, feats, viewmat, K, width, height,
                          background=background, backend=backend, num_threads=num_threads)

@@ -199,7 +199,8 @@ def select_auto_model(data: Path, run: Path, config, seed: int,
 
     Returns:
         (the chosen ModelConfig, a summary: ``chosen``, ``best``, ``tolerance_db``, ``candidates`` (name, SH degree,
-        BRDF, validation PSNR of each scored candidate) and ``seconds``, the wall time of the whole selection: the
+        BRDF, validation PSNR of each scored candidate), ``low_frequency_light`` (the light rule's measurements) and
+        ``seconds``, the wall time of the whole selection: the
         shared base run, every proxy run, their data loading and held-out scoring).
     """
     from spotlessgs.models.shading import ModelConfig
@@ -213,7 +214,7 @@ def select_auto_model(data: Path, run: Path, config, seed: int,
     summary = {"chosen": decision["chosen"], "best": decision["best"], "tolerance_db": decision["tolerance_db"],
                "candidates": [{k: c[k] for k in ("name", "sh_degree", "brdf", "validation_psnr")}
                               for c in decision["candidates"]],
-               "seconds": seconds}
+               "low_frequency_light": decision["low_frequency_light"], "seconds": seconds}
     return ModelConfig(**decision["chosen_model"]), summary
 
 

@@ -14,14 +14,13 @@ Model selection (:mod:`spotlessgs.training.selection`) wants both before it give
 
 from __future__ import annotations
 
+import math
 from collections.abc import Sequence
 
 import torch
 import torch.nn.functional as F
 
-from spotlessgs.models.relightable import RelightableScene, frustum_mask
-from spotlessgs.models.shading import shade
-from spotlessgs.rasterizer import rasterize
+from spotlessgs.models.relightable import RelightableScene
 
 #: The dark level is this quantile of a view's block brightness ...
 DARK_QUANTILE = 0.2
@@ -37,8 +36,8 @@ def dark_level(images: torch.Tensor, block: int, dark_quantile: float = DARK_QUA
     median, not the mean: sensor noise on a black surface is clipped at 0, so its mean is positive (~0.4 σ) while
     its median stays 0 (on the bedroom without bounce light, with read noise σ = 0.012: 0.0014 instead of 0.009 with
     block means, the threshold being 0.01); per channel, so that a strongly coloured surface counts with its full
-    brightness. Views whose bright end is 0 (black frames) say nothing and are skipped; with no view left the
-    level is 0.
+    brightness. Views whose bright end is 0 (black frames) or whose ratio is not finite say nothing and are skipped;
+    with no view left the level is 0. One view at a time, so memory stays at one image.
 
     Args:
         images: (V, H, W, 3) linear input images in [0, 1]; block: block side in pixels (>= 1; blocks at the
@@ -53,17 +52,20 @@ def dark_level(images: torch.Tensor, block: int, dark_quantile: float = DARK_QUA
     if not 0.0 <= dark_quantile < bright_quantile <= 1.0:
         raise ValueError(f"dark_level: need 0 <= dark_quantile < bright_quantile <= 1, got {dark_quantile}, "
                          f"{bright_quantile}")
-    views, height, width, _ = images.shape
-    channels = images.float().permute(0, 3, 1, 2)  # (V, 3, H, W)
-    channels = F.pad(channels, (0, (-width) % block, 0, (-height) % block), value=float("nan"))
-    pixels = F.unfold(channels, block, stride=block).reshape(views, 3, block * block, -1)  # (V, 3, px, blocks)
-    blocks = pixels.nanmedian(dim=2).values.mean(dim=1)  # (V, blocks)
-    low = torch.quantile(blocks, dark_quantile, dim=1)
-    high = torch.quantile(blocks, bright_quantile, dim=1)
-    lit = high > 0
-    if not bool(lit.any()):
+    _views, height, width, _ = images.shape
+    ratios = []
+    for image in images:
+        channels = image.float().permute(2, 0, 1)[None]  # (1, 3, H, W)
+        channels = F.pad(channels, (0, (-width) % block, 0, (-height) % block), value=float("nan"))
+        pixels = F.unfold(channels, block, stride=block).reshape(3, block * block, -1)  # (3, px, blocks)
+        blocks = pixels.nanmedian(dim=1).values.mean(dim=0)  # (blocks,)
+        low, high = torch.nanquantile(blocks, dark_quantile), torch.nanquantile(blocks, bright_quantile)
+        ratio = float(low / high) if float(high) > 0 else math.nan
+        if math.isfinite(ratio):
+            ratios.append(ratio)
+    if not ratios:
         return 0.0
-    return float((low[lit] / high[lit]).median().clamp(0.0, 1.0))
+    return min(max(float(torch.tensor(ratios, dtype=torch.float64).quantile(0.5)), 0.0), 1.0)
 
 
 @torch.no_grad()
@@ -73,10 +75,10 @@ def low_frequency_share(
 ) -> float:
     """The share of the spotlight-lit rendered radiance that the low-frequency light carries, in [0, 1].
 
-    Every view is rendered with the two lights apart (``shade(..., split_lights=True)``, six channels composited
-    together): share = Σ I_lf / Σ (I_spot + I_lf) over all pixels, channels and ``indices``. No ground truth: it says
-    how much of what the model explains of the input images it attributes to ambient and bounce light. Without any
-    such light in the scene the learned low-frequency light fades to ~0 and so does the share.
+    Every view is rendered with the two lights apart (``RelightableScene.render(..., split_lights=True)``, six
+    channels composited together): share = Σ I_lf / Σ (I_spot + I_lf) over all pixels, channels and ``indices``. No
+    ground truth: it says how much of what the model explains of the input images it attributes to ambient and bounce
+    light. Without any such light in the scene the learned low-frequency light fades to ~0 and so does the share.
 
     Args:
         scene: a spotlight model (not "3dgs"); c2ws, viewmats: (V, 4, 4) cameras (OpenCV); K: (3, 3);
@@ -84,18 +86,11 @@ def low_frequency_share(
     """
     if len(indices) == 0:
         raise ValueError("low_frequency_share: no views given")
-    g = scene.gaussians
-    app = scene.appearance
     spot_total = low_total = 0.0
     for k in indices:
-        mask = frustum_mask(g.means, g.scales, viewmats[k], K, width, height)
-        idx = torch.nonzero(mask).squeeze(1)
-        feats = g.means.new_zeros((len(g), 6))
-        feats[idx] = shade(scene.config, g.subset(idx), app.light, app.lf_light, app.brdf, c2ws[k],
-                           split_lights=True)
-        out = rasterize(g.means, g.quats, g.scales, g.opacities, feats, viewmats[k], K, width, height,
-                        background=feats.new_zeros(6), backend=backend, num_threads=num_threads)
-        spot_total += float(out.image[..., :3].double().sum())
-        low_total += float(out.image[..., 3:].double().sum())
+        image = scene.render(c2ws[k], viewmats[k], K, width, height, backend=backend, num_threads=num_threads,
+                             split_lights=True).image.double()
+        spot_total += float(image[..., :3].sum())
+        low_total += float(image[..., 3:].sum())
     total = spot_total + low_total
     return 0.0 if total <= 0 else low_total / total
