@@ -126,8 +126,9 @@ def run_selection(data: Path, room_dir: Path, settings: BenchmarkSettings) -> di
 
     Returns:
         ``chosen``, ``chosen_model`` (ModelConfig fields), ``best``, ``tolerance_db``, ``candidates`` (every scored
-        candidate of the decision), ``low_frequency_light`` (the light phase's measurements) and ``seconds``: wall time of the whole selection (None when the decision was made
-        by an earlier invocation that did not record it).
+        candidate of the decision), ``low_frequency_light`` (the light phase's measurements) and ``seconds``: wall
+        time of the whole selection (None when the decision was made by an earlier invocation that did not record
+        it).
     """
     from spotlessgs.training.selection import SELECTION_FILE, select_model
 

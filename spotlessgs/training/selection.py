@@ -70,9 +70,9 @@ class SelectionConfig:
     # Shared base run (Lambert, SH degree 0) that fits geometry and spotlight once, as a fraction of the full run's
     # iterations; every candidate starts from it (warm start).
     base_fraction: float = 0.1
-    # Coordinate search, phase 1 (reflectance): the Lambertian and the MLP BRDF (lowest SH degree) each train this fraction
-    # of the full run's iterations from the base (a BRDF needs longer than a light to show what it buys: at 0.05 the
-    # glossy storage room and the diffuse bedroom looked alike). Grid search trains every pair this long.
+    # Coordinate search, phase 1 (reflectance): the Lambertian and the MLP BRDF (lowest SH degree) each train this
+    # fraction of the full run's iterations from the base (a BRDF needs longer than a light to show what it buys: at
+    # 0.05 the glossy storage room and the diffuse bedroom looked alike). Grid search trains every pair this long.
     reflectance_proxy_fraction: float = 0.15
     # Phase 2 (low-frequency light): the lowest and the highest SH degree with the chosen BRDF train this fraction from
     # phase 1's winner.
@@ -105,17 +105,17 @@ class SelectionConfig:
     proxy_light_lr_scale: float = 10.0
     # Does the scene need a low-frequency light (ambient or bounce)? Two measurements without ground truth, both
     # must say so (spotlessgs.training.light_need): the dark level of the training images (the 20th-percentile block
-    # brightness over the 99th, median over views; blocks of the held-out block size, 8 px at 160 px) at least min_dark_level, and the share of the
-    # spotlight-lit rendered radiance (over share_views training views) that the highest-degree proxy's
-    # low-frequency light carries at least min_low_frequency_share. If so, the highest SH degree (unless its held-out
-    # score is beyond tolerance_db of the best), else the lowest. Measured on the 36-frame quick rooms:
-    # dark level 0.054 / 0.049 (bedroom, Lambertian bedroom), 0.026 (storage room), 0 (bedroom without bounce light;
-    # 0.0014 with sensor noise of read sigma 0.012); proxy share over 3 seeds 0.068-0.122 (bedrooms), 0.030-0.049
-    # (storage room), 0.001 (no bounce light, seed 0). The share alone
-    # fails on tiny images, where the light makes up for a spotlight not fitted yet (64-px bedroom without bounce
-    # light: share 0.22, dark level 0). The held-out pixels cannot rank the degrees themselves: degrees 0-3 scored
-    # within 0.1-0.2 dB of each other in no consistent order over 3 seeds, while degree 3 relit the bounce-lit
-    # bedroom 0.16-0.19 dB better than the degree 0-2 that rule had picked.
+    # brightness over the 99th, median over views; blocks of the held-out block size, 8 px at 160 px) at least
+    # min_dark_level, and the share of the spotlight-lit rendered radiance (over share_views training views) that the
+    # highest-degree proxy's low-frequency light carries at least min_low_frequency_share. If so, the highest SH
+    # degree, else the lowest (either unless its held-out score is beyond tolerance_db of the best). Measured on the
+    # 36-frame quick rooms: dark level 0.054 / 0.050 (bedroom, Lambertian bedroom), 0.026 (storage room), 0 (bedroom
+    # without bounce light; 0.0014 with sensor noise of read sigma 0.012); proxy share over 3 seeds 0.068-0.122
+    # (bedrooms), 0.030-0.049 (storage room), 0.001 (no bounce light, seed 0). The share alone fails on tiny images,
+    # where the light makes up for a spotlight not fitted yet (64-px bedroom without bounce light: share 0.22, dark
+    # level 0). The held-out pixels cannot rank the degrees themselves: degrees 0-3 scored within 0.1-0.2 dB of each
+    # other in no consistent order over 3 seeds, while degree 3 relit the bounce-lit bedroom 0.16-0.19 dB better than
+    # the degree 0-2 that rule had picked.
     min_dark_level: float = 0.01
     min_low_frequency_share: float = 0.01
     share_views: int = 12
@@ -222,11 +222,10 @@ def choose_light(results: Sequence[CandidateResult], light_needed: bool,
     (:func:`choose`, phase tolerance). Needed: those of the highest degree compete. Either way only if the best of
     them is within the whole ``tolerance_db`` of the best candidate overall; if not (the measurement and the held-out
     pixels disagree), every candidate competes. The guard gets the whole tolerance, not the phase's half, because it
-    is no ranking: the held-out
-    scores of the degrees differ by 0.1-0.2 dB in no consistent order (at half the tolerance it refused degree 3 on
-    one seed of the Lambertian bedroom, 0.19 dB behind on the dark held-out pixels, and the relit result lost
-    0.17 dB against 0.04 dB with degree 3). (Degree 0 has an RGB constant ambient, so it also serves a faint uniform
-    one.)
+    is no ranking: the held-out scores of the degrees differ by 0.1-0.2 dB in no consistent order (at half the
+    tolerance it refused degree 3 on one seed of the Lambertian bedroom, 0.19 dB behind on the dark held-out pixels,
+    and the relit result lost 0.17 dB against 0.04 dB with degree 3). (Degree 0 has an RGB constant ambient, so it
+    also serves a faint uniform one.)
 
     Args:
         results: the candidates of the final phase (light phase: one BRDF, lowest and highest degree; grid: all).
