@@ -13,6 +13,8 @@ import click
               help="Folder of predicted images (folder mode; needs --gt).")
 @click.option("--gt", type=click.Path(exists=True, file_okay=False, path_type=Path),
               help="Folder of reference images, matched to --pred by file name.")
+@click.option("--data", "data_dir", type=click.Path(exists=True, file_okay=False, path_type=Path),
+              help="RUN mode: the run's dataset, when it has moved (default: the path recorded in RUN/run.json).")
 @click.option("--sfm/--no-sfm", default=False, show_default=True, help="Also run downstream SfM (pycolmap, CPU).")
 @click.option("--matcher", type=click.Choice(["sequential", "exhaustive"]), default="sequential", show_default=True,
               help="SfM image pairing.")
@@ -23,7 +25,7 @@ import click
 @click.option("--no-lpips", is_flag=True, help="Skip LPIPS.")
 @click.option("--threads", type=click.IntRange(min=1), default=None, help="CPU threads for metrics and SfM.")
 @click.option("--quiet", is_flag=True, help="No progress bars.")
-def eval_command(run, pred, gt, sfm, matcher, out_dir, json_path, no_lpips, threads, quiet) -> None:
+def eval_command(run, pred, gt, data_dir, sfm, matcher, out_dir, json_path, no_lpips, threads, quiet) -> None:
     """Score relit images: `spotless eval RUN` evaluates a training run; `spotless eval --pred DIR --gt DIR` scores
     any two folders of images matched by file name."""
     from evaluation.runner import EvalConfig, evaluate_folders, evaluate_run
@@ -33,17 +35,16 @@ def eval_command(run, pred, gt, sfm, matcher, out_dir, json_path, no_lpips, thre
         raise click.UsageError("give either RUN or --pred/--gt, not both")
     if run is None and (pred is None or gt is None):
         raise click.UsageError("give a RUN folder, or both --pred DIR and --gt DIR")
+    if data_dir is not None and run is None:
+        raise click.UsageError("--data only applies to RUN mode")
     sfm_config = SfmConfig(matcher=matcher, **({"num_threads": threads} if threads else {}))
     config = EvalConfig(lpips=not no_lpips, sfm=sfm, sfm_config=sfm_config, num_threads=threads, progress=not quiet)
-    try:
-        if run is not None:
-            results = evaluate_run(run, config, out_dir=out_dir, json_path=json_path)
-            where = out_dir or run / "eval"
-        else:
-            results = evaluate_folders(pred, gt, config, json_path=json_path, out_dir=out_dir)
-            where = out_dir or json_path
-    except (ValueError, FileNotFoundError) as exc:  # bad inputs: a one-line message, not a traceback
-        raise click.ClickException(str(exc)) from exc
+    if run is not None:
+        results = evaluate_run(run, config, out_dir=out_dir, json_path=json_path, data_dir=data_dir)
+        where = out_dir or run / "eval"
+    else:
+        results = evaluate_folders(pred, gt, config, json_path=json_path, out_dir=out_dir)
+        where = out_dir or json_path
     from evaluation.report import markdown_report
 
     click.echo(markdown_report(results))

@@ -33,6 +33,17 @@ _ALEX_CONVS = ((64, 11, 4, 2), (192, 5, 1, 2), (384, 3, 1, 1), (256, 3, 1, 1), (
 LPIPS_MIN_SIZE = 32
 
 
+def _checked(pred: Tensor, gt: Tensor) -> tuple[Tensor, Tensor]:
+    """``check_image_pair`` with LPIPS's minimum size; a too-small image says how to skip LPIPS."""
+    try:
+        return check_image_pair(pred, gt, min_size=LPIPS_MIN_SIZE)
+    except ValueError as exc:
+        if "smaller than" not in str(exc):
+            raise
+        raise ValueError(f"{exc}: LPIPS needs images of at least {LPIPS_MIN_SIZE}x{LPIPS_MIN_SIZE} pixels; "
+                         "pass --no-lpips to score without it") from None
+
+
 class _NumpyOnlyUnpickler(pickle.Unpickler):
     """Unpickler that can only reconstruct numpy arrays and dtypes (no arbitrary code)."""
 
@@ -125,7 +136,7 @@ class LPIPS(nn.Module):
         return taps
 
     def forward(self, pred: Tensor, gt: Tensor) -> Tensor:
-        pred, gt = check_image_pair(pred, gt, min_size=LPIPS_MIN_SIZE)
+        pred, gt = _checked(pred, gt)
         if pred.shape[1] != 3:
             raise ValueError(f"LPIPS needs 3-channel images, got {pred.shape[1]} channels")
         dtype = pred.dtype
@@ -161,7 +172,7 @@ def lpips(pred: Tensor, gt: Tensor, batch_size: int = 8) -> Tensor:
     """
     if batch_size < 1:
         raise ValueError(f"batch_size must be positive, got {batch_size}")
-    pred, gt = check_image_pair(pred, gt, min_size=LPIPS_MIN_SIZE)
+    pred, gt = _checked(pred, gt)
     model = default_lpips()
     if model.shift.device != pred.device:
         model.to(pred.device)  # the shared model follows the inputs (CPU by default)

@@ -3,11 +3,23 @@
 Both return the results dict that is also written as JSON (keys ``psnr ssim lpips psnr_aligned ssim_aligned
 lpips_aligned tmp_psnr tmp_ssim sfm`` at the top level where they apply) and, with an output folder, a Markdown table
 and PNG figures.
+
+Provenance (see :mod:`spotlessgs.manifest`): ``evaluate_run`` scores a run's relit images only when their folder's
+manifest says that they were made from the run's current checkpoint (same sha256: training was not resumed after
+relighting), that the folder holds exactly the frames it lists and that none was changed since (same sha256); a run
+with a checkpoint whose relit folder has no manifest is refused too. Each refusal is one
+:class:`~spotlessgs.io.errors.InputError` line naming the folder, the problem and what to do. ``evaluate_folders``
+checks the frames of a folder that has a manifest the same way (a checkpoint that has moved on since is only
+recorded and warned about: folder mode scores images as they are). The results record the manifest they scored
+(``relit_manifest`` / ``pred_manifest``: path, sha256, checkpoint step and sha256), and an output folder gets a
+manifest of its own (kind ``eval``) listing the files written with their hashes. ``evaluate_run`` holds the run
+folder's write lock while it works.
 """
 
 from __future__ import annotations
 
 import contextlib
+import logging
 import os
 import tempfile
 from dataclasses import asdict, dataclass, field
@@ -27,8 +39,17 @@ from evaluation.report import write_markdown, write_results_json
 from evaluation.sfm import SfmConfig, SfmResult, run_sfm
 from evaluation.temporal import PosedFrame, temporal_scores, warped_temporal_scores
 from spotlessgs.io.cameras import Intrinsics, opengl_to_opencv_c2w
-from spotlessgs.io.images import read_image
+from spotlessgs.io.errors import InputError
+from spotlessgs.io.folder_lock import folder_lock
+from spotlessgs.io.images import list_image_files, read_image
+from spotlessgs.io.paths import refuse_overlap
 from spotlessgs.io.provenance import provenance
+from spotlessgs.manifest import (
+    MANIFEST_NAME, checkpoint_step, current_checkpoint, dataset_record, hash_frames, manifest_path, manifest_sha256,
+    read_manifest, sha256_file, verify_frames, write_manifest,
+)
+
+log = logging.getLogger(__name__)
 
 
 @dataclass(frozen=True)
@@ -227,6 +248,93 @@ def _write_outputs(out_dir: Path | None, json_path: Path | None, results: dict, 
         write_results_json(json_path, results)
 
 
+#: The files an evaluation writes into its output folder (the SfM work folder ``sfm/`` is scratch, not listed).
+_EVAL_OUTPUTS = ("results.json", "results.md", "figures/grid.png", "figures/sfm_trajectories.png")
+
+
+def _write_eval_manifest(out: Path, kind: str, run: Path | None, checkpoint: dict | None, config: EvalConfig,
+                         dataset: dict | None, scored: dict | None, written: Sequence[str]) -> None:
+    """The output folder's manifest (kind ``eval`` or ``eval-folders``): the files this evaluation wrote, with
+    their hashes; an output of an earlier evaluation that this one did not write again is removed (no mixed
+    folder)."""
+    for name in _EVAL_OUTPUTS:
+        if name not in written:
+            (out / name).unlink(missing_ok=True)
+    write_manifest(out, kind, run_dir=run, checkpoint=checkpoint, options=asdict(config), dataset=dataset,
+                   frames=hash_frames(out, written), scored=scored)
+
+
+def _manifest_record(folder: Path, manifest: dict, checkpoint_sha256: str | None) -> dict:
+    """What results record about the manifest of a scored folder."""
+    recorded = manifest.get("checkpoint") or {}
+    return {"path": str(manifest_path(folder)), "sha256": manifest_sha256(folder), "kind": manifest["kind"],
+            "checkpoint_step": recorded.get("step"), "checkpoint_sha256": checkpoint_sha256 or recorded.get("sha256")}
+
+
+def check_relit_folder(run: Path, relit_dir: Path) -> dict | None:
+    """Check that ``relit_dir`` holds the relit images of ``run``'s current checkpoint, exactly as written.
+
+    Returns:
+        the results' ``relit_manifest`` record (see :func:`_manifest_record`), or None for a run folder without a
+        checkpoint whose relit folder has no manifest (images placed there by another tool: nothing to check).
+
+    Raises:
+        InputError: no manifest (the run has a checkpoint), a manifest of another kind, images of another checkpoint
+            (training was resumed after relighting), or frames not listed, missing or changed (named), each with
+            what to do.
+    """
+    remedy = f"run `spotless relight {run}` again"
+    manifest = read_manifest(relit_dir)
+    ckpt = current_checkpoint(run)
+    if manifest is None:
+        if ckpt is None:
+            return None
+        raise InputError(f"{relit_dir}: no manifest ({MANIFEST_NAME}), so which checkpoint made these images is "
+                         f"unknown (relit by an older version or copied in); {remedy}")
+    if manifest["kind"] != "relit":
+        raise InputError(f"{relit_dir}: holds the output of `spotless {manifest['kind']}`, not relit images; {remedy}")
+    recorded = manifest.get("checkpoint") or {}
+    if ckpt is None:
+        raise InputError(f"{relit_dir}: relit from the checkpoint at step {recorded.get('step')}, but the run has no "
+                         "checkpoint to check them against; keep the run's checkpoints/ folder with it, or "
+                         f"train and relight again")
+    digest = sha256_file(ckpt)
+    if digest != recorded.get("sha256"):
+        raise InputError(f"{relit_dir}: stale relit images: made from the checkpoint at step {recorded.get('step')}, "
+                         f"but the run's checkpoint has changed since (now step {checkpoint_step(run)}: training "
+                         f"went on after relighting); {remedy}")
+    verify_frames(relit_dir, manifest, remedy)
+    return _manifest_record(relit_dir, manifest, digest)
+
+
+def check_folder_manifest(folder: Path, label: str) -> dict | None:
+    """Folder mode: when ``folder`` has a manifest, check that it holds exactly the frames listed, unchanged.
+
+    A manifest's checkpoint that has changed since (its run still in place) is recorded (``checkpoint_current``)
+    and warned about, not refused: folder mode scores the images as they are.
+
+    Returns:
+        the results' record of the manifest (see :func:`_manifest_record`), or None when the folder has none.
+
+    Raises:
+        InputError: frames not listed, missing or changed (named).
+    """
+    manifest = read_manifest(folder)
+    if manifest is None:
+        return None
+    verify_frames(folder, manifest, f"write {label} {folder} again")
+    record = _manifest_record(folder, manifest, None)
+    run_dir = manifest.get("run_dir")
+    if record["checkpoint_sha256"] and run_dir and Path(run_dir).is_dir():
+        ckpt = current_checkpoint(run_dir)
+        if ckpt is not None:
+            record["checkpoint_current"] = sha256_file(ckpt) == record["checkpoint_sha256"]
+            if not record["checkpoint_current"]:
+                log.warning("%s: made from the checkpoint at step %s of %s, which has changed since (training went on)",
+                            folder, record["checkpoint_step"], run_dir)
+    return record
+
+
 def evaluate_folders(
     pred_dir: str | os.PathLike,
     gt_dir: str | os.PathLike,
@@ -243,8 +351,11 @@ def evaluate_folders(
     Raises:
         ValueError / FileNotFoundError: see :func:`evaluation.folders.match_folders` and :func:`score_pairs`.
     """
+    pred_manifest = check_folder_manifest(Path(pred_dir), "--pred")
+    gt_manifest = check_folder_manifest(Path(gt_dir), "--gt")
     pairs = match_folders(pred_dir, gt_dir)
-    results: dict = {"mode": "folders", "pred_dir": str(pred_dir), "gt_dir": str(gt_dir)}
+    results: dict = {"mode": "folders", "pred_dir": str(pred_dir), "gt_dir": str(gt_dir),
+                     "pred_manifest": pred_manifest, "gt_manifest": gt_manifest}
     scores = score_pairs(pairs, config, "image metrics")
     results.update(scores)
     if config.temporal:
@@ -266,6 +377,13 @@ def evaluate_folders(
             save_trajectory_plot(out / "figures" / "sfm_trajectories.png",
                                  {"prediction": _trajectory_panel(sfm_result, [p.name for p in pairs], None)})
     _write_outputs(out, Path(json_path) if json_path is not None else None, results, "Evaluation (folders)")
+    if out is not None:
+        written = list(_EVAL_OUTPUTS[:3]) + (["figures/sfm_trajectories.png"] if sfm_result is not None else [])
+        checkpoint = None if pred_manifest is None or pred_manifest["checkpoint_sha256"] is None else {
+            "step": pred_manifest["checkpoint_step"], "sha256": pred_manifest["checkpoint_sha256"]}
+        scored = {"folder": str(Path(pred_dir).resolve()), "kind": None if pred_manifest is None else
+                  pred_manifest["kind"], "manifest_sha256": None if pred_manifest is None else pred_manifest["sha256"]}
+        _write_eval_manifest(out, "eval-folders", None, checkpoint, config, None, scored, written)
     return results
 
 
@@ -352,38 +470,65 @@ def evaluate_run(
     config: EvalConfig = EvalConfig(),
     out_dir: str | os.PathLike | None = None,
     json_path: str | os.PathLike | None = None,
+    data_dir: str | os.PathLike | None = None,
 ) -> dict:
     """Evaluate a training run: its relit test views against ground truth, temporal metrics on the whole relit and
     input sequences, and (``config.sfm``) SfM on inputs vs relit with the dataset's intrinsics and true poses. With
     ``config.inputs`` False the inputs are not scored (no ``input`` block, no ``sfm/input`` folder).
 
+    The relit folder is checked first (:func:`check_relit_folder`: the run's current checkpoint, exactly the frames
+    its manifest lists, unchanged), and the run folder's write lock is held throughout.
+
     Args:
         run_dir: the run folder (``run.json`` with ``data_dir``, and ``relit/``).
         config: what to compute.
-        out_dir: where results.json, results.md and figures/ go (default ``RUN/eval``).
+        out_dir: where results.json, results.md, figures/ and the output manifest go (default ``RUN/eval``).
         json_path: optional extra path for the JSON.
+        data_dir: the run's dataset when it has moved (``--data``); default: run.json's paths
+            (:func:`spotlessgs.training.checkpoint.resolve_data_dir`).
 
     Returns:
         the results dict: top-level keys for the relit sequence, ``input`` with the same keys for the original
-        (uneven) inputs (absent when ``config.inputs`` is False), ``test_views``, ``config`` and ``provenance``.
+        (uneven) inputs (absent when ``config.inputs`` is False), ``test_views``, ``relit_manifest`` (the manifest
+        scored: path, sha256, checkpoint step and sha256; None for a run folder without checkpoint and manifest),
+        ``config`` and ``provenance``.
 
     Raises:
         FileNotFoundError: run.json, relit images, inputs or ground truth missing (named).
+        InputError: stale, unlisted, changed or unrecorded relit images; the dataset not found (see ``--data``).
         ValueError: malformed run or dataset files, or no test view with ground truth.
+        FolderLockedError: another process writes the run.
     """
+    from spotlessgs.training.checkpoint import read_run_info, resolve_data_dir
+
     run = Path(run_dir)
-    data = read_dataset(read_run_data_dir(run))
+    read_run_data_dir(run)  # run.json readable with a data_dir, relit/ present: clear messages first
+    data_root = resolve_data_dir(run, read_run_info(run), data_dir)
     relit_dir = run / "relit"
     out = Path(out_dir) if out_dir is not None else run / "eval"
-    relit_names = set(image_names(relit_dir))
+    refuse_overlap(out, {"RUN/relit": relit_dir, "--data": data_root}, "--out")
+    with folder_lock(run, "spotless eval"):
+        return _evaluate_run_locked(run, data_root, relit_dir, out, config, json_path)
+
+
+def _evaluate_run_locked(run: Path, data_root: Path, relit_dir: Path, out: Path, config: EvalConfig,
+                         json_path: str | os.PathLike | None) -> dict:
+    """:func:`evaluate_run` with the run folder locked."""
+    data = read_dataset(data_root)
+    relit_manifest = check_relit_folder(run, relit_dir)
+    # a verified manifest vouches for every file (EXR files of `relight --exr` included); else images only
+    relit_names = set(image_names(relit_dir)) if relit_manifest is None else {
+        p.name for p in list_image_files(relit_dir, non_images="skip")}
     missing = [f.name for f in data.frames if f.name not in relit_names]
     if missing:
-        raise FileNotFoundError(f"{relit_dir}: missing relit images for {len(missing)} view(s), e.g. {missing[:3]}")
+        hint = "" if relit_manifest is None else f"; run `spotless relight {run}` (every view: --views all)"
+        raise FileNotFoundError(f"{relit_dir}: missing relit images for {len(missing)} view(s), e.g. {missing[:3]}"
+                                + hint)
     test = scored_test_frames(data)
     relit_pairs = [ImagePair(f.name, relit_dir / f.name, f.gt_path) for f in test]
 
     results: dict = {"mode": "run", "run_dir": str(run), "data_dir": str(data.root),
-                     "test_views": [f.name for f in test]}
+                     "test_views": [f.name for f in test], "relit_manifest": relit_manifest}
     results.update(score_pairs(relit_pairs, config, "relit vs gt"))
     if config.temporal:
         results.update(temporal_block([relit_dir / f.name for f in data.frames], config, "relit", data))
@@ -412,4 +557,12 @@ def evaluate_run(
     if panels:
         save_trajectory_plot(out / "figures" / "sfm_trajectories.png", panels)
     _write_outputs(out, Path(json_path) if json_path is not None else None, results, f"Evaluation of {run.name}")
+    written = list(_EVAL_OUTPUTS[:3]) + (["figures/sfm_trajectories.png"] if panels else [])
+    checkpoint = None if relit_manifest is None else {  # the checkpoint checked above (the lock keeps it)
+        "file": Path(os.path.relpath(current_checkpoint(run), run)).as_posix(),
+        "step": relit_manifest["checkpoint_step"], "sha256": relit_manifest["checkpoint_sha256"]}
+    scored = {"folder": str(relit_dir.resolve()), "kind": "relit",
+              "manifest_sha256": None if relit_manifest is None else relit_manifest["sha256"]}
+    _write_eval_manifest(out, "eval", run, checkpoint, config, dataset_record(data.root, run, len(data.frames)),
+                         scored, written)
     return results

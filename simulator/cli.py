@@ -9,6 +9,8 @@ from pathlib import Path
 
 import click
 
+from spotlessgs.clitools import SafeGroup
+
 
 def _shard(_ctx, _param, value: str) -> tuple[int, int]:
     try:
@@ -20,7 +22,7 @@ def _shard(_ctx, _param, value: str) -> tuple[int, int]:
     return index, count
 
 
-@click.group(context_settings={"help_option_names": ["-h", "--help"]})
+@click.group(cls=SafeGroup, context_settings={"help_option_names": ["-h", "--help"]})
 @click.version_option(package_name="spotlessgs")
 @click.option("-v", "--verbose", is_flag=True, help="Log debug messages.")
 def main(verbose: bool) -> None:
@@ -61,10 +63,15 @@ def main(verbose: bool) -> None:
               help="Render only frames k with k %% N == I (N jobs can share a scene).")
 @click.option("--threads", default=2, show_default=True, type=click.IntRange(1, 1024), help="CPU render threads.")
 @click.option("--device", default="auto", show_default=True, type=click.Choice(["auto", "cpu", "gpu"]))
-@click.option("-q", "--quiet", is_flag=True, help="No progress bar.")
+@click.option("-q", "--quiet", is_flag=True, help="No progress bar, and no messages from Blender's device probing.")
 def render(scene_path, out_dir, future_dir, texture_dir, allow_missing, room, frames, width, height, h_fov_deg, samples,
            no_denoise, bounces, ambient, lambertian, seed, preset, shard, threads, device, quiet):
-    """Render the spotlight-only and the evenly lit image of every pose of a room's camera loop."""
+    """Render the spotlight-only and the evenly lit image of every pose of a room's camera loop.
+
+    Ctrl-C (or SIGTERM) stops within a second or two (exit 130 / 143) and keeps every finished frame: rerun the same
+    command to resume. OUT must not be the scene's folder, contain the scene file, or overlap the model or texture
+    folder.
+    """
     from simulator.front3d import LoadOptions
     from simulator.render_pipeline import ExecutionOptions, RenderConfig, render_dataset
 
@@ -76,11 +83,15 @@ def render(scene_path, out_dir, future_dir, texture_dir, allow_missing, room, fr
     summary = render_dataset(
         scene_path, out_dir, config,
         LoadOptions(future_dir=future_dir, texture_dir=texture_dir, allow_missing=allow_missing),
-        ExecutionOptions(shard=shard, threads=threads, device=device, progress=not quiet),
+        ExecutionOptions(shard=shard, threads=threads, device=device, progress=not quiet, quiet=quiet),
     )
     state = "complete" if summary["complete"] else "incomplete (other shards still to render)"
+    dark = summary["dark_frames"]
+    problems = [f"{len(dark[key])} with {what}" for key, what in
+                (("gt", "a black ground truth"), ("images", "a black spotlight image"), ("empty", "no geometry"))
+                if dark[key]]
     click.echo(f"{out_dir}: rendered {summary['rendered']}, skipped {summary['skipped']} finished frame(s); "
-               f"dataset {state}")
+               f"dataset {state}" + (f"; frames: {', '.join(problems)} (see the warnings)" if problems else ""))
 
 
 @main.command()
@@ -109,13 +120,13 @@ def generate(kind, out_dir, seed):
               help="Read-noise standard deviation in linear intensity.")
 @click.option("--seed", default=0, show_default=True, type=int)
 def add_noise(data_dir, out_dir, shot, read, seed):
-    """Copy a dataset with camera sensor noise (shot + read) added to its spotlight-only images."""
+    """Copy a dataset with camera sensor noise (shot + read) added to its spotlight-only images.
+
+    OUT must not be DATA, lie inside it, or contain it.
+    """
     from simulator.sensor_noise import SensorNoise, add_sensor_noise_to_dataset
 
-    try:
-        written = add_sensor_noise_to_dataset(data_dir, out_dir, SensorNoise(shot, read), seed)
-    except ValueError as err:
-        raise click.ClickException(str(err)) from err
+    written = add_sensor_noise_to_dataset(data_dir, out_dir, SensorNoise(shot, read), seed)
     click.echo(f"{out_dir}: wrote {written} noisy image(s)")
 
 

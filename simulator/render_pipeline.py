@@ -13,29 +13,45 @@ Output folder (the dataset contract, see ``docs/dataset.md``)::
 Every file is written atomically; a frame counts as done when its three files exist, so rerunning the same command
 resumes where it stopped. ``shard=(i, n)`` renders frames ``k`` with ``k % n == i`` so n jobs can share a scene; the
 job that finds every frame done writes the dataset-level files.
+
+Blender runs in a child process (see :func:`render_dataset`): Cycles swallows Ctrl-C, so the parent, which stays
+responsive, kills the child on SIGINT / SIGTERM, removes the temporary files, and stops within a second; the finished
+frames stay valid. The renderer's scratch folder (``OUT/.render-scratch-<i>of<n>``) and the temporary files of atomic
+writes (``.<name>.partial-*``) that a killed run leaves are removed at the start of the next run.
 """
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import logging
+import multiprocessing
+import os
+import pickle
+import re
+import shutil
+import signal
 import time
+import traceback
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Any, Iterable
 
 import numpy as np
 
+from simulator.child_process import die_with_parent, drop_blender_script_paths, silenced_output
 from simulator.front3d import LoadOptions, load_house
 from simulator.lighting import SPOTLIGHT_PRESETS, GroundTruthLighting, SpotlightConfig, with_ground_truth_lighting
 from simulator.pointcloud import backproject_depth, merge_point_clouds
 from simulator.trajectory import TrajectoryConfig, sample_trajectory
-from spotlessgs.io.atomic import to_jsonable, write_json
+from spotlessgs.io.atomic import PARTIAL_MARK, remove_partial_files, to_jsonable, write_json
 from spotlessgs.io.cameras import Intrinsics
 from spotlessgs.io.colmap_text import model_from_poses, write_colmap_text
 from spotlessgs.io.colorspace import linear_to_srgb
+from spotlessgs.io.errors import InputError
 from spotlessgs.io.exr import FrameEXR, read_frame_exr, write_frame_exr
 from spotlessgs.io.images import read_image, write_png
+from spotlessgs.io.paths import refuse_overlap
 from spotlessgs.io.ply import write_point_cloud
 from spotlessgs.io.provenance import package_version, provenance
 from spotlessgs.io.seeding import numpy_rng, stage_seed
@@ -108,12 +124,15 @@ class ExecutionOptions:
         threads: CPU threads for Cycles.
         device: ``auto``, ``cpu`` or ``gpu``.
         progress: show a progress bar.
+        quiet: silence what Blender's C code prints while it probes the devices and builds the scene (Cycles' GPU
+            probing warns about every missing GPU library); Python log messages are kept.
     """
 
     shard: tuple[int, int] = (0, 1)
     threads: int = 2
     device: str = "auto"
     progress: bool = True
+    quiet: bool = False
 
 
 class DatasetFolderError(RuntimeError):
@@ -208,6 +227,149 @@ def light_truth(spot: SpotlightConfig) -> LightTruth:
     )
 
 
+# ---------------------------------------------------------------------------------------------------------------------
+# What a killed render leaves behind
+
+#: Name prefix of the renderer's scratch folders inside a dataset (``.render-scratch-<i>of<n>``, one per shard).
+SCRATCH_PREFIX = ".render-scratch"
+_FRAME_PARTIAL = re.compile(r"^\.frame_(\d+)\.")
+
+
+def scratch_dir(out_dir: str | Path, shard: tuple[int, int] = (0, 1)) -> Path:
+    """The renderer's scratch folder of ``shard`` inside the dataset (Blender writes the EXR of each render there)."""
+    return Path(out_dir) / f"{SCRATCH_PREFIX}-{shard[0]}of{shard[1]}"
+
+
+def remove_leftovers(out_dir: str | Path, shard: tuple[int, int] = (0, 1), frames: Iterable[int] = ()) -> list[Path]:
+    """Remove what a killed render left in ``out_dir``: temporary files of atomic writes and scratch folders.
+
+    An unsharded render (``shard == (0, 1)``) owns the folder: every ``.partial-`` file and every scratch folder
+    goes. A shard shares the folder with other shards that may be running, so it removes only the temporary files of
+    its own ``frames`` and its own scratch folder (leftovers of the dataset-level files wait for an unsharded run).
+
+    Returns:
+        the removed files and folders.
+    """
+    out_dir = Path(out_dir)
+    if not out_dir.is_dir():
+        return []
+    removed: list[Path] = []
+    if shard[1] == 1:
+        removed += remove_partial_files(out_dir)
+        scratch = [p for p in out_dir.glob(f"{SCRATCH_PREFIX}*") if p.is_dir() and not p.is_symlink()]
+    else:
+        mine = set(frames)
+        for sub in ("images", "gt", "exr"):
+            folder = out_dir / sub
+            for path in folder.glob(f".frame_*{PARTIAL_MARK}*") if folder.is_dir() else ():
+                match = _FRAME_PARTIAL.match(path.name)
+                if match and int(match.group(1)) in mine and path.is_file() and not path.is_symlink():
+                    with contextlib.suppress(FileNotFoundError):
+                        path.unlink()
+                        removed.append(path)
+        own = scratch_dir(out_dir, shard)
+        scratch = [own] if own.is_dir() and not own.is_symlink() else []
+    for folder in scratch:
+        shutil.rmtree(folder, ignore_errors=True)
+        removed.append(folder)
+    return removed
+
+
+# ---------------------------------------------------------------------------------------------------------------------
+# Degenerate rooms and black frames
+
+#: A pixel counts as lit when one of its channels reaches 2/255 in the 8-bit sRGB image (linear 2/255/12.92).
+LIT_LEVEL = 2.0 / 255.0 / 12.92
+#: A frame is (almost) all black when fewer than this fraction of its pixels are lit; it sees no geometry when fewer
+#: than this fraction of its pixels hit a surface.
+DARK_FRACTION = 0.01
+# (flag of frame_check, key of the summary's "dark_frames", what the warning says)
+_FRAME_PROBLEMS = (
+    ("gt_dark", "gt", "an (almost) all-black ground truth (evenly lit render)"),
+    ("image_dark", "images", "an (almost) all-black spotlight-only image"),
+    ("empty", "empty", "no geometry in view"),
+)
+
+
+def frame_check(uneven: np.ndarray, gt: np.ndarray, depth: np.ndarray) -> dict[str, bool]:
+    """What is wrong with one frame's renders (linear RGB, planar depth).
+
+    Returns:
+        ``gt_dark`` / ``image_dark``: the ground truth / the spotlight-only image is (almost) all black: fewer than
+        1 % of its pixels reach 2/255 in the 8-bit sRGB image; ``empty``: fewer than 1 % of the pixels hit a surface.
+    """
+
+    def dark(image: np.ndarray) -> bool:
+        brightest = np.max(np.nan_to_num(np.asarray(image, dtype=np.float32), nan=0.0), axis=-1)
+        return bool(np.mean(brightest >= LIT_LEVEL) < DARK_FRACTION)
+
+    return {"gt_dark": dark(gt), "image_dark": dark(uneven),
+            "empty": bool(np.mean(np.isfinite(np.asarray(depth))) < DARK_FRACTION)}
+
+
+def dark_frames(checks: dict[int, dict[str, bool]]) -> dict[str, list[str]]:
+    """The names of the frames with each problem of :func:`frame_check`: ``{"gt": [...], "images": [...],
+    "empty": [...]}`` in frame order."""
+    return {key: [frame_name(k) for k in sorted(checks) if checks[k][flag]] for flag, key, _ in _FRAME_PROBLEMS}
+
+
+def warn_dark_frames(report: dict[str, list[str]], where: str | Path, total: int) -> None:
+    """One ``logging.warning`` line per problem of :func:`dark_frames` that some frame has, naming the frames."""
+    for _, key, text in _FRAME_PROBLEMS:
+        names = report.get(key, [])
+        if names:
+            log.warning("%s: %d of %d frame(s) with %s: %s", where, len(names), total, text, ", ".join(names))
+
+
+def check_scene(scene_path: Path, room, objects, lights, config: RenderConfig) -> None:
+    """Refuse a room that cannot give a usable dataset, before anything is written or rendered.
+
+    Args:
+        scene_path: the house file (named in the error).
+        room, objects: the room and its objects, lamps already emitting (:func:`plan_poses`).
+        lights: the ground-truth light fixtures (``Scene.lights`` of :func:`plan_poses`).
+
+    Raises:
+        InputError: the room has no visible geometry (no mesh with a positive area), or no light at all for the
+            ground-truth render: no lamp or light strip with power, no emitting surface and no ceiling for the
+            ceiling glow (every evenly lit image would be black; a room of only a floor, for instance).
+    """
+    where = f"{scene_path}: room {room.instance_id!r}"
+    if not any(len(o.faces) and o.area() > 0.0 for o in objects):
+        raise InputError(f"{where} has no visible geometry (no mesh with a positive area): nothing to render")
+    lamps = [light for light in lights if light.power_w > 0 and max(light.color) > 0]
+    emitters = [o for o in objects if o.material.emission > 0 and max(o.material.emission_color) > 0]
+    ceilings = [o for o in objects if o.category.lower() == "ceiling"] if config.ground_truth.ceiling_glow > 0 else []
+    if not (lamps or emitters or ceilings):
+        raise InputError(f"{where} has no light for the ground-truth render: no lamp or light strip (furniture whose "
+                         "category names a lamp, LightBand meshes) and no ceiling for the ceiling glow, so every "
+                         "evenly lit image would be black; add a light to the room")
+
+
+def _refuse_unusable(report: dict[str, list[str]], total: int, scene_path: Path, room, out_dir: Path) -> None:
+    """Raise when every frame of the dataset is unusable (before any dataset-level file is written)."""
+    where = f"{scene_path}: room {room.instance_id!r}"
+    kept = (f"the frames are kept in {out_dir}, which is not a finished dataset (no transforms.json); fix the scene "
+            "and render into a new folder")
+    if total and len(report["empty"]) == total:
+        raise InputError(f"{where}: no frame sees any geometry; {kept}")
+    if total and len(report["gt"]) == total:
+        raise InputError(f"{where}: the ground truth (evenly lit render) of every frame is (almost) all black: the "
+                         f"room's lights do not light what the camera sees; {kept}")
+
+
+# ---------------------------------------------------------------------------------------------------------------------
+# Rendering
+
+
+def render_inputs(scene_path: Path, load: LoadOptions) -> dict[str, Path | None]:
+    """What a render reads, by the option that names it: the house file and the model and texture folders."""
+    house = scene_path.parent
+    future = load.future_dir or (house / "models" if (house / "models").is_dir() else None)
+    textures = load.texture_dir or (house / "textures" if (house / "textures").is_dir() else None)
+    return {"--scene": scene_path, "--future-dir": future, "--texture-dir": textures}
+
+
 def render_dataset(
     scene_path: str | Path,
     out_dir: str | Path,
@@ -217,24 +379,143 @@ def render_dataset(
 ) -> dict[str, Any]:
     """Render (or resume rendering) the paired dataset of one room.
 
+    Blender runs in a child process ('spawn'): the parent loads the scene, checks it, writes ``plan.json`` and waits;
+    the child builds the Blender scene, renders the frames and writes each frame's files atomically. On
+    ``KeyboardInterrupt`` (Ctrl-C, and SIGTERM via :class:`spotlessgs.io.signals.Terminated`) the parent kills the
+    child, removes the temporary files and the scratch folder and re-raises: finished frames stay valid, a rerun
+    resumes. An error in the child is raised again here with its type and message (its traceback as the cause).
+    Temporary files and scratch folders that a killed earlier run left are removed first (see
+    :func:`remove_leftovers`).
+
+    Degenerate rooms: a room without visible geometry, or without any light for the ground truth (no lamp, light strip,
+    emitting surface or ceiling glow) is refused before anything is written. After rendering, frames whose ground
+    truth or spotlight-only image is (almost) all black, or that see no geometry, are named in one warning per problem
+    and in the summary. When the dataset is complete and *every* frame's ground truth is black (or no frame sees any
+    geometry), the dataset is unusable: :class:`InputError` naming the scene file, the frames are kept but the
+    dataset-level files (``transforms.json`` last) are not written, so the folder never looks finished. Black
+    spotlight-only images in some or all frames only warn (a very dark input is what the method is for).
+
+    Raises:
+        OutputOverlapError: ``out_dir`` is the house file's folder, contains the house file, or overlaps the model or
+            texture folder (checked before anything is written).
+        InputError: a degenerate room (see above).
+        DatasetFolderError: ``out_dir`` holds a dataset rendered with other settings.
+
     Returns:
-        a summary: frames rendered now, frames skipped, seconds per frame, whether the dataset is complete.
+        a summary: frames rendered now, frames skipped, seconds per frame, whether the dataset is complete, and
+        ``dark_frames`` (:func:`dark_frames` of the frames rendered now, or of every frame when the dataset was
+        finished now).
     """
     scene_path, out_dir = Path(scene_path), Path(out_dir)
     shard_index, shard_count = execution.shard
     if not (shard_count >= 1 and 0 <= shard_index < shard_count):
         raise ValueError(f"shard {shard_index}/{shard_count} is invalid: need 0 <= I < N")
+    refuse_overlap(out_dir, render_inputs(scene_path, load), "--out")
     scene, room, objects, poses = plan_poses(scene_path, config, load)
+    check_scene(scene_path, room, objects, scene.lights, config)
     out_dir.mkdir(parents=True, exist_ok=True)
-    _prepare_plan(out_dir, scene_path, config, poses)
-
+    _prepare_plan(out_dir, scene_path, config, poses)  # first: a folder of another dataset is left untouched
     mine = [k for k in range(len(poses)) if k % shard_count == shard_index]
+    remove_leftovers(out_dir, execution.shard, mine)
+
     todo = [k for k in mine if not frame_done(out_dir, k)]
     summary: dict[str, Any] = {"rendered": 0, "skipped": len(mine) - len(todo), "seconds_per_frame": None}
-    device = "n/a"
-    blender = None
+    device, blender, checks = "n/a", None, {}
     if todo:
-        from simulator.blender import renderer, scene_builder  # bpy is imported only when there is work
+        room_scene = dataclasses.replace(scene, objects=objects)
+        result = _render_in_child(out_dir, config, execution, room_scene, poses, todo,
+                                  label=f"render {scene_path.parent.name}")
+        device, blender, checks = result.device, result.blender, result.checks
+        summary["rendered"] = len(checks)
+        summary["seconds_per_frame"] = result.seconds_per_frame
+    complete = all(frame_done(out_dir, k) for k in range(len(poses)))
+    summary["complete"] = complete
+    report, total = dark_frames(checks), len(checks)
+    if complete and (summary["rendered"] > 0 or not (out_dir / "transforms.json").is_file()):
+        report = finalize_dataset(out_dir, scene, room, poses, config, device=device, blender=blender)
+        total = len(poses)
+    warn_dark_frames(report, out_dir, total)
+    summary["dark_frames"] = report
+    return summary
+
+
+class RenderProcessError(RuntimeError):
+    """The Blender child process ended without reporting (killed from outside, out of memory, crashed)."""
+
+
+class _ChildTraceback(Exception):
+    """The traceback of an exception raised in the render process, attached as the cause of the re-raised one."""
+
+    def __init__(self, text: str) -> None:
+        super().__init__(text)
+        self.text = text
+
+    def __str__(self) -> str:
+        return f"\n\"\"\"\n{self.text.rstrip()}\n\"\"\""
+
+
+@dataclass
+class _ChildResult:
+    device: str = "n/a"
+    blender: str | None = None
+    checks: dict[int, dict[str, bool]] = field(default_factory=dict)
+    seconds_per_frame: float | None = None
+
+
+class _PipeLogHandler(logging.Handler):
+    """Sends the child's log records to the parent, which hands them to its own handlers."""
+
+    def __init__(self, conn) -> None:
+        super().__init__()
+        self.conn = conn
+
+    def emit(self, record: logging.LogRecord) -> None:
+        try:
+            message = record.getMessage()
+            if record.exc_info:
+                message += "\n" + logging.Formatter().formatException(record.exc_info)
+            attrs = {**record.__dict__, "msg": message, "args": None, "exc_info": None, "exc_text": None}
+            self.conn.send(("log", logging.makeLogRecord(attrs)))
+        except Exception:  # noqa: BLE001 - logging must not raise
+            self.handleError(record)
+
+
+def _portable(exc: BaseException) -> tuple[bytes | None, str, str, str]:
+    """An exception as (pickle or None when it cannot be pickled, type name, message, traceback text)."""
+    text = "".join(traceback.format_exception(type(exc), exc, exc.__traceback__))
+    try:
+        payload = pickle.dumps(exc)
+        pickle.loads(payload)
+    except Exception:  # noqa: BLE001 - any unpicklable exception is sent as its type name and message
+        payload = None
+    return payload, type(exc).__name__, str(exc), text
+
+
+def _child_main(conn, parent_pid: int, out_dir: str, config: RenderConfig, execution: ExecutionOptions,
+                log_level: int) -> None:
+    """Entry of the render process: receive the scene, render the frames, report each one, then ``done``/``error``."""
+    signal.signal(signal.SIGINT, signal.SIG_IGN)  # Ctrl-C reaches the whole process group: the parent handles it
+    die_with_parent(signal.SIGKILL, parent_pid)
+    drop_blender_script_paths()
+    root = logging.getLogger()
+    root.handlers[:] = [_PipeLogHandler(conn)]
+    root.setLevel(log_level)
+    try:
+        room_scene, poses, todo = conn.recv()
+        _render_frames(conn, Path(out_dir), config, execution, room_scene, poses, todo)
+        message: tuple = ("done",)
+    except BaseException as exc:  # noqa: BLE001 - every error goes back to the parent
+        message = ("error", *_portable(exc))
+    with contextlib.suppress(OSError):
+        conn.send(message)
+    conn.close()
+
+
+def _render_frames(conn, out_dir: Path, config: RenderConfig, execution: ExecutionOptions, room_scene,
+                   poses: np.ndarray, todo: list[int]) -> None:
+    """In the render process: build the Blender scene, then render and write every frame of ``todo``."""
+    with silenced_output(execution.quiet):  # Cycles' device probing prints to the C-level stdout
+        from simulator.blender import renderer, scene_builder  # bpy is imported only in the render process
 
         scene_builder.reset_blender()
         settings = renderer.CyclesSettings(
@@ -248,44 +529,168 @@ def render_dataset(
             ambient=config.ambient,
         )
         device = renderer.configure(settings)
-        blender = renderer.blender_version()
-        room_scene = dataclasses.replace(scene, objects=objects)
         built = scene_builder.build_scene(room_scene, config.spotlight, config.ground_truth.ceiling_glow,
                                           config.intrinsics(), lambertian=config.lambertian)
-        from tqdm import tqdm
-
-        bar = tqdm(todo, desc=f"render {scene_path.parent.name}", unit="frame", disable=not execution.progress)
-        start = time.perf_counter()
-        for k in bar:
-            pair = renderer.render_pair(built, poses[k], settings, stage_seed(config.seed, f"cycles/{k}"))
+    conn.send(("ready", device, renderer.blender_version()))
+    scratch = scratch_dir(out_dir, execution.shard)
+    scratch.mkdir(parents=True, exist_ok=True)
+    try:
+        for k in todo:
+            pair = renderer.render_pair(built, poses[k], settings, stage_seed(config.seed, f"cycles/{k}"),
+                                        workdir=scratch)
             paths = frame_paths(out_dir, k)
             write_frame_exr(paths["exr"], FrameEXR(uneven=pair.uneven, gt=pair.gt, depth=pair.depth,
                                                    normal=pair.normal))
             write_png(paths["gt"], linear_to_srgb(pair.gt))
             write_png(paths["image"], linear_to_srgb(pair.uneven))
-            summary["rendered"] += 1
-        summary["seconds_per_frame"] = (time.perf_counter() - start) / len(todo)
-    complete = all(frame_done(out_dir, k) for k in range(len(poses)))
-    summary["complete"] = complete
-    if complete and (summary["rendered"] > 0 or not (out_dir / "transforms.json").is_file()):
-        finalize_dataset(out_dir, scene, room, poses, config, device=device, blender=blender)
-    return summary
+            conn.send(("frame", k, frame_check(pair.uneven, pair.gt, pair.depth)))
+    finally:
+        shutil.rmtree(scratch, ignore_errors=True)
+
+
+@contextlib.contextmanager
+def _sigint_ignored():
+    """Ignore SIGINT while the child starts, so that it is born ignoring it (an ignored signal stays ignored across
+    exec, and Python then installs no KeyboardInterrupt handler). Off the main thread, or under a handler installed by
+    C code, nothing changes: the child ignores SIGINT from its first line on."""
+    previous = signal.getsignal(signal.SIGINT)
+    changed = False
+    if previous is not None:
+        try:
+            signal.signal(signal.SIGINT, signal.SIG_IGN)
+            changed = True
+        except ValueError:  # not the main thread
+            pass
+    try:
+        yield
+    finally:
+        if changed:
+            signal.signal(signal.SIGINT, previous)
+
+
+def _stop(process) -> None:
+    """Kill the render process (it ignores SIGINT) and reap it."""
+    if process.pid is None:
+        return
+    with contextlib.suppress(OSError, ValueError):
+        process.kill()
+    process.join(timeout=30)
+
+
+def _describe_exit(code: int | None) -> str:
+    if code is None:
+        return "still running"
+    if code < 0:
+        try:
+            name = signal.Signals(-code).name
+        except ValueError:
+            name = f"signal {-code}"
+        return f"killed by {name}" + (" — out of memory?" if -code == signal.SIGKILL else "")
+    return f"exit status {code}"
+
+
+def _render_in_child(out_dir: Path, config: RenderConfig, execution: ExecutionOptions, room_scene,
+                     poses: np.ndarray, todo: list[int], label: str) -> _ChildResult:
+    """Run :func:`_render_frames` in a spawned child; wait for it, show progress, forward its log records.
+
+    On any exception here (``KeyboardInterrupt`` and ``Terminated`` included) the child is killed, the temporary files
+    of its frames and its scratch folder are removed, and the exception propagates.
+    """
+    from tqdm import tqdm
+
+    context = multiprocessing.get_context("spawn")
+    conn, child_conn = context.Pipe(duplex=True)
+    process = context.Process(
+        target=_child_main, name="spotless-render",
+        args=(child_conn, os.getpid(), str(out_dir), config, execution, logging.getLogger().getEffectiveLevel()),
+    )
+    result = _ChildResult()
+    failure: tuple | None = None
+    finished = False
+    bar = tqdm(total=len(todo), desc=label, unit="frame", disable=not execution.progress)
+    try:
+        with _sigint_ignored():
+            process.start()
+        child_conn.close()
+        conn.send((room_scene, poses, todo))
+        started = last = time.perf_counter()
+        while True:
+            if not conn.poll(0.2):
+                continue
+            try:
+                message = conn.recv()
+            except EOFError:
+                break
+            kind = message[0]
+            if kind == "log":
+                logging.getLogger(message[1].name).handle(message[1])
+            elif kind == "ready":
+                result.device, result.blender = message[1], message[2]
+                started = time.perf_counter()
+            elif kind == "frame":
+                result.checks[message[1]] = message[2]
+                last = time.perf_counter()
+                bar.update(1)
+            elif kind == "error":
+                failure = message[1:]
+                break
+            elif kind == "done":
+                finished = True
+                break
+        while process.is_alive():
+            process.join(timeout=0.2)
+    except BaseException:
+        _stop(process)
+        remove_leftovers(out_dir, execution.shard, todo)
+        raise
+    finally:
+        bar.close()
+        conn.close()
+    if result.checks:
+        result.seconds_per_frame = (last - started) / len(result.checks)
+    if failure is not None:
+        payload, type_name, message_text, text = failure
+        remove_leftovers(out_dir, execution.shard, todo)
+        error: BaseException
+        try:
+            error = pickle.loads(payload) if payload is not None else RuntimeError(f"{type_name}: {message_text}")
+        except Exception:  # noqa: BLE001 - e.g. the exception's class cannot be imported here
+            error = RuntimeError(f"{type_name}: {message_text}")
+        raise error from _ChildTraceback(text)
+    if not finished:
+        remove_leftovers(out_dir, execution.shard, todo)
+        raise RenderProcessError(
+            f"{out_dir}: the Blender render process stopped unexpectedly ({_describe_exit(process.exitcode)}) after "
+            f"{len(result.checks)} of {len(todo)} frame(s); the finished frames are kept: rerun the same command "
+            "to resume")
+    return result
 
 
 def finalize_dataset(
     out_dir: Path, scene, room, poses: np.ndarray, config: RenderConfig, device: str, blender: str | None
-) -> None:
-    """Write the point cloud, the COLMAP text model and ``transforms.json`` once every frame exists."""
+) -> dict[str, list[str]]:
+    """Write the point cloud, the COLMAP text model and ``transforms.json`` once every frame exists.
+
+    Every frame is checked first (:func:`frame_check`); when every ground truth is black, or no frame sees any
+    geometry, :class:`InputError` is raised before any of these files is written.
+
+    Returns:
+        :func:`dark_frames` of every frame.
+    """
     intr = config.intrinsics()
     rng = numpy_rng(config.seed, "pointcloud")
     per_frame_budget = max(config.max_points // max(len(poses), 1) * 4, 256)
     clouds = []
+    checks = {}
     for k in range(len(poses)):
         paths = frame_paths(out_dir, k)
         exr = read_frame_exr(paths["exr"])
+        checks[k] = frame_check(exr.uneven, exr.gt, exr.depth)
         rgb = np.round(read_image(paths["image"]) * 255.0).astype(np.uint8)
         clouds.append(backproject_depth(exr.depth, rgb, exr.normal, intr, poses[k], max_points=per_frame_budget,
                                         rng=rng))
+    report = dark_frames(checks)
+    _refuse_unusable(report, len(poses), Path(scene.source), room, out_dir)
     voxel = max(0.01, float(np.sqrt(room.floor_area())) / 200.0)
     cloud = merge_point_clouds(clouds, voxel_size=voxel, max_points=config.max_points, rng=rng)
     write_point_cloud(out_dir / "points3d.ply", cloud.xyz, cloud.rgb, cloud.normals)
@@ -326,3 +731,4 @@ def finalize_dataset(
                               scene_file=str(scene.source)),
     )
     write_transforms(out_dir / "transforms.json", intr, frames, meta, ply_file_path="points3d.ply")
+    return report

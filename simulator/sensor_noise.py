@@ -11,7 +11,8 @@ to the spotlight-only images of a dataset. :func:`add_sensor_noise_to_dataset` d
 dataset from its linear renders (``exr/``), so the same renders can be used clean and noisy: the copy's ``images/``
 are noisy, everything else (ground truth, EXRs, poses, point cloud, transforms.json) is copied unchanged, and
 ``sensor_noise.json`` records the parameters. Noise of frame k comes from its own generator (seed, frame index), so a
-rerun writes the same bytes and an interrupted run resumes frame by frame.
+rerun writes the same bytes and an interrupted run resumes frame by frame; the temporary files a killed run left
+(``.<name>.partial-*``) are removed when the next run starts.
 """
 
 from __future__ import annotations
@@ -24,10 +25,11 @@ from pathlib import Path
 
 import numpy as np
 
-from spotlessgs.io.atomic import atomic_path, write_json
+from spotlessgs.io.atomic import atomic_path, remove_partial_files, write_json
 from spotlessgs.io.colorspace import linear_to_srgb
 from spotlessgs.io.exr import read_frame_exr
 from spotlessgs.io.images import write_png
+from spotlessgs.io.paths import refuse_overlap
 from spotlessgs.io.seeding import numpy_rng
 
 NOISE_RECORD = "sensor_noise.json"
@@ -81,16 +83,17 @@ def add_sensor_noise_to_dataset(data: str | Path, out: str | Path, noise: Sensor
     """Write a copy of the finished dataset ``data`` to ``out`` whose spotlight-only images carry sensor noise.
 
     Returns the number of images written now (frames already written by an earlier run with the same settings are
-    kept). Raises ValueError naming the folder when ``data`` is not a finished dataset with linear renders, when
-    ``out`` is ``data``, or when ``out`` holds a noisy copy made with other settings.
+    kept; temporary files of a killed run are removed first). Raises ValueError naming the folder when ``data`` is not
+    a finished dataset with linear renders, or when ``out`` holds a noisy copy made with other settings, and
+    :class:`~spotlessgs.io.errors.OutputOverlapError` (a ValueError) when ``out`` is ``data``, lies inside it or
+    contains it, before anything is written.
     """
     from spotlessgs.io.transforms import read_transforms
 
     data, out = Path(data), Path(out)
+    refuse_overlap(out, {"--data": data}, "--out")
     if not (data / "transforms.json").is_file():
         raise ValueError(f"{data}: not a finished dataset (no transforms.json)")
-    if out.resolve() == data.resolve():
-        raise ValueError(f"{out}: the noisy copy must go to another folder than its source")
     meta = read_transforms(data / "transforms.json")
     record = {"source": str(data.resolve()), "seed": int(seed), **asdict(noise),
               "model": "y = x + N(0, shot*x + read^2) in linear intensity, clipped to [0, 1], 8-bit sRGB"}
@@ -105,14 +108,16 @@ def add_sensor_noise_to_dataset(data: str | Path, out: str | Path, noise: Sensor
             raise ValueError(f"{data}: frame {frame.file_path} has no linear render (exr_file_path)")
         frames.append((index, frame))
     out.mkdir(parents=True, exist_ok=True)
+    remove_partial_files(out)
     write_json(record_path, record)
     for name in COPIED:
         src, dst = data / name, out / name
         if not src.exists() or dst.exists():
             continue
-        if src.is_dir():
-            shutil.copytree(src, dst.with_name(dst.name + ".partial"), dirs_exist_ok=True)
-            dst.with_name(dst.name + ".partial").rename(dst)
+        if src.is_dir():  # copied into a hidden folder that a killed run's successor completes, then renamed
+            partial = dst.with_name(f".{dst.name}.partial-copy")
+            shutil.copytree(src, partial, dirs_exist_ok=True)
+            partial.rename(dst)
         else:
             with atomic_path(dst) as tmp:
                 shutil.copy2(src, tmp)

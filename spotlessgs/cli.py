@@ -9,6 +9,8 @@ from pathlib import Path
 
 import click
 
+from spotlessgs.clitools import SafeGroup
+
 from evaluation.cli import eval_command
 from spotlessgs.baselines2d.cli import baseline2d
 from spotlessgs.reproduce.cli import reproduce
@@ -16,7 +18,7 @@ from spotlessgs.reproduce.cli import reproduce
 MODELS = ["3dgs", "darkgs", "darkgs-calibrated", "darkgs+sh", "darkgs+brdf", "spotless"]
 
 
-@click.group(context_settings={"help_option_names": ["-h", "--help"]})
+@click.group(cls=SafeGroup, context_settings={"help_option_names": ["-h", "--help"]})
 @click.version_option(package_name="spotlessgs")
 @click.option("-v", "--verbose", is_flag=True, help="Log debug messages.")
 def main(verbose: bool) -> None:
@@ -98,16 +100,21 @@ def budget_overrides(gaussian_budget: bool) -> dict:
 @click.option("--out", "out_dir", type=click.Path(file_okay=False, path_type=Path), default=None,
               help="Output folder (default RUN/relit).")
 @click.option("--exr", is_flag=True, help="Also write linear float EXR images (no clipping).")
+@click.option("--data", "data_dir", type=click.Path(exists=True, file_okay=False, path_type=Path), default=None,
+              help="The run's dataset, when it has moved (default: the path recorded in RUN/run.json).")
 @click.option("--device", default="auto", show_default=True, type=click.Choice(["auto", "cpu", "cuda"]))
 @click.option("--no-low-frequency", is_flag=True,
               help="Leave the learned low-frequency (SH / ambient) light out: the image is reflectance x L0 alone.")
 @click.option("-q", "--quiet", is_flag=True)
-def relight(run_dir, l0, which, out_dir, exr, device, no_low_frequency, quiet):
-    """Relight a trained run under even light (paper eq. 8) and write PNGs named like the dataset's images."""
+def relight(run_dir, l0, which, out_dir, exr, data_dir, device, no_low_frequency, quiet):
+    """Relight a trained run under even light (paper eq. 8) and write PNGs named like the dataset's images.
+
+    The output folder is replaced as a whole and gets a manifest (.manifest.json) that `spotless eval` checks."""
     from spotlessgs.rendering import render_run
 
     click.echo(json.dumps(render_run(run_dir, "relit", which, out_dir, l0=l0 or "auto", exr=exr, progress=not quiet,
-                                     device=device, low_frequency=not no_low_frequency), indent=2))
+                                     device=device, low_frequency=not no_low_frequency, data_dir=data_dir),
+                          indent=2))
 
 
 @main.command()
@@ -116,25 +123,29 @@ def relight(run_dir, l0, which, out_dir, exr, device, no_low_frequency, quiet):
 @click.option("--out", "out_dir", type=click.Path(file_okay=False, path_type=Path), default=None,
               help="Output folder (default RUN/render).")
 @click.option("--exr", is_flag=True, help="Also write linear float EXR images.")
+@click.option("--data", "data_dir", type=click.Path(exists=True, file_okay=False, path_type=Path), default=None,
+              help="The run's dataset, when it has moved (default: the path recorded in RUN/run.json).")
 @click.option("--device", default="auto", show_default=True, type=click.Choice(["auto", "cpu", "cuda"]))
 @click.option("-q", "--quiet", is_flag=True)
-def render(run_dir, which, out_dir, exr, device, quiet):
+def render(run_dir, which, out_dir, exr, data_dir, device, quiet):
     """Render a trained run under its learned spotlight (to compare with the inputs)."""
     from spotlessgs.rendering import render_run
 
-    click.echo(json.dumps(render_run(run_dir, "spot", which, out_dir, exr=exr, progress=not quiet, device=device),
-                          indent=2))
+    click.echo(json.dumps(render_run(run_dir, "spot", which, out_dir, exr=exr, progress=not quiet, device=device,
+                                     data_dir=data_dir), indent=2))
 
 
 @main.command()
 @click.argument("run_dir", type=click.Path(exists=True, file_okay=False, path_type=Path))
 @click.option("--out", "out_path", required=True, type=click.Path(dir_okay=False, path_type=Path))
 @click.option("--l0", nargs=3, type=click.FloatRange(0), default=(1.0, 1.0, 1.0), show_default=True, metavar="R G B")
-def export(run_dir, out_path, l0):
+@click.option("--data", "data_dir", type=click.Path(exists=True, file_okay=False, path_type=Path), default=None,
+              help="The run's dataset, when it has moved (default: the path recorded in RUN/run.json).")
+def export(run_dir, out_path, l0, data_dir):
     """Export the relit model as a standard 3DGS PLY (opens in common 3DGS viewers)."""
     from spotlessgs.export import export_ply
 
-    click.echo(f"wrote {export_ply(run_dir, out_path, l0)}")
+    click.echo(f"wrote {export_ply(run_dir, out_path, l0, data_dir=data_dir)}")
 
 
 main.add_command(eval_command, name="eval")

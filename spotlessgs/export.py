@@ -19,13 +19,15 @@ from spotlessgs.models.shading import RELIGHT_L0_DEFAULT
 
 
 @torch.no_grad()
-def export_ply(run_dir: str | Path, out_path: str | Path, l0: Sequence[float] = RELIGHT_L0_DEFAULT) -> Path:
-    """Write the run's Gaussians to ``out_path``; returns the path."""
+def export_ply(run_dir: str | Path, out_path: str | Path, l0: Sequence[float] = RELIGHT_L0_DEFAULT,
+               data_dir: str | Path | None = None) -> Path:
+    """Write the run's Gaussians to ``out_path``; returns the path. ``data_dir`` points at the run's dataset when it
+    has moved (default: run.json's paths, see :func:`spotlessgs.training.checkpoint.resolve_data_dir`)."""
     from plyfile import PlyData, PlyElement
 
     from spotlessgs.training.trainer import load_run
 
-    scene, views, _config, _info = load_run(run_dir, device="cpu")
+    scene, views, _config, _info = load_run(run_dir, device="cpu", data_dir=data_dir)
     g = scene.gaussians
     n = len(g)
     if scene.config.light_model == "none":

@@ -1,12 +1,21 @@
 """Render a trained run's views: relit (spotlight replaced by a constant L0, paper eq. 8) or under the learned
 spotlight (to compare with the inputs). PNGs are named like the dataset's images; nothing is clipped silently: the
 fraction of pixels above 1 (clipped by 8-bit PNG) is reported and warned about, and ``exr=True`` also writes the
-unclipped linear values. By default L0 is chosen automatically (white, about 1% of pixels reaching 1)."""
+unclipped linear values. By default L0 is chosen automatically (white, about 1% of pixels reaching 1).
+
+An output folder always holds exactly one render's files: they are written into a hidden ``.<name>.partial-...``
+folder beside it, with a manifest (``.manifest.json``: checkpoint step and sha256, options, dataset, every file's
+sha256; see :mod:`spotlessgs.manifest`), and swapped in when complete, so a second relight with other options or views
+replaces the first one's frames instead of mixing with them, and an interrupted one leaves the previous folder as it
+was. The run folder's write lock is held meanwhile (one writer per run: no relight while it trains)."""
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import logging
+import os
+import shutil
 import time
 from pathlib import Path
 from typing import Any, Sequence
@@ -16,8 +25,14 @@ import torch
 
 from spotlessgs.io.atomic import write_json
 from spotlessgs.io.colorspace import linear_to_srgb
+from spotlessgs.io.errors import InputError, OutputOverlapError
 from spotlessgs.io.exr import write_exr
-from spotlessgs.io.images import write_png
+from spotlessgs.io.folder_lock import folder_lock
+from spotlessgs.io.images import is_image_name, write_png
+from spotlessgs.io.paths import refuse_overlap
+from spotlessgs.manifest import (
+    checkpoint_identity, dataset_record, hash_frames, is_partial_name, manifest_path, partial_sibling, write_manifest,
+)
 from spotlessgs.models.shading import shade
 from spotlessgs.rasterizer import rasterize
 
@@ -106,6 +121,72 @@ def auto_l0(images_r: list[np.ndarray], images_low: list[np.ndarray]) -> list[fl
     return [0.5 * (lo + hi)] * 3
 
 
+def _check_output(out: Path, run_dir: Path, data_dir: Path) -> None:
+    """Refuse an output folder that a render may not replace: the dataset or inside it, the run folder or a folder
+    holding it, or a folder holding anything but an earlier render's images (a render replaces the whole folder).
+
+    Raises:
+        OutputOverlapError / InputError: naming the folder and what to choose instead.
+    """
+    refuse_overlap(out, {"--data": data_dir}, "--out")
+    real_out, real_run = Path(os.path.realpath(out)), Path(os.path.realpath(run_dir))
+    if real_run.is_relative_to(real_out):
+        raise OutputOverlapError(f"{out}: --out is or holds the run folder {run_dir}; a render replaces its whole "
+                                 "output folder: choose a new folder (default RUN/relit or RUN/render)")
+    if out.exists() and not out.is_dir():
+        raise InputError(f"{out}: --out is a file, not a folder; choose a folder")
+    if out.is_dir():
+        foreign = sorted(p.name for p in out.iterdir() if not p.name.startswith(".")
+                         and (p.is_dir() or not (is_image_name(p.name) or p.suffix.lower() == ".exr")))
+        if foreign:
+            shown = ", ".join(foreign[:3]) + (f" (and {len(foreign) - 3} more)" if len(foreign) > 3 else "")
+            raise InputError(f"{out}: holds files that are not images of an earlier render ({shown}); a render "
+                             "replaces the whole folder: choose an empty or new --out")
+
+
+def _remove_partial_siblings(out: Path) -> None:
+    """Delete temporary folders that an interrupted render into ``out`` left beside it (the run lock is held)."""
+    if not out.parent.is_dir():
+        return
+    for entry in out.parent.iterdir():
+        if is_partial_name(entry.name, out.name):
+            if entry.is_dir() and not entry.is_symlink():
+                shutil.rmtree(entry, ignore_errors=True)
+            else:
+                with contextlib.suppress(FileNotFoundError):
+                    entry.unlink()
+
+
+def _exchange(a: Path, b: Path) -> bool:
+    """Swap two paths in one atomic step (Linux ``renameat2(RENAME_EXCHANGE)``); False where unsupported."""
+    try:
+        import ctypes
+
+        renameat2 = ctypes.CDLL(None, use_errno=True).renameat2
+    except (OSError, AttributeError):
+        return False
+    at_fdcwd, rename_exchange = -100, 2
+    return renameat2(at_fdcwd, os.fsencode(a), at_fdcwd, os.fsencode(b), rename_exchange) == 0
+
+
+def _swap_in(tmp: Path, out: Path) -> None:
+    """Replace the folder ``out`` by the finished folder ``tmp`` (both in the same parent folder). A reader sees the
+    old folder, then the new one (where the system cannot exchange two folders atomically: for an instant none in
+    between), never a mix of both."""
+    if out.is_dir() and not out.is_symlink():
+        if _exchange(tmp, out):
+            shutil.rmtree(tmp, ignore_errors=True)  # now the old folder
+            return
+        old = partial_sibling(out, "old-")
+        os.rename(out, old)
+        os.rename(tmp, out)
+        shutil.rmtree(old, ignore_errors=True)
+    else:
+        if out.is_symlink():
+            out.unlink()
+        os.rename(tmp, out)
+
+
 @torch.no_grad()
 def render_run(
     run_dir: str | Path,
@@ -117,6 +198,7 @@ def render_run(
     progress: bool = True,
     device: str = "auto",
     low_frequency: bool = True,
+    data_dir: str | Path | None = None,
 ) -> dict[str, Any]:
     """Render views of a run at the dataset's native resolution.
 
@@ -124,19 +206,24 @@ def render_run(
         run_dir: the training run.
         mode: ``relit`` (constant L0 + the learned low-frequency light) or ``spot`` (the learned spotlight).
         which: ``test``, ``train`` or ``all``.
-        out_dir: output folder; default ``RUN/relit`` or ``RUN/render``.
+        out_dir: output folder; default ``RUN/relit`` or ``RUN/render``. It is replaced as a whole (see the module
+            docstring), so it must be new or hold an earlier render's images only.
         l0: linear RGB relighting radiance (relit mode), or ``"auto"``: white, scaled so that about 1% of relit
             pixels reach 1 (see AUTO_L0_*); the value used is reported.
         exr: also write linear float EXR files (``<name>.exr`` with channels R, G, B).
         low_frequency: relit mode: False leaves the learned low-frequency light out (image = R·L0 alone), to see what
             the reflectance alone gives; the automatic L0 is then chosen for that image.
+        data_dir: the run's dataset when it has moved (``--data``); default: run.json's paths
+            (:func:`spotlessgs.training.checkpoint.resolve_data_dir`).
     Returns:
-        a summary (views, L0, seconds per view, frames per second, clipped fraction), also written as
-        ``RUN/<relit|render>.json`` (outside the image folder, which holds images only).
-    """
-    from tqdm import tqdm
+        a summary (views, L0, seconds per view, frames per second, clipped fraction, checkpoint step, manifest), also
+        written as ``RUN/<relit|render>.json`` (outside the image folder, which holds images and its manifest only).
 
-    from spotlessgs.training.trainer import load_run
+    Raises:
+        FolderLockedError: another process writes the run (training, another render).
+        InputError / OutputOverlapError: the dataset is not found, or the output folder may not be replaced.
+    """
+    from spotlessgs.training.checkpoint import read_run_info, resolve_data_dir
 
     if mode not in ("relit", "spot"):
         raise ValueError(f"mode must be relit or spot, got {mode!r}")
@@ -144,13 +231,43 @@ def render_run(
         raise ValueError("low_frequency=False only applies to relit mode")
     if isinstance(l0, str) and l0 != "auto":
         raise ValueError(f"l0 must be 'auto' or three numbers, got {l0!r}")
+    if not isinstance(l0, str):
+        l0 = [float(v) for v in l0]
+        if len(l0) != 3 or any(not np.isfinite(v) or v < 0 for v in l0):
+            raise ValueError(f"l0 must be three finite non-negative numbers, got {l0!r}")
     run_dir = Path(run_dir)
-    scene, views, config, _info = load_run(run_dir, device=device)
+    data = resolve_data_dir(run_dir, read_run_info(run_dir), data_dir)  # a clear error before locking or loading
+    out = Path(out_dir) if out_dir is not None else run_dir / ("relit" if mode == "relit" else "render")
+    _check_output(out, run_dir, data)
+    with folder_lock(run_dir, "spotless relight" if mode == "relit" else "spotless render"):
+        _remove_partial_siblings(out)
+        out.parent.mkdir(parents=True, exist_ok=True)
+        tmp = partial_sibling(out)
+        tmp.mkdir()
+        try:
+            summary = _render_into(run_dir, data, mode, which, out, tmp, l0, exr, progress, device, low_frequency)
+            _swap_in(tmp, out)
+        except BaseException:
+            shutil.rmtree(tmp, ignore_errors=True)
+            raise
+        write_json(run_dir / f"{'relit' if mode == 'relit' else 'render'}.json", summary)
+    return summary
+
+
+def _render_into(run_dir: Path, data_dir: Path, mode: str, which: str, out: Path, tmp: Path,
+                 l0: Sequence[float] | str, exr: bool, progress: bool, device: str,
+                 low_frequency: bool) -> dict[str, Any]:
+    """:func:`render_run`'s work with the run locked: render into ``tmp`` (to become ``out``) with its manifest."""
+    from tqdm import tqdm
+
+    from spotlessgs.training.trainer import load_run
+
+    checkpoint = checkpoint_identity(run_dir)  # the file the model is loaded from (the lock keeps it unchanged)
+    scene, views, config, _info = load_run(run_dir, device=device, data_dir=data_dir)
     dev = scene.gaussians.means.device
     native = views.dataset.intrinsics
     K = torch.as_tensor(native.K(), dtype=torch.float32, device=dev)
     width, height = int(native.width), int(native.height)
-    out = Path(out_dir) if out_dir is not None else run_dir / ("relit" if mode == "relit" else "render")
     indices = select_views(views, which)
     g = scene.gaussians
     start = time.perf_counter()
@@ -184,9 +301,8 @@ def render_run(
             relight = auto_l0([b[..., :3] for b in both], [low_part(b) for b in both])
         else:
             relight = [float(v) for v in l0]
-            if len(relight) != 3 or any(not np.isfinite(v) or v < 0 for v in relight):
-                raise ValueError(f"l0 must be three finite non-negative numbers, got {l0!r}")
     clipped, total = 0, 0
+    written: list[str] = []
     for k in tqdm(indices, desc=f"{mode} {run_dir.name}", disable=not progress, unit="view"):
         if mode == "relit":
             img = relit_image(k, relight)
@@ -196,9 +312,11 @@ def render_run(
             img = res.image.float().cpu().numpy()
         clipped += int((img.max(axis=2) > 1.0).sum())
         total += img.shape[0] * img.shape[1]
-        write_png(out / views.names[k], linear_to_srgb(img))
+        write_png(tmp / views.names[k], linear_to_srgb(img))
+        written.append(views.names[k])
         if exr:
-            write_exr(out / (Path(views.names[k]).stem + ".exr"), {c: img[..., i] for i, c in enumerate("RGB")})
+            written.append(Path(views.names[k]).stem + ".exr")
+            write_exr(tmp / written[-1], {c: img[..., i] for i, c in enumerate("RGB")})
     seconds = time.perf_counter() - start
     fraction = clipped / max(total, 1)
     if mode == "relit" and fraction > CLIP_WARN_FRACTION:
@@ -208,5 +326,10 @@ def render_run(
                "l0_mode": "auto" if isinstance(l0, str) else "given", "width": width, "height": height,
                "seconds_per_view": seconds / max(len(indices), 1), "fps": len(indices) / max(seconds, 1e-9),
                "clipped_fraction": fraction, "num_gaussians": len(g), "device": str(dev), "out_dir": str(out)}
-    write_json(run_dir / f"{'relit' if mode == 'relit' else 'render'}.json", summary)
+    options = {k: summary[k] for k in ("mode", "views", "l0", "l0_mode", "low_frequency", "width", "height")}
+    write_manifest(tmp, "relit" if mode == "relit" else "render", run_dir=run_dir, checkpoint=checkpoint,
+                   options={**options, "exr": exr}, dataset=dataset_record(data_dir, run_dir, len(views.names)),
+                   frames=hash_frames(tmp, written))
+    summary.update(checkpoint_step=None if checkpoint is None else checkpoint["step"],
+                   manifest=str(manifest_path(out)))
     return summary

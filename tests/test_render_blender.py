@@ -33,7 +33,8 @@ def _render(out, **overrides):
 def dataset(tmp_path_factory):
     out = tmp_path_factory.mktemp("render") / "bedroom"
     summary = _render(out)
-    assert summary == {**summary, "rendered": 6, "skipped": 0, "complete": True}
+    assert summary == {**summary, "rendered": 6, "skipped": 0, "complete": True,
+                       "dark_frames": {"gt": [], "images": [], "empty": []}}
     return out
 
 
@@ -222,3 +223,154 @@ def test_lambertian_option_makes_radiance_independent_of_the_view_direction():
     assert top > 0.05 and abs(grazing / top - 1.0) < 0.05, (top, grazing)
     top, grazing = _floor_radiance_from_two_directions(lambertian=False)
     assert abs(grazing / top - 1.0) > 0.3, (top, grazing)
+
+
+# ---------------------------------------------------------------------------------------------------------------------
+# Degenerate rooms, quiet output, outputs that overlap the inputs
+
+
+def _box_room(folder: Path, ceiling: bool = False, band_below_floor: bool = False) -> Path:
+    """A 4 m x 4 m room of a floor and four walls (3D-FRONT format, y up, no furniture) in ``folder``.
+
+    ``ceiling``: add a ceiling mesh; ``band_below_floor``: add a LightBand strip 30 cm *under* the floor, so that the
+    room has a light for the ground truth that lights nothing the camera sees. Returns the house file.
+    """
+    quads = {
+        "floor": ("Floor", [0, 0, 0, 4, 0, 0, 4, 0, 4, 0, 0, 4]),
+        "wall-a": ("WallInner", [0, 0, 0, 4, 0, 0, 4, 2.6, 0, 0, 2.6, 0]),
+        "wall-b": ("WallInner", [0, 0, 4, 4, 0, 4, 4, 2.6, 4, 0, 2.6, 4]),
+        "wall-c": ("WallInner", [0, 0, 0, 0, 0, 4, 0, 2.6, 4, 0, 2.6, 0]),
+        "wall-d": ("WallInner", [4, 0, 0, 4, 0, 4, 4, 2.6, 4, 4, 2.6, 0]),
+    }
+    if ceiling:
+        quads["ceiling"] = ("Ceiling", [0, 2.6, 0, 4, 2.6, 0, 4, 2.6, 4, 0, 2.6, 4])
+    if band_below_floor:
+        quads["band"] = ("LightBand", [1.5, -0.3, 1.5, 2.5, -0.3, 1.5, 2.5, -0.3, 2.5, 1.5, -0.3, 2.5])
+    house = {
+        "uid": "box-room",
+        "material": [{"uid": "plaster", "color": [200, 200, 200, 255], "roughness": 0.9}],
+        "mesh": [{"uid": uid, "type": kind, "material": "plaster", "xyz": xyz, "faces": [0, 1, 2, 0, 2, 3]}
+                 for uid, (kind, xyz) in quads.items()],
+        "furniture": [],
+        "scene": {"room": [{"type": "Bedroom", "instanceid": "Box-1",
+                            "children": [{"ref": uid, "instanceid": uid} for uid in quads]}]},
+    }
+    folder.mkdir(parents=True, exist_ok=True)
+    path = folder / "house.json"
+    path.write_text(json.dumps(house))
+    return path
+
+
+@pytest.mark.parametrize("ceiling", [False, True], ids=["floor-and-walls", "ceiling-without-glow"])
+def test_a_room_without_light_for_the_ground_truth_is_refused_before_anything_is_written(tmp_path, ceiling):
+    """A room of only a floor and walls (or with a ceiling but the ceiling glow off) would render 100 % black ground
+    truth: refused with the scene file named, before the output folder is created."""
+    import dataclasses
+
+    from simulator.lighting import GroundTruthLighting
+    from simulator.render_pipeline import ExecutionOptions, RenderConfig, render_dataset
+    from spotlessgs.io.errors import InputError
+
+    scene = _box_room(tmp_path / "scene", ceiling=ceiling)
+    config = RenderConfig(**{**TINY, "frames": 2})
+    if ceiling:
+        config = dataclasses.replace(config, ground_truth=GroundTruthLighting(ceiling_glow=0.0))
+    out = tmp_path / "out"
+    with pytest.raises(InputError, match="has no light for the ground-truth render") as err:
+        render_dataset(scene, out, config, execution=ExecutionOptions(progress=False))
+    assert str(scene) in str(err.value) and "Box-1" in str(err.value)
+    assert not out.exists()
+
+
+def test_a_room_without_visible_geometry_is_refused():
+    from simulator.render_pipeline import RenderConfig, check_scene
+    from simulator.scene_model import LightFixture, Room
+    from spotlessgs.io.errors import InputError
+
+    room = Room("Empty-1", "Bedroom", np.array([[0, 0], [4, 0], [4, 4], [0, 4]], float), 0.0, 2.6)
+    lamp = LightFixture("lamp", "point", (2.0, 2.0, 2.0), 60.0)
+    with pytest.raises(InputError, match=r"scene.json: room 'Empty-1' has no visible geometry"):
+        check_scene(Path("scene.json"), room, [], [lamp], RenderConfig())
+
+
+def test_black_ground_truth_in_every_frame_is_an_error_and_the_dataset_is_not_finished(tmp_path):
+    """The room has a light, but it lights nothing the camera sees: the frames are rendered (and kept), then the
+    dataset is refused, without transforms.json, also when the command is run again."""
+    from simulator.render_pipeline import ExecutionOptions, RenderConfig, render_dataset
+    from spotlessgs.io.errors import InputError
+
+    scene = _box_room(tmp_path / "scene", band_below_floor=True)
+    out = tmp_path / "out"
+    config = RenderConfig(**{**TINY, "frames": 2})
+    for _ in range(2):
+        with pytest.raises(InputError, match=r"ground truth \(evenly lit render\) of every frame is \(almost\) all "
+                                             "black") as err:
+            render_dataset(scene, out, config, execution=ExecutionOptions(progress=False))
+        assert str(scene) in str(err.value) and "no transforms.json" in str(err.value)
+        assert sorted(p.name for p in (out / "gt").iterdir()) == ["frame_00000.png", "frame_00001.png"]
+        for name in ("transforms.json", "points3d.ply", "sparse"):
+            assert not (out / name).exists()
+
+
+def test_frame_checks_name_black_frames_in_one_warning_line_each(caplog):
+    from simulator.render_pipeline import dark_frames, frame_check, warn_dark_frames
+
+    lit = np.full((12, 16, 3), 0.2, np.float32)
+    black = np.zeros_like(lit)
+    specks = black.copy()
+    specks[0, 0] = 1.0  # 1 lit pixel of 192: still (almost) all black
+    depth = np.ones((12, 16), np.float32)
+    checks = {
+        0: frame_check(lit, lit, depth),
+        1: frame_check(lit, black, depth),
+        2: frame_check(specks, specks, np.full_like(depth, np.inf)),
+    }
+    assert checks[0] == {"gt_dark": False, "image_dark": False, "empty": False}
+    assert checks[2] == {"gt_dark": True, "image_dark": True, "empty": True}
+    report = dark_frames(checks)
+    assert report == {"gt": ["frame_00001", "frame_00002"], "images": ["frame_00002"], "empty": ["frame_00002"]}
+    with caplog.at_level("WARNING"):
+        warn_dark_frames(report, "OUT", 3)
+    lines = [r.getMessage() for r in caplog.records]
+    assert lines == [
+        "OUT: 2 of 3 frame(s) with an (almost) all-black ground truth (evenly lit render): frame_00001, frame_00002",
+        "OUT: 1 of 3 frame(s) with an (almost) all-black spotlight-only image: frame_00002",
+        "OUT: 1 of 3 frame(s) with no geometry in view: frame_00002",
+    ]
+
+
+def _cli(*args: str, timeout: float = 300) -> "subprocess.CompletedProcess[str]":
+    import subprocess
+    import sys
+
+    return subprocess.run([sys.executable, "-m", "simulator.cli", *args], capture_output=True, text=True,
+                          timeout=timeout, cwd=ROOT)
+
+
+def test_quiet_render_prints_nothing_from_blender(tmp_path):
+    """`-q` silences what Blender's C code prints while probing the devices ("... cycles | WARNING CUEW
+    initialization failed" on a machine without CUDA): stdout is the summary line, stderr has only the project's own
+    log lines (none on a machine without a GPU)."""
+    out = tmp_path / "quiet"
+    proc = _cli("render", "--scene", str(SCENE), "--out", str(out), "--frames", "2", "--width", "64", "--height", "48",
+                "--samples", "4", "--device", "auto", "-q")
+    assert proc.returncode == 0, proc.stderr
+    assert proc.stdout.splitlines() == [f"{out}: rendered 2, skipped 0 finished frame(s); dataset complete"]
+    assert all(line.startswith("INFO simulator.") for line in proc.stderr.splitlines()), proc.stderr
+
+
+def test_render_refuses_an_output_that_holds_the_scene(tmp_path):
+    """OUT equal to the scene's folder, containing the scene file or inside its model folder is refused (exit 2)
+    before anything is written; a folder inside the scene's folder is fine (here it stops at the missing light)."""
+    scene = _box_room(tmp_path / "rooms" / "box")
+    (scene.parent / "models").mkdir()
+    before = sorted(p.relative_to(tmp_path) for p in tmp_path.rglob("*"))
+    common = ["--frames", "2", "--width", "64", "--height", "48", "--samples", "4", "-q"]
+    for out, words in ((scene.parent, "contains the input --scene"), (tmp_path / "rooms", "contains the input --scene"),
+                       (scene.parent / "models" / "data", "inside the input --future-dir")):
+        proc = _cli("render", "--scene", str(scene), "--out", str(out), *common)
+        assert proc.returncode == 2, (out, proc.stdout, proc.stderr)
+        assert words in proc.stderr and len(proc.stderr.strip().splitlines()) == 1, proc.stderr
+        assert sorted(p.relative_to(tmp_path) for p in tmp_path.rglob("*")) == before
+    proc = _cli("render", "--scene", str(scene), "--out", str(scene.parent / "renders"), *common)
+    assert proc.returncode == 2 and "has no light for the ground-truth render" in proc.stderr, proc.stderr

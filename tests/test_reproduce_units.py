@@ -143,7 +143,7 @@ def test_cli_reports_refused_folder_and_bad_options(tmp_path):
 
     check_or_record_config(preset("tiny", seed=5), tmp_path)
     result = CliRunner().invoke(main, ["reproduce", "--preset", "tiny", "--out", str(tmp_path)])
-    assert result.exit_code == 1 and "made with other settings (differing: ['seed'])" in result.output
+    assert result.exit_code == 2 and "made with other settings (differing: ['seed'])" in result.output
     result = CliRunner().invoke(main, ["reproduce", "--preset", "tiny", "--out", str(tmp_path), "--scenes", "bedroom",
                                        "--scenes", "office", "--scenes", "living_room", "--scenes", "storage_room"])
     assert result.exit_code == 2 and "gan_rooms needs at least two rooms" in result.output

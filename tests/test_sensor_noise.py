@@ -110,7 +110,7 @@ def test_noisy_copy_changes_only_the_spotlight_images_and_resumes(tmp_path):
 def test_noisy_copy_refuses_bad_folders(tmp_path):
     src = tmp_path / "clean"
     _dataset(src, frames=2)
-    with pytest.raises(ValueError, match="another folder than its source"):
+    with pytest.raises(ValueError, match="is the same path as the input --data"):
         add_sensor_noise_to_dataset(src, src, SensorNoise())
     with pytest.raises(ValueError, match=r"not a finished dataset \(no transforms.json\)"):
         add_sensor_noise_to_dataset(tmp_path / "missing", tmp_path / "o", SensorNoise())
@@ -134,3 +134,41 @@ def test_command_line(tmp_path):
     assert result.exit_code == 0, result.output + repr(result.exception)
     assert "2 noisy image(s)" in result.output
     assert json.loads((tmp_path / "noisy" / NOISE_RECORD).read_text())["shot"] == 0.005
+
+
+def _tree(root) -> dict:
+    return {str(p.relative_to(root)): p.read_bytes() if p.is_file() else None for p in sorted(root.rglob("*"))}
+
+
+def test_an_output_that_overlaps_the_data_is_refused_before_anything_is_written(tmp_path):
+    """OUT equal to DATA, inside it, or containing it would mix the noisy copy with its source (or read what it
+    writes): refused with one line, exit 2, nothing written."""
+    from simulator.cli import main
+    from spotlessgs.io.errors import OutputOverlapError
+
+    src = tmp_path / "data" / "clean"
+    _dataset(src, frames=2)
+    before = _tree(tmp_path)
+    for out, words in ((src, "same path as the input --data"), (src / "noisy", "inside the input --data"),
+                       (tmp_path / "data", "contains the input --data")):
+        with pytest.raises(OutputOverlapError, match=words):
+            add_sensor_noise_to_dataset(src, out, SensorNoise())
+        result = CliRunner().invoke(main, ["add-noise", "--data", str(src), "--out", str(out)])
+        assert result.exit_code == 2, result.output
+        assert words in result.output and len(result.output.strip().splitlines()) == 1, result.output
+        assert _tree(tmp_path) == before
+
+
+def test_temporary_files_of_a_killed_run_are_removed_when_the_next_starts(tmp_path):
+    """A run killed with SIGKILL in the middle of a write leaves ``.<name>.partial-*`` files; the next run removes
+    them (and completes the copy)."""
+    src, out = tmp_path / "clean", tmp_path / "noisy"
+    _dataset(src)
+    noise = SensorNoise()
+    add_sensor_noise_to_dataset(src, out, noise, seed=1)
+    expected = _tree(out)
+    (out / "images" / "frame_00002.png").unlink()
+    (out / "images" / ".frame_00002.png.partial-k1ll3d.png").write_bytes(b"half a png")
+    (out / ".sensor_noise.json.partial-k1ll3d.json").write_text("{")
+    assert add_sensor_noise_to_dataset(src, out, noise, seed=1) == 1
+    assert _tree(out) == expected

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import contextlib
 import logging
 import tempfile
 from dataclasses import dataclass
@@ -154,13 +155,15 @@ def _channels(chans: dict[str, np.ndarray], suffixes: tuple[str, ...], path: Pat
 def _render_exr(workdir: Path, name: str) -> dict[str, np.ndarray]:
     bpy.ops.render.render(write_still=False)
     path = workdir / f"{name}.exr"
-    bpy.data.images["Render Result"].save_render(str(path), scene=bpy.context.scene)
-    chans = read_exr(path)
-    path.unlink()
-    return chans
+    try:
+        bpy.data.images["Render Result"].save_render(str(path), scene=bpy.context.scene)
+        return read_exr(path)
+    finally:
+        path.unlink(missing_ok=True)
 
 
-def render_pair(built: BuiltScene, c2w_blender: np.ndarray, settings: CyclesSettings, seed: int) -> RenderedPair:
+def render_pair(built: BuiltScene, c2w_blender: np.ndarray, settings: CyclesSettings, seed: int,
+                workdir: Path | None = None) -> RenderedPair:
     """Render one camera pose in both lighting modes.
 
     Args:
@@ -168,14 +171,20 @@ def render_pair(built: BuiltScene, c2w_blender: np.ndarray, settings: CyclesSett
         c2w_blender: (4, 4) camera-to-world, OpenGL/Blender camera convention.
         settings: renderer settings (already applied by :func:`configure`).
         seed: Cycles noise seed for this frame.
+        workdir: an existing folder for Blender's EXR of each render (read back and deleted at once). The dataset
+            renderer passes a scratch folder inside the dataset, which the next run removes if this process is
+            killed; None: a temporary folder in the system's temporary directory.
     """
     scene = bpy.context.scene
     c2w = np.asarray(c2w_blender, dtype=np.float64)
     built.camera.matrix_world = Matrix(c2w.tolist())
     built.spotlight.matrix_world = Matrix((c2w @ built.spot_local).tolist())
     scene.cycles.seed = int(seed) % (2**31 - 1)
-    with tempfile.TemporaryDirectory(prefix="spotless-render-") as tmp:
-        work = Path(tmp)
+    with contextlib.ExitStack() as stack:
+        if workdir is None:
+            work = Path(stack.enter_context(tempfile.TemporaryDirectory(prefix="spotless-render-")))
+        else:
+            work = Path(workdir)
         _set_mode(built, "uneven", settings)
         spot = _render_exr(work, "uneven")
         _set_mode(built, "gt", settings)

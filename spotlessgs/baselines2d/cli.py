@@ -41,10 +41,7 @@ def enhance_command(method, in_dir, out_dir, checkpoint, clip_limit, tiles, low_
     misplaced = sorted(k for k, v in given.items() if v is not None and k not in allowed)
     if misplaced:
         raise click.UsageError(f"options {misplaced} do not apply to method {method!r}")
-    try:
-        written = enhance_folder(method, in_dir, out_dir, **{k: v for k, v in given.items() if v is not None})
-    except (ValueError, FileNotFoundError) as exc:
-        raise click.ClickException(str(exc)) from exc
+    written = enhance_folder(method, in_dir, out_dir, **{k: v for k, v in given.items() if v is not None})
     click.echo(f"wrote {len(written)} images to {out_dir}")
 
 
@@ -67,11 +64,8 @@ def train_command(uneven_dirs, even_dirs, out_dir, preset_name, steps, threads, 
     from spotlessgs.baselines2d.cyclegan import preset, train_cyclegan
 
     overrides = {k: v for k, v in {"steps": steps, "num_threads": threads}.items() if v is not None}
-    try:
-        config = preset(preset_name, **overrides)
-        checkpoint = train_cyclegan(uneven_dirs, even_dirs, out_dir, config, seed=seed, progress=not no_progress)
-    except (ValueError, FileNotFoundError, FloatingPointError) as exc:
-        raise click.ClickException(str(exc)) from exc
+    config = preset(preset_name, **overrides)
+    checkpoint = train_cyclegan(uneven_dirs, even_dirs, out_dir, config, seed=seed, progress=not no_progress)
     click.echo(str(checkpoint))
 
 

@@ -14,6 +14,7 @@ from spotlessgs.baselines2d.folders import refuse_name_clashes
 from spotlessgs.baselines2d.msrcr import MsrcrConfig, msrcr
 from spotlessgs.io.atomic import write_json
 from spotlessgs.io.images import list_image_files, read_image, write_png
+from spotlessgs.io.paths import refuse_overlap
 from spotlessgs.io.provenance import provenance
 
 METHODS = ("clahe", "msrcr", "cyclegan")
@@ -43,11 +44,13 @@ def enhance_folder(method: str, in_dir: str | os.PathLike, out_dir: str | os.Pat
     Returns:
         the written image paths, in input order.
     Raises:
-        ValueError for an unknown method or option, FileNotFoundError for a missing folder or checkpoint.
+        ValueError for an unknown method or option, FileNotFoundError for a missing folder or checkpoint,
+        OutputOverlapError when ``out_dir`` is, holds or lies inside ``in_dir`` (never write into an input).
     """
     if method not in METHODS:
         raise ValueError(f"enhance_folder: unknown method {method!r}; choose one of {list(METHODS)}")
     out_dir = Path(out_dir)
+    refuse_overlap(out_dir, {"IN_DIR": in_dir}, "OUT_DIR")
     if method == "cyclegan":
         from spotlessgs.baselines2d.cyclegan.translate import translate_folder
 

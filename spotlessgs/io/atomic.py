@@ -1,4 +1,10 @@
-"""Atomic file writes: a reader never sees a half-written file, an interrupted write leaves the old one intact."""
+"""Atomic file writes: a reader never sees a half-written file, an interrupted write leaves the old one intact.
+
+Temporary files are named ``.<name>.partial-<random><suffix>`` beside their target, so that a process killed with
+SIGKILL (which runs no clean-up) leaves files that :func:`remove_partial_files` recognises and removes on the next
+run. Finished files get the permissions the process's umask gives a new file (``mkstemp`` would leave 0600), and a
+refused write (full disk, quota, read-only, permission) raises one line naming the file and the cause.
+"""
 
 from __future__ import annotations
 
@@ -7,8 +13,42 @@ import json
 import math
 import os
 import tempfile
+import threading
 from pathlib import Path
 from typing import IO, Any, Iterator
+
+from spotlessgs.io.errors import write_error
+
+#: Marks a temporary file of :func:`atomic_path` (see the module docstring).
+PARTIAL_MARK = ".partial-"
+_UMASK_LOCK = threading.Lock()
+
+
+def new_file_mode() -> int:
+    """The permission bits ``open(..., "w")`` would give a new file under the current umask (0o666 & ~umask)."""
+    with _UMASK_LOCK:  # os.umask can only be read by setting it
+        mask = os.umask(0o022)
+        os.umask(mask)
+    return 0o666 & ~mask
+
+
+def remove_partial_files(folder: str | os.PathLike, recursive: bool = True) -> list[Path]:
+    """Delete temporary files that an interrupted :func:`atomic_path` left in ``folder``; returns what was removed.
+
+    Only call it where no other process is writing (a locked run folder, a render that owns its dataset folder).
+    """
+    folder = Path(folder)
+    if not folder.is_dir():
+        return []
+    pattern = f".*{PARTIAL_MARK}*"
+    found = folder.rglob(pattern) if recursive else folder.glob(pattern)
+    removed = []
+    for path in found:
+        if path.is_file() and not path.is_symlink():
+            with contextlib.suppress(FileNotFoundError):
+                path.unlink()
+                removed.append(path)
+    return removed
 
 
 @contextlib.contextmanager
@@ -20,16 +60,24 @@ def atomic_path(path: str | os.PathLike, suffix: str | None = None) -> Iterator[
     as it was.
     """
     path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.stem}.", suffix=suffix or path.suffix, dir=path.parent)
-    os.close(fd)
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        fd, tmp = tempfile.mkstemp(prefix=f".{path.name}{PARTIAL_MARK}", suffix=suffix or path.suffix,
+                                   dir=path.parent)
+        os.close(fd)
+    except OSError as exc:
+        raise (write_error(path, exc) or exc) from exc
     tmp_path = Path(tmp)
     try:
         yield tmp_path
+        os.chmod(tmp_path, new_file_mode())
         os.replace(tmp_path, path)
-    except BaseException:
+    except BaseException as exc:
         with contextlib.suppress(FileNotFoundError):
             tmp_path.unlink()
+        refused = write_error(path, exc) if isinstance(exc, Exception) else None
+        if refused is not None:
+            raise refused from exc
         raise
 
 

@@ -27,6 +27,12 @@ def _find_sparse_dir(folder: Path) -> Path:
     raise FileNotFoundError(f"{folder}: no COLMAP model in sparse/0 or sparse (cameras.bin or cameras.txt)")
 
 
+def _camera_file(sparse: Path) -> Path:
+    """The file of a COLMAP model that holds its cameras (text or binary)."""
+    text = sparse / "cameras.txt"
+    return text if text.is_file() else sparse / "cameras.bin"
+
+
 def read_colmap_dataset(folder: str | os.PathLike, check_files: bool = False) -> DatasetDescription:
     """Read a COLMAP folder (``images/`` + ``sparse/0``) with a single pinhole (or zero-distortion) camera."""
     folder = Path(folder)
@@ -35,7 +41,10 @@ def read_colmap_dataset(folder: str | os.PathLike, check_files: bool = False) ->
     if not model.images:
         raise DatasetError(f"{sparse}: COLMAP model has no registered images")
     images = sorted(model.images.values(), key=lambda im: im.name)
-    intrinsics = {cid: model.cameras[cid].to_intrinsics() for cid in {im.camera_id for im in images}}
+    try:
+        intrinsics = {cid: model.cameras[cid].to_intrinsics() for cid in {im.camera_id for im in images}}
+    except ValueError as exc:  # a camera model we cannot use: name the file that defines it
+        raise DatasetError(f"{_camera_file(sparse)}: {exc}") from None
     if len(set(intrinsics.values())) > 1:
         raise DatasetError(f"{sparse}: images use {len(intrinsics)} different cameras; only one camera is supported")
     c2w_opencv = np.stack([im.c2w_opencv() for im in images])

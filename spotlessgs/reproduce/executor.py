@@ -12,12 +12,16 @@ import multiprocessing
 import os
 import sys
 import resource
+import signal
 import time
 from concurrent.futures import FIRST_COMPLETED, Future, ProcessPoolExecutor, wait
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from simulator.child_process import die_with_parent
+from simulator.child_process import drop_blender_script_paths as _drop_blender_script_paths
+from spotlessgs.io.signals import raise_on_sigterm
 from spotlessgs.reproduce.stages import (
     Stage, StageGraph, is_done, marker_path, prepare_retry, resolve, write_marker,
 )
@@ -50,36 +54,29 @@ def threads_per_job(jobs: int, cores: int | None = None) -> int:
     return max(1, cores // jobs)
 
 
-def _die_with_parent() -> bool:
-    """Linux: ask the kernel to SIGTERM this worker when the parent process dies, so that killing ``spotless
-    reproduce`` stops its stages too (their markers are then missing and a rerun redoes them). False elsewhere."""
-    try:
-        import ctypes
-        import signal
-
-        libc = ctypes.CDLL("libc.so.6", use_errno=True)
-        pr_set_pdeathsig = 1
-        return libc.prctl(pr_set_pdeathsig, int(signal.SIGTERM), 0, 0, 0) == 0
-    except (OSError, AttributeError):
-        return False
-
-
 def _init_worker(threads: int) -> None:
-    """Set the thread environment before the stage imports numpy/torch; tie the worker's life to the parent's."""
+    """Set the thread environment before the stage imports numpy/torch; tie the worker's life to the parent's;
+    SIGTERM raises in the stage (so that its atomic writes remove their temporary files) instead of ending it."""
     for key in _THREAD_ENV:
         os.environ[key] = str(threads)
     _drop_blender_script_paths()
-    _die_with_parent()
+    die_with_parent(signal.SIGTERM)
+    raise_on_sigterm()
 
 
-def _drop_blender_script_paths() -> None:
-    """Remove Blender's script folders from ``sys.path``.
-
-    A parent that has imported bpy has ``.../bpy/<version>/scripts/...`` on its path, and a spawned child inherits it:
-    there ``import bpy`` would find the pure-Python ``scripts/modules/bpy`` package before the compiled module and
-    fail with "No module named '_bpy'". The child's own ``import bpy`` puts the folders back in the right order.
-    """
-    sys.path[:] = [p for p in sys.path if not ("bpy" in Path(p).parts and "scripts" in Path(p).parts)]
+def _stop_workers(pool: ProcessPoolExecutor, grace_seconds: float = 5.0) -> None:
+    """SIGTERM every worker of ``pool`` (their stages stop; unfinished stages have no marker and are redone on the
+    next run), then SIGKILL those still alive after ``grace_seconds``. ``ProcessPoolExecutor`` has no public way to
+    stop running tasks before Python 3.14, hence its ``_processes``."""
+    workers = list((getattr(pool, "_processes", None) or {}).values())
+    for worker in workers:
+        if worker.is_alive():
+            worker.terminate()
+    deadline = time.monotonic() + grace_seconds
+    for worker in workers:
+        worker.join(max(0.0, deadline - time.monotonic()))
+        if worker.is_alive():
+            worker.kill()
 
 
 def run_stage(root: str, stage: Stage, threads: int) -> dict[str, Any]:
@@ -159,8 +156,9 @@ def execute(graph: StageGraph, root: str | Path, jobs: int = 1, cores: int | Non
                     else:
                         report.failed[name] = f"{type(error).__name__}: {error}"
                         log.error("stage %s failed: %s", name, report.failed[name])
-        except BaseException:
+        except BaseException:  # Ctrl-C, SIGTERM (spotlessgs.io.signals.Terminated) or a bug: stop every stage now
             pool.shutdown(wait=False, cancel_futures=True)
+            _stop_workers(pool)
             raise
     report.blocked.extend(n for n in pending if n not in report.blocked)
     if report.failed:

@@ -5,46 +5,64 @@ Run folder layout::
     RUN/run.json            data_dir, model variant, seed, preset (what ``spotless eval RUN`` reads)
     RUN/config.json         the resolved TrainConfig and model config, provenance
     RUN/metrics.jsonl       one JSON object per logged step
-    RUN/checkpoints/last.pt the latest checkpoint (atomic; a crash never leaves a half-written one)
+    RUN/checkpoints/last.safetensors  the latest checkpoint (atomic; a crash never leaves a half-written one)
+
+A checkpoint is a safetensors file (tensors) whose metadata holds the rest as JSON (:mod:`spotlessgs.io.tensor_file`):
+loading one from a shared or downloaded run folder cannot run code. Runs of older versions have
+``checkpoints/last.pt`` (a torch pickle); it is read with ``torch.load(weights_only=True)``, which only rebuilds
+tensors and plain containers and refuses anything else with a clear message, and the next save replaces it.
 """
 
 from __future__ import annotations
 
 import json
+import os
 from pathlib import Path
 from typing import Any
 
 import torch
 
-from spotlessgs.io.atomic import atomic_path
+from spotlessgs.io.errors import InputError
+from spotlessgs.io.tensor_file import load_plain_torch_file, load_tree, save_tree
 
 CHECKPOINT_VERSION = 1
+#: The ``format`` recorded in a checkpoint file's metadata.
+CHECKPOINT_FORMAT = "spotlessgs-checkpoint"
+#: Checkpoint file of runs written before the safetensors format (a torch pickle).
+LEGACY_CHECKPOINT = Path("checkpoints") / "last.pt"
 
 
-def checkpoint_path(run_dir: Path) -> Path:
-    """Where the latest checkpoint of a run lives."""
-    return Path(run_dir) / "checkpoints" / "last.pt"
+def checkpoint_path(run_dir: str | Path) -> Path:
+    """Where the latest checkpoint of a run is written."""
+    return Path(run_dir) / "checkpoints" / "last.safetensors"
+
+
+def existing_checkpoint(run_dir: str | Path) -> Path | None:
+    """The run's latest checkpoint file: the safetensors one, else an older version's ``last.pt``, else None."""
+    for path in (checkpoint_path(run_dir), Path(run_dir) / LEGACY_CHECKPOINT):
+        if path.is_file():
+            return path
+    return None
 
 
 def save_checkpoint(run_dir: Path, payload: dict[str, Any]) -> Path:
     """Write ``payload`` (tensors, state dicts, plain data) as the run's latest checkpoint, atomically."""
-    path = checkpoint_path(run_dir)
-    with atomic_path(path) as tmp:
-        torch.save({"version": CHECKPOINT_VERSION, **payload}, tmp)
+    path = save_tree(checkpoint_path(run_dir), {"version": CHECKPOINT_VERSION, **payload}, CHECKPOINT_FORMAT)
+    (Path(run_dir) / LEGACY_CHECKPOINT).unlink(missing_ok=True)  # an older version's file is superseded
     return path
 
 
 def load_checkpoint(run_dir: Path) -> dict[str, Any]:
-    """Read the run's latest checkpoint (CPU tensors)."""
-    path = checkpoint_path(run_dir)
-    if not path.is_file():
-        raise FileNotFoundError(f"{run_dir}: no checkpoint at {path} (train first with `spotless train`)")
-    try:
-        data = torch.load(path, map_location="cpu", weights_only=False)
-    except Exception as exc:  # torch raises several types for corrupt files
-        raise RuntimeError(f"{path}: cannot read checkpoint ({exc})") from None
-    if data.get("version") != CHECKPOINT_VERSION:
-        raise RuntimeError(f"{path}: checkpoint version {data.get('version')} is not {CHECKPOINT_VERSION}")
+    """Read the run's latest checkpoint (CPU tensors); nothing in the file can run code."""
+    path = existing_checkpoint(run_dir)
+    if path is None:
+        raise FileNotFoundError(f"{run_dir}: no checkpoint at {checkpoint_path(run_dir)} "
+                                "(train first with `spotless train`)")
+    data = load_tree(path, CHECKPOINT_FORMAT) if path.suffix == ".safetensors" else \
+        load_plain_torch_file(path, "this older-format checkpoint")
+    if not isinstance(data, dict) or data.get("version") != CHECKPOINT_VERSION:
+        found = data.get("version") if isinstance(data, dict) else type(data).__name__
+        raise InputError(f"{path}: checkpoint version {found} is not {CHECKPOINT_VERSION}")
     return data
 
 
@@ -54,6 +72,45 @@ def read_run_info(run_dir: Path) -> dict[str, Any]:
     if not path.is_file():
         raise FileNotFoundError(f"{run_dir}: not a training run (no run.json)")
     return json.loads(path.read_text())
+
+
+def data_dir_fields(data_dir: str | Path, run_dir: str | Path) -> dict[str, str | None]:
+    """run.json's dataset fields: ``data_dir`` (absolute) and ``data_dir_relative`` (relative to the run folder, so
+    that a run moved together with its dataset still finds it; None where no relative path exists)."""
+    data = Path(data_dir).resolve()
+    try:
+        relative = Path(os.path.relpath(data, Path(run_dir).resolve())).as_posix()
+    except ValueError:  # another drive (Windows)
+        relative = None
+    return {"data_dir": str(data), "data_dir_relative": relative}
+
+
+def resolve_data_dir(run_dir: str | Path, info: dict[str, Any], override: str | Path | None = None) -> Path:
+    """The dataset folder of a run: ``override`` (``--data``) when given, else run.json's path relative to the run
+    folder (``data_dir_relative``), else its absolute ``data_dir`` (older runs have only that; a relative
+    ``data_dir`` is taken relative to the run folder).
+
+    Raises:
+        InputError: ``override`` is not a folder, or neither recorded path is one (names the run and both paths and
+            suggests ``--data``).
+    """
+    run_dir = Path(run_dir)
+    if override is not None:
+        if not Path(override).is_dir():
+            raise InputError(f"{override}: --data is not a dataset folder (not found)")
+        return Path(override).resolve()
+    tried: list[str] = []
+    for key in ("data_dir_relative", "data_dir"):
+        value = info.get(key)
+        if not value:
+            continue
+        path = Path(value)
+        path = path if path.is_absolute() else run_dir / path
+        if path.is_dir():
+            return path.resolve()
+        tried.append(f"{key} {value!r} ({path})" if not Path(value).is_absolute() else f"{key} {value!r}")
+    shown = f"not found at {' nor at '.join(tried)}" if tried else "not recorded (run.json has no data_dir)"
+    raise InputError(f"{run_dir}: the run's dataset was {shown}; if the dataset moved, point at it with --data DIR")
 
 
 def truncate_metrics(path: Path, last_step: int) -> None:

@@ -16,6 +16,7 @@ import torch.nn.functional as F
 from spotlessgs.io.cameras import Intrinsics
 from spotlessgs.io.colorspace import srgb_to_linear
 from spotlessgs.io.dataset import load_initial_points, read_dataset
+from spotlessgs.io.frame_quality import FrameStats, frame_stats, usable_frames
 from spotlessgs.io.images import read_image
 from spotlessgs.io.ply import PointCloud
 from spotlessgs.io.transforms import DatasetDescription, LightTruth
@@ -70,12 +71,12 @@ class TrainingViews:
         return max(1.1 * radius, 0.1)
 
 
-def _load_linear(path: Path, linear_input: bool, threshold: float) -> tuple[np.ndarray, np.ndarray]:
-    """(H, W, 3) linear image and (H, W) clipped mask of one file."""
+def _load_linear(path: Path, linear_input: bool, threshold: float) -> tuple[np.ndarray, np.ndarray, FrameStats]:
+    """(H, W, 3) linear image, (H, W) clipped mask and the quality statistics of one file."""
     img = read_image(path)
     saturated = img.max(axis=2) >= threshold
     linear = img if linear_input else srgb_to_linear(img).astype(np.float32)
-    return linear.astype(np.float32), saturated
+    return linear.astype(np.float32), saturated, frame_stats(img, saturated)
 
 
 def _downscale(images: torch.Tensor, masks: torch.Tensor, size: tuple[int, int]) -> tuple[torch.Tensor, torch.Tensor]:
@@ -94,6 +95,10 @@ def load_training_views(
 ) -> TrainingViews:
     """Read a dataset folder and prepare its views for training.
 
+    Black and fully saturated frames are left out of ``train`` with a warning naming them
+    (:mod:`spotlessgs.io.frame_quality`); a dataset with no usable training frame, or whose frames are all one image,
+    raises InputError.
+
     Args:
         data_dir: our dataset folder, a nerfstudio folder or a COLMAP folder.
         image_width: training width in pixels (height keeps the aspect ratio); None = native size.
@@ -104,9 +109,10 @@ def load_training_views(
     intr = dataset.intrinsics
     if image_width is not None and image_width < intr.width:
         intr = intr.scaled(image_width / intr.width)
-    imgs, masks = [], []
+    imgs, masks, stats = [], [], []
     for path in dataset.image_paths:
-        img, sat = _load_linear(path, linear_input, saturation_threshold)
+        img, sat, quality = _load_linear(path, linear_input, saturation_threshold)
+        stats.append(quality)
         if img.shape[:2] != (dataset.intrinsics.height, dataset.intrinsics.width):
             raise ValueError(f"{path}: image is {img.shape[1]}x{img.shape[0]}, the camera says "
                              f"{dataset.intrinsics.width}x{dataset.intrinsics.height}")
@@ -115,15 +121,17 @@ def load_training_views(
         imgs.append(t_img[0])
         masks.append(t_sat[0])
     c2w = torch.as_tensor(dataset.c2w_opencv, dtype=torch.float32)
+    names = [p.name for p in dataset.image_paths]
+    train = usable_frames(str(dataset.root), names, stats, list(dataset.split.train))
     return TrainingViews(
         dataset=dataset,
-        names=[p.name for p in dataset.image_paths],
+        names=names,
         images=torch.stack(imgs),
         saturated=torch.stack(masks),
         c2w=c2w,
         viewmats=torch.linalg.inv(c2w),
         intrinsics=intr,
-        train=list(dataset.split.train),
+        train=train,
         test=list(dataset.split.test),
         light=dataset.light,
     )

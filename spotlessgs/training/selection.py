@@ -51,6 +51,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from spotlessgs.io.atomic import write_json
+from spotlessgs.io.folder_lock import folder_lock
 from spotlessgs.models.shading import ModelConfig, build_appearance_models
 from spotlessgs.training.config import TrainConfig
 
@@ -454,10 +455,11 @@ def train_auto(
     """
     from spotlessgs.training.trainer import train
 
-    decision = select_model(data_dir, run_dir, config, seed, selection, light_prior, resume, progress=False)
-    model = ModelConfig(**decision["chosen_model"])
-    result = train(data_dir, run_dir, model, config, seed=seed, resume=resume, light_prior=light_prior,
-                   progress=progress)
+    with folder_lock(run_dir, "spotless train --model auto"):
+        decision = select_model(data_dir, run_dir, config, seed, selection, light_prior, resume, progress=False)
+        model = ModelConfig(**decision["chosen_model"])
+        result = train(data_dir, run_dir, model, config, seed=seed, resume=resume, light_prior=light_prior,
+                       progress=progress)
     return decision, result
 
 

@@ -18,14 +18,18 @@ from typing import Any, Sequence
 import numpy as np
 import torch
 
-from spotlessgs.io.atomic import write_json
+from spotlessgs.io.atomic import remove_partial_files, write_json
+from spotlessgs.io.folder_lock import folder_lock
+from spotlessgs.io.paths import refuse_overlap
+from spotlessgs.io.signals import StopRequest, deferred_interrupts
 from spotlessgs.io.provenance import provenance
 from spotlessgs.io.seeding import numpy_rng, torch_generator
 from spotlessgs.models.gaussians import GaussianParams
 from spotlessgs.models.relightable import RelightableScene
 from spotlessgs.models.shading import MODEL_VARIANTS, ModelConfig
 from spotlessgs.training.checkpoint import (
-    checkpoint_path, load_checkpoint, read_run_info, save_checkpoint, truncate_metrics,
+    checkpoint_path, data_dir_fields, existing_checkpoint, load_checkpoint, read_run_info, resolve_data_dir,
+    save_checkpoint, truncate_metrics,
 )
 from spotlessgs.training.config import TrainConfig
 from spotlessgs.training.data import TrainingViews, initial_point_cloud, load_training_views
@@ -280,11 +284,22 @@ def train(
             start, see spotlessgs.training.warm_start) instead of the point cloud.
     """
     data_dir, run_dir = Path(data_dir).resolve(), Path(run_dir)
+    refuse_overlap(run_dir, {"--data": data_dir}, "the run folder (--out)")
+    with folder_lock(run_dir, "spotless train"), deferred_interrupts() as stop:
+        return _train_locked(data_dir, run_dir, variant, config, seed, resume, light_prior, progress, stop_after,
+                             init_from, stop)
+
+
+def _train_locked(data_dir: Path, run_dir: Path, variant: str | ModelConfig, config: TrainConfig, seed: int,
+                  resume: bool, light_prior: Sequence[float] | None, progress: bool, stop_after: int | None,
+                  init_from: str | Path | None, stop: StopRequest) -> TrainResult:
+    """:func:`train` with the run folder locked; ``stop`` is checked after every step (Ctrl-C, SIGTERM)."""
     if config.num_threads:
         torch.set_num_threads(config.num_threads)
     device = resolve_device(config.device)
     ckpt_file = checkpoint_path(run_dir)
-    run_info = {"data_dir": str(data_dir), "model": variant.name if isinstance(variant, ModelConfig) else variant,
+    run_info = {**data_dir_fields(data_dir, run_dir),
+                "model": variant.name if isinstance(variant, ModelConfig) else variant,
                 "seed": seed, "preset": config.preset,
                 "light_prior": None if light_prior is None else [float(v) for v in light_prior]}
     if init_from is not None:
@@ -292,12 +307,18 @@ def train(
     if isinstance(variant, ModelConfig):
         run_info["model_config"] = dataclasses.asdict(model_config(variant, config))
     resolved = {"train": dataclasses.asdict(config), "run": run_info}
-    if ckpt_file.is_file() and not resume:
+    remove_partial_files(run_dir, recursive=False)
+    remove_partial_files(run_dir / "checkpoints", recursive=False)
+    has_checkpoint = existing_checkpoint(run_dir) is not None
+    if has_checkpoint and not resume:
         raise FileExistsError(f"{run_dir} already holds a training run; pass --resume to continue it or use a new --out")
-    if resume and ckpt_file.is_file():
+    if resume and has_checkpoint:
         old = json.loads((run_dir / "config.json").read_text())
-        if {"train": old["train"], "run": old["run"]} != resolved:
+        moved = ("data_dir", "data_dir_relative")  # the dataset may have moved (--data DIR): not another setting
+        if old["train"] != resolved["train"] or ({k: v for k, v in old["run"].items() if k not in moved}
+                                                 != {k: v for k, v in run_info.items() if k not in moved}):
             raise ValueError(f"{run_dir}: --resume with other settings than the run was started with")
+        write_json(run_dir / "run.json", run_info)  # where the dataset is now
 
     views = load_training_views(data_dir, config.image_width, config.linear_input, config.saturation_threshold)
     if not views.train:
@@ -313,7 +334,7 @@ def train(
     c2ws, viewmats, K = views.c2w.to(device), views.viewmats.to(device), views.K.to(device)
 
     start = 0
-    if resume and ckpt_file.is_file():
+    if resume and has_checkpoint:
         ckpt = load_checkpoint(run_dir)
         scene = restore_scene(ckpt, run_info, config).to(device)
         strategy = make_strategy(config, extent, seed, device, scene, views, split)
@@ -397,11 +418,14 @@ def train(
                 metrics_file.flush()
                 bar.set_postfix(loss=f"{loss_value:.4f}", psnr=f"{rec['psnr']:.2f}", n=len(scene.gaussians),
                                 ms=f"{rec['ms_per_step']:.0f}")
-            if s % config.checkpoint_every == 0 or s == end:
+            if s % config.checkpoint_every == 0 or s == end or stop.requested:
                 # A NaN parameter of a visible Gaussian already shows in the next render (checked every step);
                 # this check, before every save, keeps any other one out of the checkpoint.
                 _check_finite(scene, step, ckpt_file)
                 save_checkpoint(run_dir, _payload(s, scene, opts, strategy))
+            if stop.requested:  # Ctrl-C / SIGTERM: the step is finished and saved; `--resume` continues from it
+                log.warning("stopped at step %d; the checkpoint %s holds it (resume with --resume)", s, ckpt_file)
+                stop.raise_if_requested()
     finally:
         metrics_file.close()
         bar.close()
@@ -469,13 +493,15 @@ def evaluate_reconstruction(scene: RelightableScene, views: TrainingViews, confi
     return float(np.mean(values))
 
 
-def load_run(run_dir: str | Path, device: str = "auto") -> tuple[RelightableScene, TrainingViews, TrainConfig, dict]:
-    """Load a finished (or interrupted) run: its model, its views at the training resolution, config and info."""
+def load_run(run_dir: str | Path, device: str = "auto", data_dir: str | Path | None = None,
+             ) -> tuple[RelightableScene, TrainingViews, TrainConfig, dict]:
+    """Load a finished (or interrupted) run: its model, its views at the training resolution, config and info.
+    ``data_dir`` points at the dataset when it has moved (else run.json's paths: see ``resolve_data_dir``)."""
     run_dir = Path(run_dir)
     info = read_run_info(run_dir)
     saved = json.loads((run_dir / "config.json").read_text())
     config = TrainConfig(**saved["train"])
-    views = load_training_views(info["data_dir"], config.image_width, config.linear_input,
+    views = load_training_views(resolve_data_dir(run_dir, info, data_dir), config.image_width, config.linear_input,
                                 config.saturation_threshold)
     scene = restore_scene(load_checkpoint(run_dir), info, config).to(resolve_device(device))
     scene.eval()

@@ -13,6 +13,7 @@ import torch
 
 from spotlessgs.baselines2d.cyclegan.config import CycleGANConfig
 from spotlessgs.io.atomic import atomic_path
+from spotlessgs.io.tensor_file import load_plain_torch_file
 
 CHECKPOINT_FORMAT = "spotlessgs-cyclegan-v1"
 CHECKPOINT_NAME = "checkpoint.pt"
@@ -31,10 +32,7 @@ def load_checkpoint(path: str | os.PathLike) -> dict[str, Any]:
     path = Path(path)
     if not path.is_file():
         raise FileNotFoundError(f"{path}: Cycle-GAN checkpoint not found")
-    try:
-        state = torch.load(path, map_location="cpu", weights_only=True)
-    except Exception as exc:  # torch raises several types for corrupt or foreign files
-        raise ValueError(f"{path}: cannot read Cycle-GAN checkpoint ({exc})") from exc
+    state = load_plain_torch_file(path, "Cycle-GAN checkpoint")
     if not isinstance(state, dict) or state.get("format") != CHECKPOINT_FORMAT:
         found = state.get("format") if isinstance(state, dict) else type(state).__name__
         raise ValueError(f"{path}: not a Cycle-GAN checkpoint (format {found!r}, expected {CHECKPOINT_FORMAT!r})")

@@ -35,6 +35,7 @@ from spotlessgs.baselines2d.cyclegan.data import ImageDomain, domain_fingerprint
 from spotlessgs.baselines2d.cyclegan.networks import build_discriminator, build_generator, init_weights
 from spotlessgs.baselines2d.cyclegan.pool import ImagePool
 from spotlessgs.io.atomic import write_json, write_text
+from spotlessgs.io.paths import refuse_overlap
 from spotlessgs.io.provenance import provenance
 from spotlessgs.io.seeding import numpy_rng, torch_generator
 
@@ -244,8 +245,9 @@ def train_cyclegan(
         ValueError: unreadable/too small images, or a checkpoint from a different config, seed or data.
     """
     out_dir = Path(out_dir)
-    out_dir.mkdir(parents=True, exist_ok=True)
     uneven_folders, even_folders = _as_folder_list(uneven_dirs), _as_folder_list(even_dirs)
+    refuse_overlap(out_dir, {f"--uneven/--even {d}": d for d in [*uneven_folders, *even_folders]}, "--out")
+    out_dir.mkdir(parents=True, exist_ok=True)
     domain_a = load_domain("uneven", uneven_folders, config.crop_height, config.crop_width)
     domain_b = load_domain("even", even_folders, config.crop_height, config.crop_width)
     fingerprints = {"uneven": domain_fingerprint(domain_a), "even": domain_fingerprint(domain_b)}

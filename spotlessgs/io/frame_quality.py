@@ -1,0 +1,95 @@
+"""Degenerate input frames: black, fully saturated, or all alike.
+
+A camera that was covered, a lamp that was off, an exposure that clipped everything, or a dataset written with one
+frame copied N times trains to nonsense that looks fine (an all-black sequence reaches "55 dB"). These checks run on
+the images as read from their files (values in [0, 1] in the file's encoding) before training; frames that carry no
+usable signal are named in one warning and left out of the fit, and when nothing usable is left it is an error.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import logging
+from collections import defaultdict
+from dataclasses import dataclass
+from typing import Sequence
+
+import numpy as np
+
+from spotlessgs.io.errors import InputError
+
+log = logging.getLogger(__name__)
+
+#: A frame is black when its 99th-percentile pixel (brightest channel) is below this (file encoding): 2 / 255.
+BLACK_LEVEL = 2.0 / 255.0
+#: A frame is saturated when at least this fraction of its pixels is clipped.
+SATURATED_FRACTION = 0.98
+
+
+@dataclass(frozen=True)
+class FrameStats:
+    """What the checks need of one frame (kept instead of the image)."""
+
+    bright_level: float  # 99th percentile over pixels of the brightest channel, file encoding
+    saturated_fraction: float  # fraction of clipped pixels
+    digest: str  # sha256 of the decoded pixels
+
+
+def frame_stats(image: np.ndarray, saturated: np.ndarray) -> FrameStats:
+    """Statistics of one (H, W, 3) image in [0, 1] and its (H, W) clipped mask."""
+    brightest = image.max(axis=2)
+    return FrameStats(
+        bright_level=float(np.percentile(brightest, 99.0)),
+        saturated_fraction=float(saturated.mean()),
+        digest=hashlib.sha256(np.ascontiguousarray(image, dtype=np.float32).tobytes()).hexdigest(),
+    )
+
+
+def problem(stats: FrameStats) -> str | None:
+    """``"black"``, ``"saturated"`` or None for a usable frame."""
+    if stats.bright_level < BLACK_LEVEL:
+        return "black"
+    if stats.saturated_fraction >= SATURATED_FRACTION:
+        return "saturated"
+    return None
+
+
+def _listing(names: Sequence[str], limit: int = 8) -> str:
+    shown = ", ".join(names[:limit])
+    return shown + (f" and {len(names) - limit} more" if len(names) > limit else "")
+
+
+def usable_frames(source: str, names: Sequence[str], stats: Sequence[FrameStats], candidates: Sequence[int]) -> list[int]:
+    """The indices among ``candidates`` whose frames carry signal; warns naming the others.
+
+    Args:
+        source: the dataset folder, for messages.
+        names: every frame's file name; ``stats``: every frame's :func:`frame_stats`.
+        candidates: the indices to filter (the training views).
+
+    Raises:
+        InputError: every candidate is black or saturated, or every frame of the dataset is the same image.
+    """
+    copies: dict[str, list[str]] = defaultdict(list)
+    for name, s in zip(names, stats):
+        copies[s.digest].append(name)
+    repeated = [group for group in copies.values() if len(group) > 1]
+    if repeated:
+        log.warning("%s: %d group(s) of identical frames, e.g. %s (a stalled camera or a copying error?)", source,
+                    len(repeated), _listing(repeated[0]))
+    bad = {k: problem(stats[k]) for k in candidates}
+    bad = {k: why for k, why in bad.items() if why is not None}
+    for why in ("black", "saturated"):
+        hit = [names[k] for k, w in bad.items() if w == why]
+        if hit:
+            log.warning("%s: %d %s frame(s) left out of training: %s", source, len(hit),
+                        "black (no signal)" if why == "black" else "fully saturated (clipped)", _listing(hit))
+    usable = [k for k in candidates if k not in bad]
+    if candidates and not usable:
+        kinds = " or ".join(sorted(set(bad.values())))
+        raise InputError(f"{source}: every training frame is {kinds} (e.g. {names[candidates[0]]}): nothing usable "
+                         "to train on; check the exposure, the lamp and the lens cap")
+    if len(stats) > 1 and len({s.digest for s in stats}) == 1:
+        raise InputError(f"{source}: all {len(stats)} frames are the same image ({names[0]} repeated): "
+                         "nothing to reconstruct from")
+    return usable
