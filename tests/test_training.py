@@ -378,7 +378,7 @@ def test_random_initialisation_in_the_frusta_when_a_dataset_has_no_points(tmp_pa
     for k in range(4):
         c2w = np.eye(4)
         c2w[0, 3] = 0.3 * k
-        write_png(tmp_path / "images" / f"f{k}.png", np.full((24, 32, 3), 0.5))
+        write_png(tmp_path / "images" / f"f{k}.png", np.full((24, 32, 3), 0.3 + 0.1 * k))  # identical frames are refused
         frames.append(FrameRecord(f"images/f{k}.png", c2w))
     write_transforms(tmp_path / "transforms.json", intr, frames, None)
     views = load_training_views(tmp_path)
