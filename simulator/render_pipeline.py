@@ -27,7 +27,6 @@ import dataclasses
 import logging
 import multiprocessing
 import os
-import pickle
 import re
 import shutil
 import signal
@@ -480,15 +479,32 @@ class _PipeLogHandler(logging.Handler):
             self.handleError(record)
 
 
-def _portable(exc: BaseException) -> tuple[bytes | None, str, str, str]:
-    """An exception as (pickle or None when it cannot be pickled, type name, message, traceback text)."""
+#: Exceptions the render process may report, rebuilt by name in the parent (nothing is unpickled from the child's
+#: report); any other type comes back as a RuntimeError that names it.
+_REPORTED_ERRORS = {cls.__name__: cls for cls in (
+    InputError, FileNotFoundError, FileExistsError, NotADirectoryError, IsADirectoryError, PermissionError, OSError,
+    ValueError, RuntimeError, MemoryError, KeyError, TypeError)}
+
+
+def _portable(exc: BaseException) -> tuple[list | None, str, str, str]:
+    """An exception as plain data, rebuilt by :func:`_rebuilt`: ([errno, strerror, filename] of an OSError or None,
+    type name, message, traceback text)."""
     text = "".join(traceback.format_exception(type(exc), exc, exc.__traceback__))
-    try:
-        payload = pickle.dumps(exc)
-        pickle.loads(payload)
-    except Exception:  # noqa: BLE001 - any unpicklable exception is sent as its type name and message
-        payload = None
-    return payload, type(exc).__name__, str(exc), text
+    os_fields = None
+    if isinstance(exc, OSError) and exc.errno is not None:
+        os_fields = [exc.errno, exc.strerror, None if exc.filename is None else str(exc.filename)]
+    return os_fields, type(exc).__name__, str(exc), text
+
+
+def _rebuilt(os_fields: list | None, type_name: str, message: str) -> BaseException:
+    """The parent's copy of a reported exception: the same type where it is a known one, with the same message (and
+    errno, strerror and filename for an OSError)."""
+    cls = _REPORTED_ERRORS.get(type_name)
+    if cls is None:
+        return RuntimeError(f"{type_name}: {message}")
+    if os_fields is not None and issubclass(cls, OSError):
+        return cls(*os_fields)
+    return cls(message)
 
 
 def _child_main(conn, parent_pid: int, out_dir: str, config: RenderConfig, execution: ExecutionOptions,
@@ -651,12 +667,7 @@ def _render_in_child(out_dir: Path, config: RenderConfig, execution: ExecutionOp
     if failure is not None:
         payload, type_name, message_text, text = failure
         remove_leftovers(out_dir, execution.shard, todo)
-        error: BaseException
-        try:
-            error = pickle.loads(payload) if payload is not None else RuntimeError(f"{type_name}: {message_text}")
-        except Exception:  # noqa: BLE001 - e.g. the exception's class cannot be imported here
-            error = RuntimeError(f"{type_name}: {message_text}")
-        raise error from _ChildTraceback(text)
+        raise _rebuilt(payload, type_name, message_text) from _ChildTraceback(text)
     if not finished:
         remove_leftovers(out_dir, execution.shard, todo)
         raise RenderProcessError(
