@@ -242,3 +242,39 @@ def test_start_of_run_clean_up_keeps_other_shards_files(tmp_path):
     remove_leftovers(tmp_path, (0, 1), frames=range(4))
     assert _leftovers(tmp_path) == []
     assert (tmp_path / "images" / "frame_00001.png").read_bytes() == b"a finished frame"
+
+
+def test_log_records_of_the_render_process_reach_the_parent_as_plain_records():
+    """The child's log handler sends each record, message formatted and traceback as text, over its pipe: nothing
+    in the record needs the child's objects to be rebuilt. The pipe is read with a timeout, so this cannot block."""
+    import logging
+    import multiprocessing
+
+    from simulator.render_pipeline import _PipeLogHandler
+
+    parent, child = multiprocessing.Pipe(duplex=True)
+    logger = logging.getLogger("spotless-test.render-child")
+    logger.propagate = False
+    handler = _PipeLogHandler(child)
+    logger.addHandler(handler)
+    try:
+        logger.warning("frame %d is black", 7)
+        try:
+            raise ValueError("bad face index 12")
+        except ValueError:
+            logger.exception("scene %s failed", "room.json")
+    finally:
+        logger.removeHandler(handler)
+    received = []
+    while parent.poll(5.0):
+        received.append(parent.recv())
+        if len(received) == 2:
+            break
+    assert [kind for kind, _ in received] == ["log", "log"]
+    first, second = (record for _, record in received)
+    assert (first.getMessage(), first.levelno, first.name) == ("frame 7 is black", logging.WARNING, logger.name)
+    assert second.getMessage().startswith("scene room.json failed\nTraceback")
+    assert "ValueError: bad face index 12" in second.getMessage()
+    assert second.exc_info is None and second.args is None
+    parent.close()
+    child.close()

@@ -748,3 +748,49 @@ def test_workers_drop_blender_script_paths_inherited_from_the_parent(monkeypatch
     monkeypatch.setattr(sys, "path", keep[:1] + fake + keep[1:])
     _drop_blender_script_paths()
     assert sys.path == keep
+
+
+@pytest.mark.parametrize("signame", ["SIGTERM", "SIGINT"])
+def test_a_stopped_pipeline_stops_its_workers_without_a_traceback(tmp_path, signame):
+    """A signal to the pipeline's process ends the running stage's worker within seconds; the pool's own threads
+    print nothing (a pool shut down before its workers were stopped failed in its manager thread)."""
+    import signal
+    import subprocess
+    import sys
+
+    script = (
+        "import sys; sys.path[:0] = sys.argv[1:3]\n"
+        "from spotlessgs.io.signals import raise_on_sigterm\n"
+        "from spotlessgs.reproduce.executor import execute\n"
+        "from spotlessgs.reproduce.stages import Stage, StageGraph\n"
+        "if __name__ == '__main__':\n"
+        "    raise_on_sigterm()\n"
+        "    try:\n"
+        "        execute(StageGraph([Stage('s', 'test_reproduce_units:sleep_forever', {'path': sys.argv[3]})]), "
+        "sys.argv[4], jobs=1)\n"
+        "    except KeyboardInterrupt as exc:\n"
+        "        print('stopped by', type(exc).__name__, file=sys.stderr)\n"
+        "        sys.exit(3)\n"
+    )
+    pid_file = tmp_path / "pid"
+    here = str(Path(__file__).parent)
+    root = str(Path(__file__).parents[1])
+    parent = subprocess.Popen([sys.executable, "-c", script, here, root, str(pid_file), str(tmp_path / "root")],
+                              stderr=subprocess.PIPE, text=True)
+    deadline = time.time() + 60
+    while not pid_file.exists() or not pid_file.read_text():
+        assert time.time() < deadline and parent.poll() is None, "the stage never started"
+        time.sleep(0.2)
+    worker = int(pid_file.read_text())
+    parent.send_signal(getattr(signal, signame))
+    _out, err = parent.communicate(timeout=30)
+    assert parent.returncode == 3, err
+    assert "stopped by" in err and "Traceback" not in err, err
+    try:
+        os.kill(worker, 0)
+    except ProcessLookupError:
+        pass
+    else:
+        os.kill(worker, signal.SIGKILL)
+        pytest.fail("the worker outlived the stopped pipeline")
+    assert not is_done(tmp_path / "root", "s")

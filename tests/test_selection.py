@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import dataclasses
 import json
+import shutil
 import math
 
 import pytest
@@ -368,6 +369,12 @@ def test_train_model_auto_writes_the_decision_prints_the_table_and_trains_the_ch
     assert again.exit_code == 2 and "--resume" in again.output and "Traceback" not in again.output
     resumed = CliRunner().invoke(main, [*args, "--resume"])
     assert resumed.exit_code == 0, resumed.output
+    moved = tmp_path / "moved-data"  # the dataset moved: --resume with --data at its new place reuses the decision
+    shutil.copytree(box_room, moved)
+    args_moved = [str(moved) if a == str(box_room) else a for a in args]
+    resumed = CliRunner().invoke(main, [*args_moved, "--resume"])
+    assert resumed.exit_code == 0, resumed.output
+    assert json.loads((out / SELECTION_FILE).read_text()) == decision
     from spotlessgs.training.selection import select_model
 
     with pytest.raises(ValueError, match="other selection settings"):
@@ -472,7 +479,6 @@ def test_trainconfig_holds_out_views_or_blocks_not_both():
 def test_held_out_pixels_never_influence_training_only_the_validation_score(box_room, tmp_path):
     """Two datasets that differ only in the held-out pixels (white in one) train to identical models, while the
     validation PSNR, computed on exactly those pixels, drops for the altered one."""
-    import shutil
 
     import numpy as np
     from PIL import Image

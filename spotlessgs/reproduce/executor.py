@@ -67,7 +67,8 @@ def _init_worker(threads: int) -> None:
 def _stop_workers(pool: ProcessPoolExecutor, grace_seconds: float = 5.0) -> None:
     """SIGTERM every worker of ``pool`` (their stages stop; unfinished stages have no marker and are redone on the
     next run), then SIGKILL those still alive after ``grace_seconds``. ``ProcessPoolExecutor`` has no public way to
-    stop running tasks before Python 3.14, hence its ``_processes``."""
+    stop running tasks before Python 3.14, hence its ``_processes``; call it before ``pool.shutdown()``, which drops
+    that table (with ``wait=False`` the pool's manager thread then fails on it)."""
     workers = list((getattr(pool, "_processes", None) or {}).values())
     for worker in workers:
         if worker.is_alive():
@@ -157,8 +158,8 @@ def execute(graph: StageGraph, root: str | Path, jobs: int = 1, cores: int | Non
                         report.failed[name] = f"{type(error).__name__}: {error}"
                         log.error("stage %s failed: %s", name, report.failed[name])
         except BaseException:  # Ctrl-C, SIGTERM (spotlessgs.io.signals.Terminated) or a bug: stop every stage now
-            pool.shutdown(wait=False, cancel_futures=True)
-            _stop_workers(pool)
+            _stop_workers(pool)  # first: shutdown() forgets the pool's processes
+            pool.shutdown(wait=True, cancel_futures=True)
             raise
     report.blocked.extend(n for n in pending if n not in report.blocked)
     if report.failed:

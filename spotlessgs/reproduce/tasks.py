@@ -69,7 +69,8 @@ def render_room(scene_file: str, out_dir: str, variant: str, frames: int, width:
     from simulator.render_pipeline import ExecutionOptions, RenderConfig, render_dataset
 
     config = RenderConfig.from_preset(variant, frames=frames, width=width, height=height, samples=samples, seed=seed)
-    summary = render_dataset(scene_file, out_dir, config, execution=ExecutionOptions(threads=threads, progress=False))
+    execution = ExecutionOptions(threads=threads, progress=False, quiet=True)
+    summary = render_dataset(scene_file, out_dir, config, execution=execution)
     if not summary["complete"]:
         raise RuntimeError(f"{out_dir}: rendering finished but the dataset is incomplete: {summary}")
     return summary

@@ -347,7 +347,9 @@ def select_model(
             raise ValueError(f"{path}: made by model selection version {decision.get('version')}, this is version "
                              f"{SELECTION_VERSION} (other candidates and measurements); remove {path} and "
                              f"{run_dir / 'selection'} to decide again, or use a new --out")
-        if decision.get("settings") != settings:
+        stored = dict(decision.get("settings") or {})
+        moved = {"data_dir"}  # the dataset may have moved (--data DIR): not another setting
+        if {k: v for k, v in stored.items() if k not in moved} != {k: v for k, v in settings.items() if k not in moved}:
             raise ValueError(f"{path}: --resume with other selection settings than the run was started with")
         return decision
     proxy = proxy_config(config, selection)
