@@ -47,8 +47,9 @@ from spotlessgs.io.atomic import PARTIAL_MARK, remove_partial_files, to_jsonable
 from spotlessgs.io.cameras import Intrinsics
 from spotlessgs.io.colmap_text import model_from_poses, write_colmap_text
 from spotlessgs.io.colorspace import linear_to_srgb
-from spotlessgs.io.errors import InputError
+from spotlessgs.io.errors import FolderLockedError, InputError, OutputOverlapError, WriteError
 from spotlessgs.io.exr import FrameEXR, read_frame_exr, write_frame_exr
+from spotlessgs.io.folder_lock import folder_lock
 from spotlessgs.io.images import read_image, write_png
 from spotlessgs.io.paths import refuse_overlap
 from spotlessgs.io.ply import write_point_cloud
@@ -412,7 +413,27 @@ def render_dataset(
     refuse_overlap(out_dir, render_inputs(scene_path, load), "--out")
     scene, room, objects, poses = plan_poses(scene_path, config, load)
     check_scene(scene_path, room, objects, scene.lights, config)
-    out_dir.mkdir(parents=True, exist_ok=True)
+    with _render_lock(out_dir, execution.shard):
+        return _render_planned(scene_path, out_dir, config, execution, scene, room, objects, poses)
+
+
+@contextlib.contextmanager
+def _render_lock(out_dir: Path, shard: tuple[int, int]):
+    """An unsharded render holds ``OUT/.lock`` alone; a shard holds it shared with the other shards, and its own
+    ``OUT/.lock-shard-I-of-N`` alone (the same shard twice, or a whole render beside shards, is refused)."""
+    index, count = shard
+    command = "spotless-sim render" + (f" --shard {index}/{count}" if count > 1 else "")
+    with contextlib.ExitStack() as stack:
+        stack.enter_context(folder_lock(out_dir, command, shared=count > 1))
+        if count > 1:
+            stack.enter_context(folder_lock(out_dir, command, name=f".lock-shard-{index}-of-{count}"))
+        yield
+
+
+def _render_planned(scene_path: Path, out_dir: Path, config: RenderConfig, execution: ExecutionOptions, scene, room,
+                    objects, poses: np.ndarray) -> dict[str, Any]:
+    """:func:`render_dataset` once the room is checked and ``out_dir`` is locked."""
+    shard_index, shard_count = execution.shard
     _prepare_plan(out_dir, scene_path, config, poses)  # first: a folder of another dataset is left untouched
     mine = [k for k in range(len(poses)) if k % shard_count == shard_index]
     remove_leftovers(out_dir, execution.shard, mine)
@@ -479,11 +500,12 @@ class _PipeLogHandler(logging.Handler):
             self.handleError(record)
 
 
-#: Exceptions the render process may report, rebuilt by name in the parent (nothing is unpickled from the child's
-#: report); any other type comes back as a RuntimeError that names it.
+#: Exceptions the render process may report, rebuilt by name in the parent from plain data (the child's exception
+#: object is never pickled); any other type comes back as a RuntimeError that names it.
 _REPORTED_ERRORS = {cls.__name__: cls for cls in (
-    InputError, FileNotFoundError, FileExistsError, NotADirectoryError, IsADirectoryError, PermissionError, OSError,
-    ValueError, RuntimeError, MemoryError, KeyError, TypeError)}
+    InputError, OutputOverlapError, WriteError, FolderLockedError, FileNotFoundError, FileExistsError,
+    NotADirectoryError, IsADirectoryError, PermissionError, OSError, ValueError, RuntimeError, MemoryError, KeyError,
+    TypeError)}
 
 
 def _portable(exc: BaseException) -> tuple[list | None, str, str, str]:
@@ -628,7 +650,8 @@ def _render_in_child(out_dir: Path, config: RenderConfig, execution: ExecutionOp
         with _sigint_ignored():
             process.start()
         child_conn.close()
-        conn.send((room_scene, poses, todo))
+        with contextlib.suppress(BrokenPipeError, ConnectionResetError):  # a child dead before reading: its exit
+            conn.send((room_scene, poses, todo))                           # status is reported below
         started = last = time.perf_counter()
         while True:
             if not conn.poll(0.2):

@@ -28,6 +28,7 @@ import numpy as np
 from spotlessgs.io.atomic import atomic_path, remove_partial_files, write_json
 from spotlessgs.io.colorspace import linear_to_srgb
 from spotlessgs.io.exr import read_frame_exr
+from spotlessgs.io.folder_lock import folder_lock
 from spotlessgs.io.images import write_png
 from spotlessgs.io.paths import refuse_overlap
 from spotlessgs.io.seeding import numpy_rng
@@ -107,27 +108,27 @@ def add_sensor_noise_to_dataset(data: str | Path, out: str | Path, noise: Sensor
         if frame.exr_file_path is None:
             raise ValueError(f"{data}: frame {frame.file_path} has no linear render (exr_file_path)")
         frames.append((index, frame))
-    out.mkdir(parents=True, exist_ok=True)
-    remove_partial_files(out)
-    write_json(record_path, record)
-    for name in COPIED:
-        src, dst = data / name, out / name
-        if not src.exists() or dst.exists():
-            continue
-        if src.is_dir():  # copied into a hidden folder that a killed run's successor completes, then renamed
-            partial = dst.with_name(f".{dst.name}.partial-copy")
-            shutil.copytree(src, partial, dirs_exist_ok=True)
-            partial.rename(dst)
-        else:
-            with atomic_path(dst) as tmp:
-                shutil.copy2(src, tmp)
-    written = 0
-    for index, frame in frames:
-        target = out / frame.file_path
-        if target.is_file():
-            continue
-        linear = read_frame_exr(data / frame.exr_file_path).uneven
-        noisy = add_sensor_noise(linear, noise, numpy_rng(seed, f"sensor-noise/{index}"))
-        write_png(target, linear_to_srgb(noisy))
-        written += 1
-    return written
+    with folder_lock(out, "spotless-sim add-noise"):  # one writer: a second run would remove its partial files
+        remove_partial_files(out)
+        write_json(record_path, record)
+        for name in COPIED:
+            src, dst = data / name, out / name
+            if not src.exists() or dst.exists():
+                continue
+            if src.is_dir():  # copied into a hidden folder that a killed run's successor completes, then renamed
+                partial = dst.with_name(f".{dst.name}.partial-copy")
+                shutil.copytree(src, partial, dirs_exist_ok=True)
+                partial.rename(dst)
+            else:
+                with atomic_path(dst) as tmp:
+                    shutil.copy2(src, tmp)
+        written = 0
+        for index, frame in frames:
+            target = out / frame.file_path
+            if target.is_file():
+                continue
+            linear = read_frame_exr(data / frame.exr_file_path).uneven
+            noisy = add_sensor_noise(linear, noise, numpy_rng(seed, f"sensor-noise/{index}"))
+            write_png(target, linear_to_srgb(noisy))
+            written += 1
+        return written

@@ -66,8 +66,7 @@ def train(data_dir, run_dir, model, preset, iterations, image_width, seed, resum
                        ("light_prior_weight", light_prior_weight), ("max_gaussians", max_gaussians)):
         if value is not None:
             overrides[key] = value
-    overrides.update(budget_overrides(gaussian_budget))
-    config = make_preset(preset, **overrides)
+    config = make_preset(preset, strategy="budget" if gaussian_budget else "default", **overrides)
     prior = list(light_prior) if light_prior else None
     if model == "auto":
         from spotlessgs.training.selection import format_selection_table, selection_config, train_auto
@@ -84,11 +83,6 @@ def train(data_dir, run_dir, model, preset, iterations, image_width, seed, resum
     psnr = "n/a" if result.test_psnr is None else f"{result.test_psnr:.2f} dB"
     click.echo(f"{run_dir}: {result.steps} steps, {result.num_gaussians} Gaussians, {result.ms_per_step:.0f} ms/step, "
                f"test reconstruction PSNR {psnr}")
-
-
-def budget_overrides(gaussian_budget: bool) -> dict:
-    """TrainConfig fields of ``--gaussian-budget`` (every 8th training view held out until densification ends)."""
-    return {"gaussian_budget": True, "validation_every": 8, "validation_rejoin": True} if gaussian_budget else {}
 
 
 @main.command()

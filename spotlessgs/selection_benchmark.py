@@ -30,7 +30,6 @@ from __future__ import annotations
 import dataclasses
 import json
 import logging
-import math
 import tempfile
 import time
 from dataclasses import dataclass
@@ -41,6 +40,10 @@ import click
 
 from spotlessgs.io.atomic import write_json, write_text
 from spotlessgs.io.provenance import provenance
+from spotlessgs.training.budget import (
+    BUDGET_MAX_LOSS_DB, BUDGET_MIN_REDUCTION_PCT, EPS, budget_verdict, check_finite,
+)
+from spotlessgs.training.light_need import light_note
 
 log = logging.getLogger(__name__)
 
@@ -51,13 +54,6 @@ ROW_FILE = "selection_benchmark_row.json"
 TIMING_FILE = "selection_timing.json"
 # Run key -> folder under OUT/<room>/.
 RUN_FOLDERS = {"spotless": "spotless", "chosen": "auto", "budget": "spotless-budget"}
-# Acceptance bounds of the Gaussian budget: at least this many % fewer Gaussians than the default strategy, at most
-# this many dB lower exposure-aligned relit PSNR.
-BUDGET_MIN_REDUCTION_PCT = 30.0
-BUDGET_MAX_LOSS_DB = 0.2
-# Slack of the verdict comparisons (dB and %): a value exactly at a bound counts as within / met despite float
-# rounding (e.g. 20.1 - 20.3 = -0.2000000000000028).
-EPS = 1e-9
 # The bounds as recorded in the results JSON.
 BOUNDS = {"budget_min_reduction_pct": BUDGET_MIN_REDUCTION_PCT, "budget_max_loss_db": BUDGET_MAX_LOSS_DB}
 
@@ -89,9 +85,8 @@ class BenchmarkSettings:
 
 
 def train_config(settings: BenchmarkSettings, gaussian_budget: bool):
-    """The TrainConfig of a run: the preset with the settings' overrides, plus the fields of ``--gaussian-budget``
-    (spotlessgs.cli.budget_overrides) when ``gaussian_budget``."""
-    from spotlessgs.cli import budget_overrides
+    """The TrainConfig of a run: the preset with the settings' overrides, with the ``budget`` densification strategy
+    (``spotless train --gaussian-budget``) when ``gaussian_budget``."""
     from spotlessgs.training.config import preset
 
     overrides: dict[str, Any] = {"num_threads": settings.threads}
@@ -99,8 +94,7 @@ def train_config(settings: BenchmarkSettings, gaussian_budget: bool):
         overrides["iterations"] = settings.iterations
     if settings.image_width is not None:
         overrides["image_width"] = settings.image_width
-    overrides.update(budget_overrides(gaussian_budget))
-    return preset(settings.preset, **overrides)
+    return preset(settings.preset, strategy="budget" if gaussian_budget else "default", **overrides)
 
 
 def selection_config(settings: BenchmarkSettings):
@@ -195,38 +189,11 @@ def selection_verdict(chosen_psnr: float, spotless_psnr: float, tolerance_db: fl
     Returns ``delta_db`` (chosen − spotless), ``tolerance_db`` and ``within`` (delta ≥ −tolerance, at the bound
     included).
     """
-    _check_finite("selection_verdict", chosen_psnr=chosen_psnr, spotless_psnr=spotless_psnr, tolerance_db=tolerance_db)
+    check_finite("selection_verdict", chosen_psnr=chosen_psnr, spotless_psnr=spotless_psnr, tolerance_db=tolerance_db)
     if tolerance_db < 0:
         raise ValueError(f"selection_verdict: tolerance_db must be >= 0, got {tolerance_db}")
     delta = chosen_psnr - spotless_psnr
     return {"delta_db": delta, "tolerance_db": tolerance_db, "within": delta >= -tolerance_db - EPS}
-
-
-def budget_verdict(default_gaussians: int, budget_gaussians: int, default_psnr: float, budget_psnr: float,
-                   min_reduction_pct: float = BUDGET_MIN_REDUCTION_PCT,
-                   max_loss_db: float = BUDGET_MAX_LOSS_DB) -> dict[str, Any]:
-    """Does the budget keep at least ``min_reduction_pct`` % fewer Gaussians than the default strategy while losing
-    at most ``max_loss_db`` dB of relit PSNR?
-
-    Returns ``reduction_pct`` (100 · (default − budget) / default; negative = more Gaussians), ``delta_db``
-    (budget − default), the bounds and ``met`` (both bounds hold, exactly at a bound included).
-    """
-    _check_finite("budget_verdict", default_psnr=default_psnr, budget_psnr=budget_psnr,
-                  min_reduction_pct=min_reduction_pct, max_loss_db=max_loss_db)
-    if default_gaussians < 1 or budget_gaussians < 1:
-        raise ValueError(f"budget_verdict: Gaussian counts must be >= 1, got default {default_gaussians}, "
-                         f"budget {budget_gaussians}")
-    reduction = 100.0 * (default_gaussians - budget_gaussians) / default_gaussians
-    delta = budget_psnr - default_psnr
-    met = reduction >= min_reduction_pct - EPS and delta >= -max_loss_db - EPS
-    return {"reduction_pct": reduction, "delta_db": delta, "min_reduction_pct": min_reduction_pct,
-            "max_loss_db": max_loss_db, "met": met}
-
-
-def _check_finite(where: str, **values: float) -> None:
-    for name, value in values.items():
-        if value is None or not math.isfinite(value):
-            raise ValueError(f"{where}: {name} is not a finite number, got {value}")
 
 
 def _signed(value: float, spec: str) -> str:
@@ -293,12 +260,6 @@ def measure_room(data: Path, room_dir: Path, settings: BenchmarkSettings) -> dic
     room = {"data": str(data), "selection": selection, "runs": runs}
     room["verdicts"] = room_verdicts(room)
     return room
-
-
-def light_note(need: dict[str, Any]) -> str:
-    """``; low-frequency light needed (dark level 0.054, share 8.3%)`` for a decision's light measurements."""
-    return (f"; low-frequency light {'needed' if need['needed'] else 'not needed'} (dark level "
-            f"{need['dark_level']:.3f}, share {100 * need['low_frequency_share']:.1f}%)")
 
 
 def markdown_report(rooms: dict[str, dict[str, Any]], settings: BenchmarkSettings) -> str:

@@ -8,7 +8,6 @@ rendered by ray casting (no Blender).
 from __future__ import annotations
 
 import hashlib
-import json
 import os
 import pickle
 import shutil

@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import json
 import os
+import subprocess
 from pathlib import Path
 
 import numpy as np
@@ -339,8 +340,7 @@ def test_frame_checks_name_black_frames_in_one_warning_line_each(caplog):
     ]
 
 
-def _cli(*args: str, timeout: float = 300) -> "subprocess.CompletedProcess[str]":
-    import subprocess
+def _cli(*args: str, timeout: float = 300) -> subprocess.CompletedProcess[str]:
     import sys
 
     return subprocess.run([sys.executable, "-m", "simulator.cli", *args], capture_output=True, text=True,

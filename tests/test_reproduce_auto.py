@@ -35,12 +35,12 @@ def auto_run(tmp_path_factory):
 
 
 def test_auto_config_is_the_gaussian_budget_of_the_command_line():
-    from spotlessgs.cli import budget_overrides
+    from spotlessgs.training.config import STRATEGIES
 
     auto = method_train_config("auto", "tiny", 40, 32, threads=1)
     fixed = method_train_config("spotless", "tiny", 40, 32, threads=1)
     assert auto.gaussian_budget and auto.validation_every >= 2 and not fixed.gaussian_budget
-    assert auto.replace(**{k: getattr(fixed, k) for k in budget_overrides(True)}) == fixed  # nothing else differs
+    assert auto.replace(**{k: getattr(fixed, k) for k in STRATEGIES["budget"]}) == fixed  # nothing else differs
     assert (auto.iterations, auto.image_width, auto.num_threads) == (40, 32, 1)
 
 

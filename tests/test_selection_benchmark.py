@@ -13,9 +13,11 @@ from click.testing import CliRunner
 
 from conftest import synthetic_box_dataset
 from spotlessgs.selection_benchmark import (
-    PLOT, RESULTS_JSON, RESULTS_MD, ROW_FILE, RUN_FOLDERS, BenchmarkSettings, aggregate_seeds, budget_verdict, main,
-    light_note, run_seeds, run_selection_benchmark, selection_verdict, train_config, verdict_lines,
+    PLOT, RESULTS_JSON, RESULTS_MD, ROW_FILE, RUN_FOLDERS, BenchmarkSettings, aggregate_seeds, main, run_seeds,
+    run_selection_benchmark, selection_verdict, train_config, verdict_lines,
 )
+from spotlessgs.training.budget import budget_verdict
+from spotlessgs.training.light_need import light_note
 
 pytestmark = pytest.mark.usefixtures("one_torch_thread")
 
@@ -95,12 +97,12 @@ def test_bad_inputs_are_refused(call, match):
 
 
 def test_budget_run_uses_the_command_line_budget_fields():
-    from spotlessgs.cli import budget_overrides
+    from spotlessgs.training.config import STRATEGIES
 
     default, budget = train_config(SETTINGS, False), train_config(SETTINGS, True)
     assert (default.iterations, default.image_width, default.num_threads) == (40, 32, 1)
     assert not default.gaussian_budget
-    assert budget == default.replace(**budget_overrides(True))
+    assert budget == default.replace(**STRATEGIES["budget"])
 
 
 # ---- the whole benchmark ---------------------------------------------------------------------------------------

@@ -408,3 +408,14 @@ def test_overriding_iterations_scales_the_densification_schedule():
     # an explicitly given schedule field is kept as given
     assert preset("quick", iterations=1000, densify_until=900).densify_until == 900
     assert preset("quick").densify_until == quick.densify_until
+
+
+def test_the_densification_strategy_is_a_named_config_choice():
+    from spotlessgs.training.config import STRATEGIES, preset
+
+    default, budget = preset("tiny"), preset("tiny", strategy="budget")
+    assert not default.gaussian_budget and budget.gaussian_budget and budget.validation_every == 8
+    assert budget == default.replace(**STRATEGIES["budget"])  # nothing else differs
+    assert preset("tiny", strategy="budget", validation_every=4).validation_every == 4  # overrides win
+    with pytest.raises(ValueError, match="unknown densification strategy 'greedy'"):
+        preset("tiny", strategy="greedy")

@@ -21,6 +21,8 @@ import json
 from pathlib import Path
 
 from spotlessgs.io.atomic import write_json
+from spotlessgs.io.folder_lock import folder_lock
+from spotlessgs.io.paths import refuse_overlap
 from spotlessgs.reproduce.config import NOISY_VARIANT, ReproduceConfig
 from spotlessgs.reproduce.executor import RunReport, execute
 from spotlessgs.reproduce.stages import Stage, StageGraph
@@ -138,10 +140,12 @@ def reproduce(config: ReproduceConfig, out: str | Path, jobs: int = 1) -> RunRep
 
     Raises:
         ValueError: ``out`` was made with other settings; FileNotFoundError: a shipped room is missing;
+        spotlessgs.io.errors.FolderLockedError: another process is running a reproduction into ``out``;
         spotlessgs.reproduce.executor.StageFailedError: a stage raised (the others keep their results).
     """
     out = Path(out)
+    refuse_overlap(out, {"--scenes-dir": config.scenes_dir}, "--out")
     graph = build_graph(config, out)  # checks the rooms exist before anything is written
-    out.mkdir(parents=True, exist_ok=True)
-    check_or_record_config(config, out)
-    return execute(graph, out, jobs=jobs)
+    with folder_lock(out, "spotless reproduce"):  # a second reproduce into OUT would delete the stages this one runs
+        check_or_record_config(config, out)
+        return execute(graph, out, jobs=jobs)

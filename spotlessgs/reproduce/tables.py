@@ -26,7 +26,8 @@ from dataclasses import dataclass, field
 from typing import Any, Sequence
 
 from spotlessgs.reproduce import paper
-from spotlessgs.selection_benchmark import BUDGET_MAX_LOSS_DB, EPS, light_note
+from spotlessgs.training.budget import BUDGET_MAX_LOSS_DB, EPS
+from spotlessgs.training.light_need import light_note
 
 LABELS = {
     "input": "Input (spotlight-lit)", "3dgs": "3DGS", "darkgs": "DarkGS", "darkgs-calibrated": "DarkGS (calibrated)",

@@ -177,9 +177,9 @@ AUTO_METHOD = "auto"
 
 def method_train_config(variant: str, train_preset: str, iterations: int | None, image_width: int | None,
                         threads: int):
-    """The TrainConfig of one method: the trainer preset with the run's overrides; for ``auto`` also the fields of
-    ``spotless train --gaussian-budget`` (spotlessgs.cli.budget_overrides), so that the reproduction trains exactly
-    what the command line does."""
+    """The TrainConfig of one method: the trainer preset with the run's overrides; for ``auto`` the ``budget``
+    densification strategy of ``spotless train --gaussian-budget``, so that the reproduction trains exactly what the
+    command line does."""
     from spotlessgs.training.config import preset as train_config
 
     overrides: dict[str, Any] = {"num_threads": threads}
@@ -187,11 +187,7 @@ def method_train_config(variant: str, train_preset: str, iterations: int | None,
         overrides["iterations"] = iterations
     if image_width is not None:
         overrides["image_width"] = image_width
-    if variant == AUTO_METHOD:
-        from spotlessgs.cli import budget_overrides
-
-        overrides.update(budget_overrides(True))
-    return train_config(train_preset, **overrides)
+    return train_config(train_preset, strategy="budget" if variant == AUTO_METHOD else "default", **overrides)
 
 
 def select_auto_model(data: Path, run: Path, config, seed: int,

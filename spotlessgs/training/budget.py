@@ -28,6 +28,7 @@ from __future__ import annotations
 import math
 from collections.abc import Callable
 from dataclasses import dataclass
+from typing import Any
 
 import torch
 
@@ -193,3 +194,44 @@ def budget_report(strategy: BudgetStrategy, final_gaussians: int, config) -> dic
                      "contribution_views": int(config.budget_contribution_views)},
         "checks": list(strategy.checks),
     }
+
+
+# ---------------------------------------------------------------------------------------------------------------------
+# Acceptance bounds: what a budget run must achieve against the default strategy (judged by the benchmarks and the
+# reproduction's report)
+
+# Acceptance bounds of the Gaussian budget: at least this many % fewer Gaussians than the default strategy, at most
+# this many dB lower exposure-aligned relit PSNR.
+BUDGET_MIN_REDUCTION_PCT = 30.0
+BUDGET_MAX_LOSS_DB = 0.2
+# Slack of the verdict comparisons (dB and %): a value exactly at a bound counts as within / met despite float
+# rounding (e.g. 20.1 - 20.3 = -0.2000000000000028).
+EPS = 1e-9
+
+
+def budget_verdict(default_gaussians: int, budget_gaussians: int, default_psnr: float, budget_psnr: float,
+                   min_reduction_pct: float = BUDGET_MIN_REDUCTION_PCT,
+                   max_loss_db: float = BUDGET_MAX_LOSS_DB) -> dict[str, Any]:
+    """Does the budget keep at least ``min_reduction_pct`` % fewer Gaussians than the default strategy while losing
+    at most ``max_loss_db`` dB of relit PSNR?
+
+    Returns ``reduction_pct`` (100 · (default − budget) / default; negative = more Gaussians), ``delta_db``
+    (budget − default), the bounds and ``met`` (both bounds hold, exactly at a bound included).
+    """
+    check_finite("budget_verdict", default_psnr=default_psnr, budget_psnr=budget_psnr,
+                  min_reduction_pct=min_reduction_pct, max_loss_db=max_loss_db)
+    if default_gaussians < 1 or budget_gaussians < 1:
+        raise ValueError(f"budget_verdict: Gaussian counts must be >= 1, got default {default_gaussians}, "
+                         f"budget {budget_gaussians}")
+    reduction = 100.0 * (default_gaussians - budget_gaussians) / default_gaussians
+    delta = budget_psnr - default_psnr
+    met = reduction >= min_reduction_pct - EPS and delta >= -max_loss_db - EPS
+    return {"reduction_pct": reduction, "delta_db": delta, "min_reduction_pct": min_reduction_pct,
+            "max_loss_db": max_loss_db, "met": met}
+
+
+def check_finite(where: str, **values: float) -> None:
+    """ValueError naming ``where`` and the value unless every one of ``values`` is a finite number."""
+    for name, value in values.items():
+        if value is None or not math.isfinite(value):
+            raise ValueError(f"{where}: {name} is not a finite number, got {value}")

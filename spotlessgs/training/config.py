@@ -166,8 +166,19 @@ PRESETS: dict[str, TrainConfig] = {
 SCHEDULE_FIELDS = ("densify_from", "densify_until", "densify_every", "opacity_reset_every")
 
 
-def preset(name: str, **overrides: Any) -> TrainConfig:
-    """The named preset with some fields changed.
+#: Densification strategies, chosen by name as gsplat's ``Config.strategy``: the TrainConfig fields each one sets.
+#: ``budget`` is ``spotless train --gaussian-budget``: every 8th training view held out until densification ends,
+#: densification stops when held-out error stops improving, Gaussians that do not change the renders are pruned
+#: (spotlessgs.training.budget).
+STRATEGIES: dict[str, dict[str, Any]] = {
+    "default": {},
+    "budget": {"gaussian_budget": True, "validation_every": 8, "validation_rejoin": True},
+}
+
+
+def preset(name: str, strategy: str = "default", **overrides: Any) -> TrainConfig:
+    """The named preset with the fields of a densification ``strategy`` (:data:`STRATEGIES`) and some fields changed
+    (``overrides`` win over the strategy's fields).
 
     Overriding ``iterations`` scales the densification schedule (``SCHEDULE_FIELDS`` not overridden themselves) by
     the same factor, as gsplat's ``steps_scaler`` does: with 1000 instead of 3000 iterations densification stops at
@@ -175,6 +186,9 @@ def preset(name: str, **overrides: Any) -> TrainConfig:
     """
     if name not in PRESETS:
         raise ValueError(f"unknown preset {name!r}; choose one of {sorted(PRESETS)}")
+    if strategy not in STRATEGIES:
+        raise ValueError(f"unknown densification strategy {strategy!r}; choose one of {sorted(STRATEGIES)}")
+    overrides = {**STRATEGIES[strategy], **overrides}
     base = PRESETS[name]
     if "iterations" in overrides and overrides["iterations"] != base.iterations:
         factor = overrides["iterations"] / base.iterations

@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Sequence
+from typing import Any
 
 import torch
 import torch.nn.functional as F
@@ -94,3 +95,9 @@ def low_frequency_share(
         low_total += float(image[..., 3:].sum())
     total = spot_total + low_total
     return 0.0 if total <= 0 else low_total / total
+
+
+def light_note(need: dict[str, Any]) -> str:
+    """``; low-frequency light needed (dark level 0.054, share 8.3%)`` for a decision's light measurements."""
+    return (f"; low-frequency light {'needed' if need['needed'] else 'not needed'} (dark level "
+            f"{need['dark_level']:.3f}, share {100 * need['low_frequency_share']:.1f}%)")
