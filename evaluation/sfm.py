@@ -1,8 +1,8 @@
 """Downstream structure-from-motion with pycolmap on CPU: SIFT features, matching, incremental mapping.
 
-Used to ask whether relit images help a classical SfM pipeline (METHOD §7): run it on the original (uneven) and on the
-relit sequence with the same settings and compare reprojection error, observations per image, registered images and
-points, and the trajectory against the true poses when they are known.
+Used to ask whether relit images help a classical SfM pipeline (docs/method.md §10): run it on the original (uneven)
+and on the relit sequence with the same settings and compare reprojection error, observations per image, registered
+images and points, and the trajectory against the true poses when they are known.
 
 COLMAP's incremental mapper may split a sequence into several sub-models where consecutive images share too few
 matches: on the simulator's rectangular loops the camera turns by 90 degrees between two frames at every corner, so a

@@ -10,7 +10,7 @@ low-frequency light (DarkGS constant A, or the SH light evaluated at n̂). The c
 the research code (there the SH term is multiplied by n̂·l̂); applying it once to the sum keeps DarkGS exactly
 a (Ψ Φ + A) max(0, n̂·l̂) and avoids the research code's second cosine inside its BRDF.
 
-Relighting (METHOD.md §5, paper eq. 8): the spotlight is replaced by a constant RGB radiance L0 arriving uniformly
+Relighting (docs/method.md §8, paper eq. 8): the spotlight is replaced by a constant RGB radiance L0 arriving uniformly
 from the whole hemisphere (the paper: "similar to an environment light with constant intensity"). The reflected
 radiance of a uniform environment is L_in times the directional albedo R = (1/π) ∫ f̃ cos dω, so
 

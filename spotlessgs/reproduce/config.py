@@ -18,7 +18,7 @@ from typing import Any
 METHODS_3D: tuple[str, ...] = ("3dgs", "darkgs", "darkgs-calibrated", "darkgs+sh", "darkgs+brdf", "spotless", "auto")
 # Single-view 2D baselines (spotlessgs.baselines2d).
 METHODS_2D: tuple[str, ...] = ("clahe", "msrcr", "cyclegan")
-# Dataset variants of METHOD.md §8 (simulator spotlight presets).
+# Dataset variants of docs/method.md §11 (simulator spotlight presets).
 VARIANTS: tuple[str, ...] = ("uneven", "saturated")
 # The copy of a room's ``uneven`` dataset with camera sensor noise (ReproduceConfig.sensor_noise): Table III's
 # robot-camera case.

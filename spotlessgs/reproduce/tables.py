@@ -199,7 +199,7 @@ def _metric_table(key: str, title: str, collected: dict, names: Sequence[str], l
         table.rows.append([paper_title, label, vals["psnr"], vals["ssim"], vals["lpips"], None, None, None, None,
                            None])
     table.notes.append("PSNR in dB on the test views (every 11th frame) against the evenly lit ground truth; "
-                       "'aligned' applies one least-squares exposure gain per sequence first (METHOD.md §7).")
+                       "'aligned' applies one least-squares exposure gain per sequence first (docs/method.md §10).")
     table.notes.append(DECISION_NOTE)
     table.notes.append(f"Paper rows: {paper.SOURCE}; the paper reports no aligned figures.")
     return table

@@ -25,7 +25,7 @@ class BudgetPoint:
     strategy: str
     # Final number of Gaussians.
     gaussians: int
-    # Relit PSNR against the ground truth (dB), exposure-aligned (one least-squares gain per sequence, METHOD.md §7).
+    # Relit PSNR against the ground truth (dB), exposure-aligned (one least-squares gain per sequence, docs/method.md §10).
     relit_psnr: float
     # Relit rendering speed (frames per second).
     relit_fps: float

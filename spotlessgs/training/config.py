@@ -1,7 +1,7 @@
 """Training settings: a frozen dataclass with a comment per field, and named presets.
 
 ``tiny`` runs in seconds (tests), ``quick`` in minutes on a 2-core CPU at ~160x120, ``paper`` is the paper's schedule
-(30k iterations, native resolution) for a GPU. METHOD.md §4 gives the research code's learning rates.
+(30k iterations, native resolution) for a GPU. docs/method.md §6 gives the research code's learning rates.
 """
 
 from __future__ import annotations
