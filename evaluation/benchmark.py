@@ -13,7 +13,7 @@ from dataclasses import dataclass
 import torch
 
 from evaluation.lpips import lpips
-from evaluation.metrics import psnr, ssim
+from spotlessgs.metrics import psnr, ssim
 from spotlessgs.io.seeding import torch_generator
 
 

@@ -1,16 +1,16 @@
-"""The dataset fields the evaluation needs, taken from the shared reader, and the run-folder fields.
+"""The dataset fields the evaluation needs, taken from the shared reader.
 
 A dataset folder is read by :func:`spotlessgs.io.dataset.read_dataset`, the project's only reader of dataset folders:
 our ``transforms.json`` (see ``docs/dataset.md``), a plain nerfstudio ``transforms.json`` or a COLMAP folder. The
 evaluation uses its intrinsics, per-frame input / ground-truth / EXR paths, camera-to-world poses (OpenGL axes) and the
 test split (``split.test``; every 11th frame when the file has no split). Relit images are matched to views by the input
 image's file name, so those names must be unique.
-A run folder holds ``run.json`` (key ``data_dir``) and ``relit/`` with one relit PNG per view, named like the inputs.
+A run's dataset folder is found from its ``run.json`` by :func:`spotlessgs.training.checkpoint.resolve_data_dir` (the
+one place that reads those paths); its ``relit/`` folder holds one relit PNG per view, named like the inputs.
 """
 
 from __future__ import annotations
 
-import json
 import os
 from dataclasses import dataclass
 from pathlib import Path
@@ -81,32 +81,6 @@ def dataset_views(desc: DatasetDescription) -> DatasetViews:
             )
         seen[frame.name] = i
     return DatasetViews(desc.root, desc.intrinsics, frames, tuple(desc.split.test))
-
-
-def read_run_data_dir(run_dir: str | os.PathLike) -> Path:
-    """The dataset folder a training run was made from (``run.json`` key ``data_dir``; relative paths are taken
-    relative to the run folder).
-
-    Raises:
-        FileNotFoundError: run.json or the relit folder is missing.
-        ValueError: run.json has no ``data_dir``.
-    """
-    run = Path(run_dir)
-    path = run / "run.json"
-    if not path.is_file():
-        raise FileNotFoundError(f"{path}: not a training run folder (run.json missing)")
-    try:
-        meta = json.loads(path.read_text(encoding="utf-8"))
-    except json.JSONDecodeError as exc:
-        raise ValueError(f"{path}: not valid JSON ({exc})") from exc
-    if not isinstance(meta, dict) or "data_dir" not in meta:
-        raise ValueError(f"{path}: missing key 'data_dir'")
-    data = Path(meta["data_dir"])
-    if not data.is_absolute():
-        data = (run / data).resolve()
-    if not (run / "relit").is_dir():
-        raise FileNotFoundError(f"{run / 'relit'}: the run has no relit images")
-    return data
 
 
 def read_depth_exr(path: str | os.PathLike) -> np.ndarray:

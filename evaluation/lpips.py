@@ -22,7 +22,7 @@ import torch
 import torch.nn.functional as F
 from torch import Tensor, nn
 
-from evaluation.metrics import check_image_pair
+from spotlessgs.metrics import check_image_pair
 
 #: LPIPS input scaling layer constants (applied to images in [−1, 1]).
 _SHIFT = (-0.030, -0.088, -0.188)

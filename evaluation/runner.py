@@ -30,10 +30,9 @@ import numpy as np
 import torch
 
 from evaluation.alignment import GainAccumulator, apply_gain
-from evaluation.dataset import DatasetFrame, DatasetViews, read_dataset, read_depth_exr, read_run_data_dir
+from evaluation.dataset import DatasetFrame, DatasetViews, read_dataset, read_depth_exr
 from evaluation.folders import ImagePair, image_names, match_folders
 from evaluation.lpips import lpips
-from evaluation.metrics import psnr, ssim
 from evaluation.plots import save_image_grid, save_trajectory_plot
 from evaluation.report import write_markdown, write_results_json
 from evaluation.sfm import SfmConfig, SfmResult, run_sfm
@@ -48,6 +47,8 @@ from spotlessgs.manifest import (
     MANIFEST_NAME, checkpoint_step, current_checkpoint, dataset_record, hash_frames, manifest_path, manifest_sha256,
     read_manifest, sha256_file, verify_frames, write_manifest,
 )
+from spotlessgs.metrics import psnr, ssim
+from spotlessgs.training.checkpoint import read_run_info, resolve_data_dir
 
 log = logging.getLogger(__name__)
 
@@ -349,8 +350,14 @@ def evaluate_folders(
     figures/grid.png (and figures/sfm_trajectories.png) there.
 
     Raises:
+        OutputOverlapError: ``out_dir`` or ``json_path`` is, holds or lies inside ``pred_dir`` or ``gt_dir``.
         ValueError / FileNotFoundError: see :func:`evaluation.folders.match_folders` and :func:`score_pairs`.
     """
+    inputs = {"--pred": pred_dir, "--gt": gt_dir}
+    if out_dir is not None:
+        refuse_overlap(out_dir, inputs, "--out")
+    if json_path is not None:
+        refuse_overlap(json_path, inputs, "--json")
     pred_manifest = check_folder_manifest(Path(pred_dir), "--pred")
     gt_manifest = check_folder_manifest(Path(gt_dir), "--gt")
     pairs = match_folders(pred_dir, gt_dir)
@@ -480,7 +487,7 @@ def evaluate_run(
     its manifest lists, unchanged), and the run folder's write lock is held throughout.
 
     Args:
-        run_dir: the run folder (``run.json`` with ``data_dir``, and ``relit/``).
+        run_dir: the run folder (``run.json`` with the dataset's path, and ``relit/``).
         config: what to compute.
         out_dir: where results.json, results.md, figures/ and the output manifest go (default ``RUN/eval``).
         json_path: optional extra path for the JSON.
@@ -496,17 +503,21 @@ def evaluate_run(
     Raises:
         FileNotFoundError: run.json, relit images, inputs or ground truth missing (named).
         InputError: stale, unlisted, changed or unrecorded relit images; the dataset not found (see ``--data``).
+        OutputOverlapError: ``out_dir`` overlaps the relit folder or the dataset, or ``json_path`` overlaps those,
+            the run's checkpoints, run.json or config.json.
         ValueError: malformed run or dataset files, or no test view with ground truth.
         FolderLockedError: another process writes the run.
     """
-    from spotlessgs.training.checkpoint import read_run_info, resolve_data_dir
-
     run = Path(run_dir)
-    read_run_data_dir(run)  # run.json readable with a data_dir, relit/ present: clear messages first
-    data_root = resolve_data_dir(run, read_run_info(run), data_dir)
+    data_root = resolve_data_dir(run, read_run_info(run), data_dir)  # clear messages first
     relit_dir = run / "relit"
+    if not relit_dir.is_dir():
+        raise FileNotFoundError(f"{relit_dir}: the run has no relit images; run `spotless relight {run}` first")
     out = Path(out_dir) if out_dir is not None else run / "eval"
     refuse_overlap(out, {"RUN/relit": relit_dir, "--data": data_root}, "--out")
+    if json_path is not None:
+        refuse_overlap(json_path, {"RUN/relit": relit_dir, "--data": data_root, "RUN/checkpoints": run / "checkpoints",
+                                   "RUN/run.json": run / "run.json", "RUN/config.json": run / "config.json"}, "--json")
     with folder_lock(run, "spotless eval"):
         return _evaluate_run_locked(run, data_root, relit_dir, out, config, json_path)
 

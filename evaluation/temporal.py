@@ -11,7 +11,6 @@ K = [[fx, 0, cx], [0, fy, cy], [0, 0, 1]] with pixel (i, j) centred at (i + 0.5,
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass
 from typing import Iterable, Iterator
 
@@ -19,7 +18,7 @@ import torch
 import torch.nn.functional as F
 from torch import Tensor
 
-from evaluation.metrics import check_image_pair, psnr, ssim, ssim_map
+from spotlessgs.metrics import masked_psnr, masked_ssim, psnr, ssim
 
 
 @dataclass(frozen=True)
@@ -130,47 +129,6 @@ def warp_into(
     valid = valid.reshape(h, w)
     warped = torch.where(valid[None], warped, torch.zeros_like(warped))
     return warped.to(src.dtype), valid
-
-
-def masked_psnr(pred: Tensor, gt: Tensor, mask: Tensor, data_range: float = 1.0) -> float:
-    """PSNR over the pixels where ``mask`` is true.
-
-    Args:
-        pred: (C, H, W); gt: (C, H, W); mask: (H, W) bool.
-
-    Raises:
-        ValueError: the mask is empty or its shape does not match.
-    """
-    pred, gt = check_image_pair(pred, gt)
-    if mask.shape != pred.shape[-2:]:
-        raise ValueError(f"mask shape {tuple(mask.shape)} does not match image size {tuple(pred.shape[-2:])}")
-    n = int(mask.sum())
-    if n == 0:
-        raise ValueError("no valid pixels to score")
-    diff = (pred[0].double() - gt[0].double())[:, mask]
-    mse = float(diff.pow(2).mean())
-    return math.inf if mse == 0 else 10.0 * math.log10(data_range**2 / mse)
-
-
-def masked_ssim(pred: Tensor, gt: Tensor, mask: Tensor, window_size: int = 11, sigma: float = 1.5) -> float:
-    """Mean SSIM over the pixels whose whole window lies in ``mask``.
-
-    Args:
-        pred: (C, H, W); gt: (C, H, W); mask: (H, W) bool.
-
-    Raises:
-        ValueError: no window fits entirely inside the mask, or the mask shape does not match.
-    """
-    if mask.shape != pred.shape[-2:]:
-        raise ValueError(f"mask shape {tuple(mask.shape)} does not match image size {tuple(pred.shape[-2:])}")
-    smap = ssim_map(pred, gt, window_size=window_size, sigma=sigma)[0]  # (C, H', W')
-    box = torch.ones(window_size, dtype=torch.float64)
-    m = mask.to(torch.float64)[None, None]
-    inside = F.conv2d(F.conv2d(m, box.view(1, 1, 1, -1)), box.view(1, 1, -1, 1))[0, 0] >= window_size**2 - 0.5
-    n = int(inside.sum())
-    if n == 0:
-        raise ValueError(f"no {window_size}x{window_size} window lies entirely inside the valid pixels")
-    return float(smap[:, inside].double().mean())
 
 
 @dataclass(frozen=True)

@@ -11,7 +11,7 @@ THREADS=${THREADS:-$(nproc)}
 spotless-sim render --scene "scenes/$ROOM/house.json" --out "$DATA" --frames 60 --width 160 --height 120 --samples 16
 if [ ! -f "$RUN/train_summary.json" ]; then
   RESUME=""
-  [ -f "$RUN/checkpoints/last.pt" ] && RESUME="--resume"
+  { [ -f "$RUN/checkpoints/last.safetensors" ] || [ -f "$RUN/checkpoints/last.pt" ]; } && RESUME="--resume"
   spotless train --data "$DATA" --out "$RUN" --model spotless --preset quick --threads "$THREADS" $RESUME
 fi
 spotless relight "$RUN" --quiet > /dev/null

@@ -16,21 +16,19 @@ from pathlib import Path
 
 import click
 import numpy as np
+import torch
 
 from simulator.front3d import LoadOptions
 from simulator.render_pipeline import RenderConfig, plan_poses
 from spotlessgs.io.atomic import write_json, write_text
-from spotlessgs.io.figures import pyplot, save_figure
 from spotlessgs.io.colorspace import linear_to_srgb
+from spotlessgs.io.figures import pyplot, save_figure
 from spotlessgs.io.provenance import provenance
+from spotlessgs.metrics import psnr
 
 
 def psnr_srgb(image_linear: np.ndarray, reference_linear: np.ndarray) -> float:
     """PSNR (dB) between two linear renders after sRGB encoding (clipped to [0, 1]), as images are compared."""
-    import torch
-
-    from evaluation.metrics import psnr
-
     a, b = (torch.from_numpy(linear_to_srgb(x)).permute(2, 0, 1) for x in (image_linear, reference_linear))
     return float(psnr(a, b)[0])
 
@@ -38,7 +36,7 @@ def psnr_srgb(image_linear: np.ndarray, reference_linear: np.ndarray) -> float:
 def run_benchmark(scene_path: Path, out_dir: Path, samples: list[int], reference_samples: int, width: int,
                   height: int, threads: int, frame: int = 0) -> list[dict]:
     """Render one pose at each setting; returns one row per (samples, denoise) with seconds and PSNRs."""
-    from simulator.blender import renderer, scene_builder
+    from simulator.blender import renderer, scene_builder  # deferred: bpy is imported only when rendering
 
     config = RenderConfig(width=width, height=height, frames=max(frame + 1, 8))
     scene, _room, objects, poses = plan_poses(scene_path, config, LoadOptions())

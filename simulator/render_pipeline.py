@@ -553,7 +553,7 @@ def _render_frames(conn, out_dir: Path, config: RenderConfig, execution: Executi
                    poses: np.ndarray, todo: list[int]) -> None:
     """In the render process: build the Blender scene, then render and write every frame of ``todo``."""
     with silenced_output(execution.quiet):  # Cycles' device probing prints to the C-level stdout
-        from simulator.blender import renderer, scene_builder  # bpy is imported only in the render process
+        from simulator.blender import renderer, scene_builder  # deferred: bpy is imported only in the render process
 
         scene_builder.reset_blender()
         settings = renderer.CyclesSettings(

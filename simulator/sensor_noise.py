@@ -32,6 +32,7 @@ from spotlessgs.io.folder_lock import folder_lock
 from spotlessgs.io.images import write_png
 from spotlessgs.io.paths import refuse_overlap
 from spotlessgs.io.seeding import numpy_rng
+from spotlessgs.io.transforms import read_transforms
 
 NOISE_RECORD = "sensor_noise.json"
 # Everything of a dataset folder that the noisy copy takes over unchanged (images/ is written anew).
@@ -89,8 +90,6 @@ def add_sensor_noise_to_dataset(data: str | Path, out: str | Path, noise: Sensor
     :class:`~spotlessgs.io.errors.OutputOverlapError` (a ValueError) when ``out`` is ``data``, lies inside it or
     contains it, before anything is written.
     """
-    from spotlessgs.io.transforms import read_transforms
-
     data, out = Path(data), Path(out)
     refuse_overlap(out, {"--data": data}, "--out")
     if not (data / "transforms.json").is_file():

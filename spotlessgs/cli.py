@@ -13,7 +13,7 @@ from spotlessgs.clitools import SafeGroup
 
 from evaluation.cli import eval_command
 from spotlessgs.baselines2d.cli import baseline2d
-from spotlessgs.reproduce.cli import reproduce
+from spotlessgs.experiments.reproduce.cli import reproduce
 
 MODELS = ["3dgs", "darkgs", "darkgs-calibrated", "darkgs+sh", "darkgs+brdf", "spotless"]
 

@@ -15,6 +15,7 @@
 from __future__ import annotations
 
 import os
+import signal
 import sys
 import traceback
 from typing import Any
@@ -70,9 +71,23 @@ class SafeGroup(click.Group):
         debug = "--debug" in argv or os.environ.get("SPOTLESS_DEBUG") == "1"
         name = prog_name or os.path.basename(sys.argv[0]) or self.name or "spotless"
         try:
-            raise_on_sigterm()
+            previous_sigterm = raise_on_sigterm()
+            installed = True
         except ValueError:  # not the main thread (an embedding application): leave SIGTERM alone
-            pass
+            previous_sigterm, installed = None, False
+        try:
+            result = self._main_handling_errors(argv, prog_name, debug, name, **extra)
+        finally:  # an embedding application (or a test's CliRunner) gets its own SIGTERM handler back
+            if installed and previous_sigterm is not None:
+                signal.signal(signal.SIGTERM, previous_sigterm)
+        if args is None and installed:  # the program itself, its work done: a signal during the interpreter's
+            for signum in (signal.SIGINT, signal.SIGTERM):  # shutdown changes nothing (exit 0, no "Exception
+                signal.signal(signum, signal.SIG_IGN)  # ignored ... KeyboardInterrupt" from a finaliser)
+        return result
+
+    def _main_handling_errors(self, argv: list[str], prog_name: str | None, debug: bool, name: str,
+                              **extra: Any) -> Any:
+        """click's ``main`` with errors, interrupts and exit codes handled as the module docstring says."""
         try:
             return super().main(args=argv, prog_name=prog_name, standalone_mode=False, **extra)
         except click.exceptions.Exit as exc:

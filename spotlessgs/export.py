@@ -14,20 +14,34 @@ import torch
 
 from spotlessgs.io.atomic import atomic_path
 from spotlessgs.io.colorspace import linear_to_srgb
+from spotlessgs.io.errors import InputError
+from spotlessgs.io.paths import refuse_overlap
 from spotlessgs.models.sh import SH_C0
 from spotlessgs.models.shading import RELIGHT_L0_DEFAULT
+from spotlessgs.training.checkpoint import read_run_info, resolve_data_dir
+from spotlessgs.training.trainer import load_run
 
 
 @torch.no_grad()
 def export_ply(run_dir: str | Path, out_path: str | Path, l0: Sequence[float] = RELIGHT_L0_DEFAULT,
                data_dir: str | Path | None = None) -> Path:
     """Write the run's Gaussians to ``out_path``; returns the path. ``data_dir`` points at the run's dataset when it
-    has moved (default: run.json's paths, see :func:`spotlessgs.training.checkpoint.resolve_data_dir`)."""
+    has moved (default: run.json's paths, see :func:`spotlessgs.training.checkpoint.resolve_data_dir`).
+
+    Raises:
+        OutputOverlapError: ``out_path`` is, holds or lies inside the dataset folder, the run's checkpoints folder,
+            run.json or config.json (checked before anything is loaded or written).
+        InputError: ``out_path`` is an existing folder, or the dataset is not found (see ``--data``).
+    """
     from plyfile import PlyData, PlyElement
 
-    from spotlessgs.training.trainer import load_run
-
-    scene, views, _config, _info = load_run(run_dir, device="cpu", data_dir=data_dir)
+    run_dir, out_path = Path(run_dir), Path(out_path)
+    data_root = resolve_data_dir(run_dir, read_run_info(run_dir), data_dir)
+    refuse_overlap(out_path, {"--data": data_root, "RUN/checkpoints": run_dir / "checkpoints", "RUN/run.json":
+                              run_dir / "run.json", "RUN/config.json": run_dir / "config.json"}, "--out")
+    if out_path.is_dir():
+        raise InputError(f"{out_path}: --out is a folder; give the path of the PLY file to write")
+    scene, views, _config, _info = load_run(run_dir, device="cpu", data_dir=data_root)
     g = scene.gaussians
     n = len(g)
     if scene.config.light_model == "none":
@@ -52,7 +66,6 @@ def export_ply(run_dir: str | Path, out_path: str | Path, l0: Sequence[float] = 
     data = np.empty(n, dtype=[(k, "f4") for k in fields])
     for k, v in fields.items():
         data[k] = v
-    out_path = Path(out_path)
     with atomic_path(out_path) as tmp:
         PlyData([PlyElement.describe(data, "vertex")]).write(str(tmp))
     return out_path

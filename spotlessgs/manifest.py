@@ -42,6 +42,7 @@ from typing import Any, Iterable, Mapping
 from spotlessgs.io.atomic import PARTIAL_MARK, to_jsonable, write_json
 from spotlessgs.io.errors import InputError
 from spotlessgs.io.provenance import provenance
+from spotlessgs.training.checkpoint import existing_checkpoint, load_checkpoint
 
 MANIFEST_NAME = ".manifest.json"
 SCHEMA_VERSION = 1
@@ -66,14 +67,8 @@ def manifest_path(folder: str | os.PathLike) -> Path:
 
 
 def current_checkpoint(run_dir: str | os.PathLike) -> Path | None:
-    """The run's checkpoint file as the trainer finds it (:mod:`spotlessgs.training.checkpoint`), or None."""
-    from spotlessgs.training import checkpoint as ckpt
-
-    find = getattr(ckpt, "existing_checkpoint", None)  # also finds an older version's checkpoint file
-    if find is not None:
-        return find(run_dir)
-    path = ckpt.checkpoint_path(run_dir)
-    return path if path.is_file() else None
+    """The run's checkpoint file as the trainer finds it (an older version's ``last.pt`` too), or None."""
+    return existing_checkpoint(run_dir)
 
 
 def checkpoint_identity(run_dir: str | os.PathLike, step: int | None = None) -> dict[str, Any] | None:
@@ -92,8 +87,6 @@ def checkpoint_identity(run_dir: str | os.PathLike, step: int | None = None) -> 
 def checkpoint_step(run_dir: str | os.PathLike) -> int | None:
     """The training step the run's checkpoint holds (None when it cannot be read). A safetensors checkpoint's step
     is read from its metadata alone (no tensors loaded); other files are loaded."""
-    from spotlessgs.training.checkpoint import load_checkpoint
-
     path = current_checkpoint(run_dir)
     if path is not None and path.suffix == ".safetensors":
         try:

@@ -7,7 +7,9 @@ An output folder always holds exactly one render's files: they are written into 
 folder beside it, with a manifest (``.manifest.json``: checkpoint step and sha256, options, dataset, every file's
 sha256; see :mod:`spotlessgs.manifest`), and swapped in when complete, so a second relight with other options or views
 replaces the first one's frames instead of mixing with them, and an interrupted one leaves the previous folder as it
-was. The run folder's write lock is held meanwhile (one writer per run: no relight while it trains)."""
+was (or gets it back on the next run). An existing non-empty folder is replaced only when it is an earlier render's
+(its manifest says so, or it is the run's own RUN/relit or RUN/render); any other folder is refused. The run folder's
+write lock is held meanwhile (one writer per run: no relight while it trains)."""
 
 from __future__ import annotations
 
@@ -23,7 +25,7 @@ from typing import Any, Sequence
 import numpy as np
 import torch
 
-from spotlessgs.io.atomic import write_json
+from spotlessgs.io.atomic import PARTIAL_MARK, write_json
 from spotlessgs.io.colorspace import linear_to_srgb
 from spotlessgs.io.errors import InputError, OutputOverlapError
 from spotlessgs.io.exr import write_exr
@@ -31,10 +33,13 @@ from spotlessgs.io.folder_lock import folder_lock
 from spotlessgs.io.images import is_image_name, write_png
 from spotlessgs.io.paths import refuse_overlap
 from spotlessgs.manifest import (
-    checkpoint_identity, dataset_record, hash_frames, is_partial_name, manifest_path, partial_sibling, write_manifest,
+    MANIFEST_NAME, checkpoint_identity, dataset_record, hash_frames, is_partial_name, manifest_path, partial_sibling,
+    read_manifest, write_manifest,
 )
 from spotlessgs.models.shading import shade
 from spotlessgs.rasterizer import rasterize
+from spotlessgs.training.checkpoint import read_run_info, resolve_data_dir
+from spotlessgs.training.trainer import load_run
 
 log = logging.getLogger(__name__)
 
@@ -123,7 +128,10 @@ def auto_l0(images_r: list[np.ndarray], images_low: list[np.ndarray]) -> list[fl
 
 def _check_output(out: Path, run_dir: Path, data_dir: Path) -> None:
     """Refuse an output folder that a render may not replace: the dataset or inside it, the run folder or a folder
-    holding it, or a folder holding anything but an earlier render's images (a render replaces the whole folder).
+    holding it, the run's checkpoints folder, or a non-empty folder that is not an earlier render (a render replaces
+    the whole folder). An existing non-empty folder is replaced only when it holds a manifest of ``spotless relight``
+    or ``spotless render`` (kind ``relit``/``render``) or is the run's own ``RUN/relit`` or ``RUN/render`` (older runs
+    wrote them without a manifest), and then only when it holds images (and EXR files) alone.
 
     Raises:
         OutputOverlapError / InputError: naming the folder and what to choose instead.
@@ -133,28 +141,65 @@ def _check_output(out: Path, run_dir: Path, data_dir: Path) -> None:
     if real_run.is_relative_to(real_out):
         raise OutputOverlapError(f"{out}: --out is or holds the run folder {run_dir}; a render replaces its whole "
                                  "output folder: choose a new folder (default RUN/relit or RUN/render)")
+    refuse_overlap(out, {"RUN/checkpoints": run_dir / "checkpoints"}, "--out")
+    if out.is_symlink() and not out.exists():
+        return  # a dangling link: replaced by the new folder, nothing behind it is touched
     if out.exists() and not out.is_dir():
         raise InputError(f"{out}: --out is a file, not a folder; choose a folder")
-    if out.is_dir():
-        foreign = sorted(p.name for p in out.iterdir() if not p.name.startswith(".")
-                         and (p.is_dir() or not (is_image_name(p.name) or p.suffix.lower() == ".exr")))
-        if foreign:
-            shown = ", ".join(foreign[:3]) + (f" (and {len(foreign) - 3} more)" if len(foreign) > 3 else "")
-            raise InputError(f"{out}: holds files that are not images of an earlier render ({shown}); a render "
-                             "replaces the whole folder: choose an empty or new --out")
+    if not out.is_dir() or out.is_symlink():
+        return  # new, or a link that is replaced without touching the folder it points to
+    entries = [p for p in out.iterdir() if p.name != MANIFEST_NAME]
+    if not entries:
+        return
+    if not _earlier_render(out, run_dir):
+        shown = ", ".join(sorted(p.name for p in entries)[:3]) + (
+            f" (and {len(entries) - 3} more)" if len(entries) > 3 else "")
+        raise InputError(f"{out}: holds files that are not images of an earlier render ({shown}; no {MANIFEST_NAME} "
+                         "of `spotless relight`/`render`); a render replaces the whole folder: choose an empty or "
+                         "new --out")
+    foreign = sorted(p.name for p in entries if not p.name.startswith(".")
+                     and (p.is_dir() or not (is_image_name(p.name) or p.suffix.lower() == ".exr")))
+    if foreign:
+        shown = ", ".join(foreign[:3]) + (f" (and {len(foreign) - 3} more)" if len(foreign) > 3 else "")
+        raise InputError(f"{out}: holds files that are not images of an earlier render ({shown}); a render "
+                         "replaces the whole folder: choose an empty or new --out")
+
+
+def _earlier_render(out: Path, run_dir: Path) -> bool:
+    """Whether the existing folder ``out`` was written by a render: it has a manifest of kind ``relit`` or
+    ``render``, or it is the run's own ``RUN/relit`` or ``RUN/render`` (written by versions without manifests)."""
+    try:
+        manifest = read_manifest(out)
+    except InputError:  # a damaged manifest vouches for nothing
+        manifest = None
+    if manifest is not None and manifest.get("kind") in ("relit", "render"):
+        return True
+    real_out = os.path.realpath(out)
+    return any(os.path.realpath(run_dir / name) == real_out for name in ("relit", "render"))
 
 
 def _remove_partial_siblings(out: Path) -> None:
-    """Delete temporary folders that an interrupted render into ``out`` left beside it (the run lock is held)."""
+    """Clean up what an interrupted render into ``out`` left beside it (the run lock is held): temporary folders are
+    deleted, except that when ``out`` itself is missing (a crash between :func:`_swap_in`'s two renames) the
+    previous folder, kept as an ``old-`` sibling, is renamed back to ``out`` first."""
     if not out.parent.is_dir():
         return
-    for entry in out.parent.iterdir():
-        if is_partial_name(entry.name, out.name):
-            if entry.is_dir() and not entry.is_symlink():
-                shutil.rmtree(entry, ignore_errors=True)
-            else:
-                with contextlib.suppress(FileNotFoundError):
-                    entry.unlink()
+    siblings = [e for e in out.parent.iterdir() if is_partial_name(e.name, out.name)]
+    if not os.path.lexists(out):
+        old = [e for e in siblings if e.name.startswith(f".{out.name}{PARTIAL_MARK}old-")
+               and e.is_dir() and not e.is_symlink()]
+        if old:
+            newest = max(old, key=lambda e: e.stat().st_mtime)
+            os.rename(newest, out)
+            log.warning("%s: restored the previous folder from %s (an earlier render was interrupted while "
+                        "swapping folders)", out, newest.name)
+            siblings.remove(newest)
+    for entry in siblings:
+        if entry.is_dir() and not entry.is_symlink():
+            shutil.rmtree(entry, ignore_errors=True)
+        else:
+            with contextlib.suppress(FileNotFoundError):
+                entry.unlink()
 
 
 def _exchange(a: Path, b: Path) -> bool:
@@ -177,9 +222,13 @@ def _swap_in(tmp: Path, out: Path) -> None:
         if _exchange(tmp, out):
             shutil.rmtree(tmp, ignore_errors=True)  # now the old folder
             return
-        old = partial_sibling(out, "old-")
+        old = partial_sibling(out, "old-")  # a crash before the second rename: the next render renames it back
         os.rename(out, old)
-        os.rename(tmp, out)
+        try:
+            os.rename(tmp, out)
+        except BaseException:
+            os.rename(old, out)
+            raise
         shutil.rmtree(old, ignore_errors=True)
     else:
         if out.is_symlink():
@@ -207,7 +256,8 @@ def render_run(
         mode: ``relit`` (constant L0 + the learned low-frequency light) or ``spot`` (the learned spotlight).
         which: ``test``, ``train`` or ``all``.
         out_dir: output folder; default ``RUN/relit`` or ``RUN/render``. It is replaced as a whole (see the module
-            docstring), so it must be new or hold an earlier render's images only.
+            docstring), so it must be new, empty, or an earlier render's folder (its manifest says so, or it is the
+            run's own ``RUN/relit`` / ``RUN/render``) holding images only; never the dataset or the run's files.
         l0: linear RGB relighting radiance (relit mode), or ``"auto"``: white, scaled so that about 1% of relit
             pixels reach 1 (see AUTO_L0_*); the value used is reported.
         exr: also write linear float EXR files (``<name>.exr`` with channels R, G, B).
@@ -223,8 +273,6 @@ def render_run(
         FolderLockedError: another process writes the run (training, another render).
         InputError / OutputOverlapError: the dataset is not found, or the output folder may not be replaced.
     """
-    from spotlessgs.training.checkpoint import read_run_info, resolve_data_dir
-
     if mode not in ("relit", "spot"):
         raise ValueError(f"mode must be relit or spot, got {mode!r}")
     if mode != "relit" and not low_frequency:
@@ -259,8 +307,6 @@ def _render_into(run_dir: Path, data_dir: Path, mode: str, which: str, out: Path
                  low_frequency: bool) -> dict[str, Any]:
     """:func:`render_run`'s work with the run locked: render into ``tmp`` (to become ``out``) with its manifest."""
     from tqdm import tqdm
-
-    from spotlessgs.training.trainer import load_run
 
     checkpoint = checkpoint_identity(run_dir)  # the file the model is loaded from (the lock keeps it unchanged)
     scene, views, config, _info = load_run(run_dir, device=device, data_dir=data_dir)

@@ -8,7 +8,7 @@ import pytest
 import torch
 
 from evaluation.alignment import GainAccumulator, apply_gain, exposure_gain
-from evaluation.metrics import psnr
+from spotlessgs.metrics import psnr
 from spotlessgs.io.colorspace import linear_to_srgb, srgb_to_linear
 
 pytestmark = pytest.mark.usefixtures("one_torch_thread")

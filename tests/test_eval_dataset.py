@@ -9,7 +9,7 @@ import numpy as np
 import OpenEXR
 import pytest
 
-from evaluation.dataset import read_dataset, read_depth_exr, read_run_data_dir
+from evaluation.dataset import read_dataset, read_depth_exr
 from evaluation.report import markdown_report, to_jsonable, write_results_json
 
 INTR = {"fl_x": 100.0, "fl_y": 101.0, "cx": 40.0, "cy": 30.0, "w": 80, "h": 60}
@@ -87,15 +87,6 @@ def test_transforms_missing_or_invalid(tmp_path):
     (tmp_path / "transforms.json").write_text("{nope")
     with pytest.raises(ValueError, match="transforms.json: not valid JSON"):
         read_dataset(tmp_path)
-
-
-def test_run_json(tmp_path):
-    (tmp_path / "run.json").write_text("[1")
-    with pytest.raises(ValueError, match="run.json: not valid JSON"):
-        read_run_data_dir(tmp_path)
-    (tmp_path / "run.json").write_text(json.dumps({"data_dir": "/abs/data"}))
-    (tmp_path / "relit").mkdir()
-    assert str(read_run_data_dir(tmp_path)) == "/abs/data"
 
 
 def test_depth_exr_single_and_multi_part(tmp_path):

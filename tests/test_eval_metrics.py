@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 import torch
 
-from evaluation.metrics import PSNR, SSIM, gaussian_kernel1d, psnr, ssim, ssim_map
+from spotlessgs.metrics import PSNR, SSIM, gaussian_kernel1d, psnr, ssim, ssim_map
 from spotlessgs.io.images import read_image
 
 IMAGES = Path(__file__).parent / "golden" / "lpips_images"

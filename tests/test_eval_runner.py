@@ -12,7 +12,7 @@ from click.testing import CliRunner
 from PIL import Image
 
 from evaluation.cli import eval_command
-from evaluation.metrics import psnr, ssim
+from spotlessgs.metrics import psnr, ssim
 from evaluation.runner import EvalConfig, evaluate_folders, evaluate_run
 from evaluation.sfm import SfmConfig
 from evaluation.synthetic import render_room_sequence, write_dataset_folder
@@ -135,11 +135,11 @@ def test_size_mismatch_is_named(tmp_path):
 
 
 def test_run_errors(run_dir, tmp_path):
-    with pytest.raises(FileNotFoundError, match="not a training run folder"):
+    with pytest.raises(FileNotFoundError, match=r"not a training run \(no run.json\)"):
         evaluate_run(tmp_path, QUIET)
     bad = tmp_path / "bad"
     write_json(bad / "run.json", {"seed": 1})
-    with pytest.raises(ValueError, match="missing key 'data_dir'"):
+    with pytest.raises(ValueError, match=r"the run's dataset was not recorded \(run.json has no data_dir\)"):
         evaluate_run(bad, QUIET)
     write_json(bad / "run.json", {"data_dir": str(run_dir.parent / "data")})
     with pytest.raises(FileNotFoundError, match="the run has no relit images"):

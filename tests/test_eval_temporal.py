@@ -7,12 +7,10 @@ import math
 import pytest
 import torch
 
-from evaluation.metrics import ssim
+from spotlessgs.metrics import masked_psnr, masked_ssim, ssim
 from evaluation.synthetic import render_room_sequence
 from evaluation.temporal import (
     PosedFrame,
-    masked_psnr,
-    masked_ssim,
     temporal_scores,
     warp_into,
     warped_temporal_scores,

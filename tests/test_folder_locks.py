@@ -82,8 +82,8 @@ def test_render_shards_run_side_by_side_but_not_twice_nor_beside_a_whole_render(
 
 
 def test_a_second_reproduction_into_the_same_folder_is_refused_before_it_touches_anything(tmp_path):
-    from spotlessgs.reproduce.config import preset
-    from spotlessgs.reproduce.pipeline import reproduce
+    from spotlessgs.experiments.reproduce.config import preset
+    from spotlessgs.experiments.reproduce.pipeline import reproduce
 
     out = tmp_path / "repro"
     with held_by_another_process(out, "spotless reproduce"):
@@ -94,8 +94,8 @@ def test_a_second_reproduction_into_the_same_folder_is_refused_before_it_touches
 
 def test_a_reproduction_never_writes_into_its_scenes_folder(tmp_path):
     from spotlessgs.io.errors import OutputOverlapError
-    from spotlessgs.reproduce.config import preset
-    from spotlessgs.reproduce.pipeline import reproduce
+    from spotlessgs.experiments.reproduce.config import preset
+    from spotlessgs.experiments.reproduce.pipeline import reproduce
 
     config = preset("tiny")
     with pytest.raises(OutputOverlapError, match="--scenes-dir"):

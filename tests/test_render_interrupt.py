@@ -209,7 +209,7 @@ def test_render_inside_a_spawned_pool_worker(tmp_path):
     import multiprocessing
     from concurrent.futures import ProcessPoolExecutor
 
-    from spotlessgs.reproduce.tasks import render_room
+    from spotlessgs.experiments.reproduce.tasks import render_room
 
     with ProcessPoolExecutor(1, mp_context=multiprocessing.get_context("spawn"), max_tasks_per_child=1) as pool:
         summary = pool.submit(render_room, str(SCENE), str(tmp_path / "d"), "uneven", 2, 64, 48, 4, 3, 1).result()

@@ -15,9 +15,9 @@ import pytest
 from click.testing import CliRunner
 
 from spotlessgs.cli import main
-from spotlessgs.reproduce.config import preset
-from spotlessgs.reproduce.pipeline import reproduce
-from spotlessgs.reproduce.stages import marker_path
+from spotlessgs.experiments.reproduce.config import preset
+from spotlessgs.experiments.reproduce.pipeline import reproduce
+from spotlessgs.experiments.reproduce.stages import marker_path
 
 pytestmark = [pytest.mark.blender]
 

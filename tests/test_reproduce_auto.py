@@ -10,12 +10,12 @@ import pytest
 
 from conftest import synthetic_box_dataset
 from spotlessgs.io.atomic import write_json
-from spotlessgs.reproduce.config import preset
-from spotlessgs.reproduce.pipeline import check_or_record_config
-from spotlessgs.reproduce.report import collect
-from spotlessgs.reproduce.stages import write_marker
-from spotlessgs.reproduce.tables import runtime_table, table1
-from spotlessgs.reproduce.tasks import method_train_config, train_method
+from spotlessgs.experiments.reproduce.config import preset
+from spotlessgs.experiments.reproduce.pipeline import check_or_record_config
+from spotlessgs.experiments.reproduce.report import collect
+from spotlessgs.experiments.reproduce.stages import write_marker
+from spotlessgs.experiments.reproduce.tables import runtime_table, table1
+from spotlessgs.experiments.reproduce.tasks import method_train_config, train_method
 from spotlessgs.training.selection import SELECTION_FILE, run_decisions
 
 pytestmark = pytest.mark.usefixtures("one_torch_thread")

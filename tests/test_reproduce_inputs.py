@@ -1,4 +1,4 @@
-"""The reproduction's ``eval-inputs`` stage (spotlessgs.reproduce.tasks.evaluate_inputs) on a synthetic dataset (no
+"""The reproduction's ``eval-inputs`` stage (spotlessgs.experiments.reproduce.tasks.evaluate_inputs) on a synthetic dataset (no
 Blender): it scores a dataset's uneven inputs once with exactly the numbers that ``evaluate_run``'s ``input`` block
 gave every method before (same functions, same settings, SfM included), and names what is wrong with bad datasets."""
 
@@ -13,7 +13,7 @@ from evaluation.runner import evaluate_run
 from evaluation.synthetic import render_room_sequence, write_dataset_folder
 from spotlessgs.io.atomic import to_jsonable, write_json
 from spotlessgs.io.images import write_png
-from spotlessgs.reproduce.tasks import _eval_config, compact_metrics, evaluate_inputs
+from spotlessgs.experiments.reproduce.tasks import _eval_config, compact_metrics, evaluate_inputs
 
 pytestmark = pytest.mark.usefixtures("one_torch_thread")
 

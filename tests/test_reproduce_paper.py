@@ -14,8 +14,8 @@ import math
 
 import pytest
 
-from spotlessgs.reproduce.config import preset
-from spotlessgs.reproduce.pipeline import reproduce
+from spotlessgs.experiments.reproduce.config import preset
+from spotlessgs.experiments.reproduce.pipeline import reproduce
 
 pytestmark = [pytest.mark.blender, pytest.mark.slow]
 

@@ -11,17 +11,17 @@ from pathlib import Path
 import pytest
 
 from spotlessgs.io.atomic import write_json
-from spotlessgs.reproduce.config import ReproduceConfig, preset
-from spotlessgs.reproduce.executor import StageFailedError, execute, threads_per_job
-from spotlessgs.reproduce.pipeline import build_graph, check_or_record_config
-from spotlessgs.reproduce.stages import (
+from spotlessgs.experiments.reproduce.config import ReproduceConfig, preset
+from spotlessgs.experiments.reproduce.executor import StageFailedError, execute, threads_per_job
+from spotlessgs.experiments.reproduce.pipeline import build_graph, check_or_record_config
+from spotlessgs.experiments.reproduce.stages import (
     Stage, StageGraph, is_done, marker_path, read_marker, resolve, write_marker,
 )
-from spotlessgs.reproduce.tables import (
+from spotlessgs.experiments.reproduce.tables import (
     GT_SFM_LABEL, all_tables, agreement_notes, best_darkgs, check_at_least, check_auto_vs_spotless, check_order, check_sfm,
     format_cell, model_chosen_cell, model_summary, runtime_table, table1, table2, table3, table4,
 )
-from spotlessgs.reproduce.tasks import curve_milestones
+from spotlessgs.experiments.reproduce.tasks import curve_milestones
 
 HERE = "test_reproduce_units"
 
@@ -125,7 +125,7 @@ def test_sensor_noise_copies_are_extra_datasets():
 
 
 def test_cli_options_to_config():
-    from spotlessgs.reproduce.cli import config_from_options
+    from spotlessgs.experiments.reproduce.cli import config_from_options
 
     c = config_from_options("quick", ("office",), 3, None, True)
     assert c.scenes == ("office",) and c.gan_rooms == ("living_room", "bedroom") and c.seed == 3 and not c.sfm
@@ -172,7 +172,7 @@ def test_pipeline_graph_shape(tmp_path):
     # on the uneven set, the sensor-noise copy with its SpotlessGS run and inputs' evaluation, report
     assert len(names) == 2 + 14 + 2 + 2 + 1 + 3 + 3 + 1
     noise = graph["noise/bedroom-uneven-noisy"]
-    assert noise.function == "spotlessgs.reproduce.tasks:add_noise_copy" and not noise.clean_on_retry
+    assert noise.function == "spotlessgs.experiments.reproduce.tasks:add_noise_copy" and not noise.clean_on_retry
     assert noise.deps == ("render/bedroom-uneven",)
     assert noise.kwargs == {"data_dir": str(tmp_path / "datasets" / "bedroom-uneven"),
                             "out_dir": str(tmp_path / "datasets" / "bedroom-uneven-noisy"), "shot": 0.002,
@@ -184,7 +184,7 @@ def test_pipeline_graph_shape(tmp_path):
     assert len(build_graph(preset("tiny", sensor_noise=None), tmp_path).stages) == len(names) - 3
     # the uneven inputs are scored once per dataset, with the methods' evaluation settings, after its render only
     inputs = graph["eval-inputs/bedroom-saturated"]
-    assert inputs.function == "spotlessgs.reproduce.tasks:evaluate_inputs"
+    assert inputs.function == "spotlessgs.experiments.reproduce.tasks:evaluate_inputs"
     assert inputs.deps == ("render/bedroom-saturated",) and inputs.clean_on_retry
     assert inputs.output == tmp_path / "inputs" / "bedroom-saturated"
     assert inputs.kwargs == {"data_dir": str(tmp_path / "datasets" / "bedroom-saturated"),
@@ -228,7 +228,7 @@ def test_graph_errors():
     with pytest.raises(ValueError, match="must be 'package.module:function'"):
         Stage("ok", "no_colon")
     with pytest.raises(ValueError, match="cannot be imported"):
-        resolve("spotlessgs.reproduce.tasks:no_such_function")
+        resolve("spotlessgs.experiments.reproduce.tasks:no_such_function")
 
 
 def test_topological_order_and_dependents():
@@ -620,7 +620,7 @@ def test_thread_env_is_set_in_workers(tmp_path, monkeypatch):
 
 
 def test_report_errors_name_the_missing_piece(tmp_path):
-    from spotlessgs.reproduce.report import collect, load_config
+    from spotlessgs.experiments.reproduce.report import collect, load_config
 
     with pytest.raises(FileNotFoundError, match="not a reproduction folder"):
         load_config(tmp_path)
@@ -638,7 +638,7 @@ def test_report_errors_name_the_missing_piece(tmp_path):
 def test_collect_reads_the_inputs_once_per_dataset_from_their_stage(tmp_path):
     """The Input rows (Tables I, III, IV, the agreement notes) come from each dataset's eval-inputs marker, not from
     a method's metrics."""
-    from spotlessgs.reproduce.report import collect
+    from spotlessgs.experiments.reproduce.report import collect
 
     config = preset("tiny", methods=("3dgs", "spotless"), baselines=())
     check_or_record_config(config, tmp_path)
@@ -706,8 +706,8 @@ def test_workers_die_with_the_parent(tmp_path):
 
     script = (
         "import sys; sys.path[:0] = sys.argv[1:3]\n"
-        "from spotlessgs.reproduce.executor import execute\n"
-        "from spotlessgs.reproduce.stages import Stage, StageGraph\n"
+        "from spotlessgs.experiments.reproduce.executor import execute\n"
+        "from spotlessgs.experiments.reproduce.stages import Stage, StageGraph\n"
         "if __name__ == '__main__':\n"
         "    execute(StageGraph([Stage('s', 'test_reproduce_units:sleep_forever', {'path': sys.argv[3]})]), "
         "sys.argv[4], jobs=1)\n"
@@ -741,7 +741,7 @@ def test_workers_drop_blender_script_paths_inherited_from_the_parent(monkeypatch
     compiled bpy module ("No module named '_bpy'"); the worker initialiser removes them and nothing else."""
     import sys
 
-    from spotlessgs.reproduce.executor import _drop_blender_script_paths
+    from spotlessgs.experiments.reproduce.executor import _drop_blender_script_paths
 
     fake = ["/x/site-packages/bpy/5.0/scripts/modules", "/x/site-packages/bpy/5.0/scripts/startup"]
     keep = ["/x/site-packages", "/work/bpy-notes", "/x/scripts"]
@@ -761,8 +761,8 @@ def test_a_stopped_pipeline_stops_its_workers_without_a_traceback(tmp_path, sign
     script = (
         "import sys; sys.path[:0] = sys.argv[1:3]\n"
         "from spotlessgs.io.signals import raise_on_sigterm\n"
-        "from spotlessgs.reproduce.executor import execute\n"
-        "from spotlessgs.reproduce.stages import Stage, StageGraph\n"
+        "from spotlessgs.experiments.reproduce.executor import execute\n"
+        "from spotlessgs.experiments.reproduce.stages import Stage, StageGraph\n"
         "if __name__ == '__main__':\n"
         "    raise_on_sigterm()\n"
         "    try:\n"

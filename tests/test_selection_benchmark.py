@@ -12,7 +12,7 @@ import pytest
 from click.testing import CliRunner
 
 from conftest import synthetic_box_dataset
-from spotlessgs.selection_benchmark import (
+from spotlessgs.experiments.selection_benchmark import (
     PLOT, RESULTS_JSON, RESULTS_MD, ROW_FILE, RUN_FOLDERS, BenchmarkSettings, aggregate_seeds, main, run_seeds,
     run_selection_benchmark, selection_verdict, train_config, verdict_lines,
 )
@@ -300,8 +300,8 @@ def test_several_seeds_measure_each_seed_and_summarise(bench, tmp_path, monkeypa
 
 
 def test_paired_relit_fps_alternates_the_runs_and_keeps_each_ones_best_round(monkeypatch, tmp_path):
-    import spotlessgs.reproduce.tasks as tasks
-    from spotlessgs.selection_benchmark import paired_relit_fps
+    import spotlessgs.experiments.reproduce.tasks as tasks
+    from spotlessgs.experiments.selection_benchmark import paired_relit_fps
 
     timings = iter([10.0, 30.0, 14.0, 12.0, 11.0, 31.0])  # round 0: a, b, c; round 1: a, b, c
     calls = []

@@ -148,7 +148,7 @@ def _tiny(**overrides):
 @pytest.mark.blender
 def test_tiny_training_does_real_work(bedroom, tmp_path):
     from evaluation.alignment import apply_gain, exposure_gain
-    from evaluation.metrics import psnr
+    from spotlessgs.metrics import psnr
     from spotlessgs.io.images import read_image
     from spotlessgs.rendering import render_run
     from spotlessgs.training.trainer import train

@@ -52,7 +52,7 @@ def enhance_folder(method: str, in_dir: str | os.PathLike, out_dir: str | os.Pat
     out_dir = Path(out_dir)
     refuse_overlap(out_dir, {"IN_DIR": in_dir}, "OUT_DIR")
     if method == "cyclegan":
-        from spotlessgs.baselines2d.cyclegan.translate import translate_folder
+        from spotlessgs.baselines2d.cyclegan.translate import translate_folder  # deferred: torch, only for Cycle-GAN
 
         if "checkpoint" not in opts:
             raise ValueError("enhance_folder: method 'cyclegan' needs checkpoint=<path of a trained checkpoint.pt>")

@@ -2,8 +2,9 @@
 
 Temporary files are named ``.<name>.partial-<random><suffix>`` beside their target, so that a process killed with
 SIGKILL (which runs no clean-up) leaves files that :func:`remove_partial_files` recognises and removes on the next
-run. Finished files get the permissions the process's umask gives a new file (``mkstemp`` would leave 0600), and a
-refused write (full disk, quota, read-only, permission) raises one line naming the file and the cause.
+run. Finished files get the permissions the process's umask gives a new file (``mkstemp`` would leave 0600), their
+data is synced to the disk before the rename (and the folder after it, where the file system allows), and a refused
+write (full disk, quota, read-only, permission) raises one line naming the file and the cause.
 """
 
 from __future__ import annotations
@@ -17,19 +18,47 @@ import threading
 from pathlib import Path
 from typing import IO, Any, Iterator
 
-from spotlessgs.io.errors import write_error
+from spotlessgs.io.errors import WriteError, write_error
 
 #: Marks a temporary file of :func:`atomic_path` (see the module docstring).
 PARTIAL_MARK = ".partial-"
 _UMASK_LOCK = threading.Lock()
+_UMASK_CACHE: list[int] = []  # the umask read by setting it (where /proc cannot tell), once per process
+
+
+def _umask_from_proc() -> int | None:
+    """The process's umask from ``/proc/self/status`` (Linux 4.7+), read without changing it; None where unknown."""
+    try:
+        with open("/proc/self/status", encoding="ascii", errors="replace") as fh:
+            for line in fh:
+                if line.startswith("Umask:"):
+                    return int(line.split(":", 1)[1].strip(), 8)
+    except (OSError, ValueError):
+        pass
+    return None
+
+
+def current_umask() -> int:
+    """The process's umask.
+
+    On Linux it is read from ``/proc/self/status`` at every call (so it follows ``os.umask`` changes) and never
+    modified. Elsewhere ``os.umask`` can only be read by setting it, which races with other threads creating files:
+    that is done once per process, under a lock, and the value cached.
+    """
+    mask = _umask_from_proc()
+    if mask is not None:
+        return mask
+    with _UMASK_LOCK:
+        if not _UMASK_CACHE:
+            mask = os.umask(0o022)
+            os.umask(mask)
+            _UMASK_CACHE.append(mask)
+    return _UMASK_CACHE[0]
 
 
 def new_file_mode() -> int:
-    """The permission bits ``open(..., "w")`` would give a new file under the current umask (0o666 & ~umask)."""
-    with _UMASK_LOCK:  # os.umask can only be read by setting it
-        mask = os.umask(0o022)
-        os.umask(mask)
-    return 0o666 & ~mask
+    """The permission bits ``open(..., "w")`` would give a new file under the process's umask (0o666 & ~umask)."""
+    return 0o666 & ~current_umask()
 
 
 def remove_partial_files(folder: str | os.PathLike, recursive: bool = True) -> list[Path]:
@@ -71,14 +100,56 @@ def atomic_path(path: str | os.PathLike, suffix: str | None = None) -> Iterator[
     try:
         yield tmp_path
         os.chmod(tmp_path, new_file_mode())
+        _fsync_file(tmp_path)  # the data is on disk before the name points at it (a crash never leaves it empty)
         os.replace(tmp_path, path)
     except BaseException as exc:
         with contextlib.suppress(FileNotFoundError):
             tmp_path.unlink()
-        refused = write_error(path, exc) if isinstance(exc, Exception) else None
+        refused = write_error(path, exc) if _about_this_write(exc, tmp_path, path) else None
         if refused is not None:
             raise refused from exc
         raise
+    _fsync_folder(path.parent)  # the rename itself survives a crash
+
+
+def _fsync_file(path: Path) -> None:
+    """Flush ``path``'s data to the disk."""
+    fd = os.open(path, os.O_RDONLY)
+    try:
+        os.fsync(fd)
+    finally:
+        os.close(fd)
+
+
+def _fsync_folder(folder: Path) -> None:
+    """Flush ``folder``'s entries to the disk, best effort (some file systems and platforms cannot sync a folder)."""
+    try:
+        fd = os.open(folder, os.O_RDONLY)
+    except OSError:
+        return
+    try:
+        os.fsync(fd)
+    except OSError:
+        pass
+    finally:
+        os.close(fd)
+
+
+def _about_this_write(exc: BaseException, tmp: Path, path: Path) -> bool:
+    """Whether ``exc``, raised while writing ``tmp`` for ``path``, may be the write of that file being refused.
+
+    An OSError that names another file (the block reading its source: ``shutil.copy2(src, tmp)`` with an unreadable
+    ``src``) is not; nor is a :class:`WriteError` already naming its file, nor an interrupt.
+    """
+    if not isinstance(exc, Exception) or isinstance(exc, WriteError):
+        return False
+    if not isinstance(exc, OSError):
+        return True
+    ours = {os.path.abspath(tmp), os.path.abspath(path)}
+    for name in (exc.filename, exc.filename2):
+        if isinstance(name, (str, bytes, os.PathLike)) and os.path.abspath(os.fsdecode(name)) not in ours:
+            return False
+    return True
 
 
 @contextlib.contextmanager
@@ -87,9 +158,7 @@ def atomic_open(path: str | os.PathLike, mode: str = "w", encoding: str | None =
     if "b" in mode:
         encoding = None
     with atomic_path(path) as tmp, open(tmp, mode, encoding=encoding) as fh:
-        yield fh
-        fh.flush()
-        os.fsync(fh.fileno())
+        yield fh  # closing flushes it; atomic_path syncs it to the disk before the rename
 
 
 def to_jsonable(obj: Any) -> Any:

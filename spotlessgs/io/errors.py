@@ -48,7 +48,8 @@ def write_error(path: str | os.PathLike, exc: BaseException) -> WriteError | Non
     """A one-line :class:`WriteError` for ``path`` when ``exc`` is a refused write, else None.
 
     Libraries often hide ENOSPC behind their own message (torch: "unexpected pos 621248 vs 621136", PIL: "cannot write
-    mode RGB"); when the folder has (almost) no free space left the cause is said to be the full disk.
+    mode RGB"); when the folder has (almost) no free space left such an error (an OSError, or a message that reads
+    like a failed write) is said to be the full disk. Programming errors (TypeError, KeyError, ...) never are.
     """
     code = getattr(exc, "errno", None)
     if code is None:  # libraries written in Rust or C++ (safetensors, OpenEXR) put the OS error in their message
@@ -56,9 +57,27 @@ def write_error(path: str | os.PathLike, exc: BaseException) -> WriteError | Non
         code = int(found.group(1) or found.group(2)) if found else None
     if code in _WRITE_CAUSES:
         return WriteError(code, f"{os.fspath(path)}: cannot write: {_WRITE_CAUSES[code]}")
-    if _nearly_full(path):
+    if _may_hide_a_failed_write(exc) and _nearly_full(path):
         return WriteError(errno.ENOSPC, f"{os.fspath(path)}: cannot write: no space left on the device ({exc})")
     return None
+
+
+#: Exceptions that are programming errors: never relabelled as a full disk, whatever their message says.
+_BUG_TYPES = (TypeError, AttributeError, NameError, LookupError, AssertionError, ArithmeticError, RecursionError,
+              NotImplementedError)
+#: How libraries word a write that the OS refused (torch: "unexpected pos", "file write failed"; Rust: "os error
+#: 28", "IoError", "StorageFull"; PIL: "cannot write mode").
+_WRITE_FAILURE_WORDS = re.compile(r"write|unexpected pos|os error|ioerror|i/o error|errno|no space|storagefull",
+                                  re.IGNORECASE)
+
+
+def _may_hide_a_failed_write(exc: BaseException) -> bool:
+    """Whether ``exc`` can be a refused write in disguise: an OSError, or a library's error worded like one."""
+    if isinstance(exc, OSError):
+        return True
+    if isinstance(exc, (*_BUG_TYPES, InputError, FolderLockedError)):  # a bug, or the user's error: said as it is
+        return False
+    return bool(_WRITE_FAILURE_WORDS.search(str(exc)))
 
 
 def _nearly_full(path: str | os.PathLike, margin_bytes: int = 1 << 20) -> bool:

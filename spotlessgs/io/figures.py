@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import os
 
+from spotlessgs.io.atomic import atomic_path
+
 
 def pyplot():
     """``matplotlib.pyplot`` on the non-interactive Agg backend (imported lazily: matplotlib is slow to import)."""
@@ -17,8 +19,6 @@ def pyplot():
 
 def save_figure(fig, path: str | os.PathLike, dpi: int = 120) -> None:
     """Lay out ``fig``, write it as PNG atomically to ``path`` and close it."""
-    from spotlessgs.io.atomic import atomic_path
-
     fig.tight_layout()
     with atomic_path(path) as tmp:
         fig.savefig(tmp, dpi=dpi, format="png")

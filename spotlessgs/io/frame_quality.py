@@ -4,6 +4,10 @@ A camera that was covered, a lamp that was off, an exposure that clipped everyth
 frame copied N times trains to nonsense that looks fine (an all-black sequence reaches "55 dB"). These checks run on
 the images as read from their files (values in [0, 1] in the file's encoding) before training; frames that carry no
 usable signal are named in one warning and left out of the fit, and when nothing usable is left it is an error.
+
+The black level is a brightness as displayed (sRGB encoding): the brightness of a linear file (``--linear``, RAW
+developed without a tone curve) is converted to sRGB before the test, so that a dark but valid linear frame (2/255 in
+sRGB is about 0.0006 linear) is not taken for a black one.
 """
 
 from __future__ import annotations
@@ -16,11 +20,12 @@ from typing import Sequence
 
 import numpy as np
 
+from spotlessgs.io.colorspace import linear_to_srgb
 from spotlessgs.io.errors import InputError
 
 log = logging.getLogger(__name__)
 
-#: A frame is black when its 99th-percentile pixel (brightest channel) is below this (file encoding): 2 / 255.
+#: A frame is black when its 99th-percentile pixel (brightest channel) is below this (sRGB encoding): 2 / 255.
 BLACK_LEVEL = 2.0 / 255.0
 #: A frame is saturated when at least this fraction of its pixels is clipped.
 SATURATED_FRACTION = 0.98
@@ -30,16 +35,26 @@ SATURATED_FRACTION = 0.98
 class FrameStats:
     """What the checks need of one frame (kept instead of the image)."""
 
-    bright_level: float  # 99th percentile over pixels of the brightest channel, file encoding
+    bright_level: float  # 99th percentile over pixels of the brightest channel, sRGB encoding
     saturated_fraction: float  # fraction of clipped pixels
     digest: str  # sha256 of the decoded pixels
 
 
-def frame_stats(image: np.ndarray, saturated: np.ndarray) -> FrameStats:
-    """Statistics of one (H, W, 3) image in [0, 1] and its (H, W) clipped mask."""
+def frame_stats(image: np.ndarray, saturated: np.ndarray, linear: bool = False) -> FrameStats:
+    """Statistics of one (H, W, 3) image in [0, 1] (as read from its file) and its (H, W) clipped mask.
+
+    Args:
+        image: the pixels in the file's encoding.
+        saturated: True where a pixel is clipped.
+        linear: the file holds linear values (``--linear``), not sRGB-encoded ones: its brightness is converted to
+            sRGB for the black-frame test.
+    """
     brightest = image.max(axis=2)
+    level = float(np.percentile(brightest, 99.0))
+    if linear:  # monotonic: the converted percentile is that of the converted pixels (up to interpolation)
+        level = float(linear_to_srgb(np.float64(level)))
     return FrameStats(
-        bright_level=float(np.percentile(brightest, 99.0)),
+        bright_level=level,
         saturated_fraction=float(saturated.mean()),
         digest=hashlib.sha256(np.ascontiguousarray(image, dtype=np.float32).tobytes()).hexdigest(),
     )

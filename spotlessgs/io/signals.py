@@ -22,9 +22,13 @@ def _raise_terminated(signum, _frame) -> None:
     raise Terminated(f"received signal {signal.Signals(signum).name}")
 
 
-def raise_on_sigterm() -> None:
-    """Make SIGTERM raise :class:`Terminated` in the main thread (call once, from the main thread)."""
-    signal.signal(signal.SIGTERM, _raise_terminated)
+def raise_on_sigterm():
+    """Make SIGTERM raise :class:`Terminated` in the main thread (call from the main thread, else ValueError).
+
+    Returns:
+        the previous handler, for ``signal.signal(signal.SIGTERM, previous)`` (None: one installed by C code).
+    """
+    return signal.signal(signal.SIGTERM, _raise_terminated)
 
 
 def exit_code(interrupt: KeyboardInterrupt) -> int:
@@ -58,7 +62,8 @@ def deferred_interrupts() -> Iterator[StopRequest]:
     Inside the block SIGINT and SIGTERM only set ``request.signum``; the loop checks ``request.requested`` at a safe
     point (after a step), saves what it has and calls ``request.raise_if_requested()``; a signal that arrived after
     the last check is raised when the block ends. A second signal raises at once (an impatient user is not kept
-    waiting). Outside the main thread the block changes nothing.
+    waiting). Outside the main thread the block changes nothing. The previous handlers are put back when the block
+    ends, except one that C code installed (Python cannot reinstall it; the block's handler stays).
     """
     request = StopRequest()
     if threading.current_thread() is not threading.main_thread():
@@ -76,5 +81,6 @@ def deferred_interrupts() -> Iterator[StopRequest]:
         yield request
     finally:
         for s, old in previous.items():
-            signal.signal(s, old)
+            if old is not None:  # None: a handler installed by C code, which Python cannot put back
+                signal.signal(s, old)
     request.raise_if_requested()  # a signal during the block's last part: the work is finished, still stop

@@ -98,7 +98,8 @@ def load_tree(path: str | os.PathLike, kind: str) -> dict[str, Any]:
 
     Raises:
         FileNotFoundError: no such file.
-        InputError: not a safetensors file, damaged, or of another ``kind`` (names the file and the problem).
+        InputError: not a safetensors file, damaged (also a malformed structure in its metadata), or of another
+            ``kind`` (names the file and the problem, in one line).
     """
     path = Path(path)
     if not path.is_file():
@@ -114,9 +115,18 @@ def load_tree(path: str | os.PathLike, kind: str) -> dict[str, Any]:
         raise InputError(f"{path}: holds {found!r}, expected {kind!r}")
     try:
         structure = json.loads(metadata["tree"])
-    except (KeyError, ValueError) as exc:
-        raise InputError(f"{path}: damaged file: its structure is not valid JSON ({exc})") from None
-    return _decode(structure, tensors, path)
+    except (KeyError, ValueError, RecursionError) as exc:
+        detail = "nested too deeply" if isinstance(exc, RecursionError) else str(exc) or type(exc).__name__
+        raise InputError(f"{path}: damaged file: its structure is not valid JSON ({detail})") from None
+    try:
+        return _decode(structure, tensors, path)
+    except InputError:
+        raise
+    except (TypeError, ValueError, AttributeError, KeyError, RecursionError) as exc:
+        # a tag whose content has the wrong shape ({"__items__": 5}, a list as a key, ...) or absurd nesting
+        detail = "nested too deeply" if isinstance(exc, RecursionError) else " ".join(str(exc).split())
+        raise InputError(f"{path}: damaged file: its structure is malformed ({type(exc).__name__}: {detail})") \
+            from None
 
 
 def load_plain_torch_file(path: str | os.PathLike, what: str) -> Any:

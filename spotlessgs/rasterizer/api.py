@@ -20,6 +20,7 @@ from typing import Iterator
 import torch
 from torch import Tensor
 
+from .backend_gsplat import gsplat_available, rasterize_gsplat
 from .binning import bin_gaussians, bin_gaussians_cpp
 from .composite_cpp import composite_cpp
 from .composite_torch import composite_torch
@@ -115,8 +116,6 @@ def rasterize(
     channels = features.shape[1]
 
     if chosen == "gsplat":
-        from .backend_gsplat import rasterize_gsplat
-
         color, alpha, depth, screen, radii_xy, depths = rasterize_gsplat(
             means, quats, scales, opacities, features, viewmat, K, width, height,
             near=near, far=far, eps2d=eps2d, tile_size=tile_size,
@@ -165,8 +164,6 @@ def _resolve_backend(backend: str, device: torch.device) -> str:
         raise ValueError(f"backend must be one of {BACKENDS}, got {backend!r}")
     if backend == "auto":
         if device.type == "cuda":
-            from .backend_gsplat import gsplat_available
-
             if gsplat_available():
                 return "gsplat"
             return "torch"

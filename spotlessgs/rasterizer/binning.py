@@ -12,6 +12,9 @@ from dataclasses import dataclass
 import torch
 from torch import Tensor
 
+from .cpp_kernel import load_kernel
+from .cpp_kernel import pointer as _p
+
 
 @dataclass(frozen=True)
 class TileBins:
@@ -44,9 +47,6 @@ def bin_gaussians_cpp(
     Raises:
         spotlessgs.rasterizer.cpp_kernel.KernelBuildError: the kernel is not available.
     """
-    from .cpp_kernel import load_kernel
-    from .cpp_kernel import pointer as _p
-
     kernel = load_kernel(raise_errors=True)
     suffix = {torch.float32: "f32", torch.float64: "f64"}[means2d.dtype]
     tiles_x = -(-width // tile_size)

@@ -18,11 +18,11 @@ from __future__ import annotations
 import json
 import os
 from pathlib import Path
-from typing import Any
+from typing import Any, Sequence
 
-import torch
-
+from spotlessgs.io.atomic import write_text
 from spotlessgs.io.errors import InputError
+from spotlessgs.io.json_files import read_json
 from spotlessgs.io.tensor_file import load_plain_torch_file, load_tree, save_tree
 
 CHECKPOINT_VERSION = 1
@@ -66,12 +66,21 @@ def load_checkpoint(run_dir: Path) -> dict[str, Any]:
     return data
 
 
-def read_run_info(run_dir: Path) -> dict[str, Any]:
-    """The run's ``run.json``."""
+def read_run_info(run_dir: Path, required: Sequence[str] = ()) -> dict[str, Any]:
+    """The run's ``run.json`` (a JSON object).
+
+    Args:
+        run_dir: the run folder.
+        required: keys the caller needs (e.g. ``("model", "seed")`` to rebuild the model).
+
+    Raises:
+        FileNotFoundError: the folder has no run.json.
+        InputError: run.json is damaged (not a JSON object) or lacks a required key (names the file and the key).
+    """
     path = Path(run_dir) / "run.json"
     if not path.is_file():
         raise FileNotFoundError(f"{run_dir}: not a training run (no run.json)")
-    return json.loads(path.read_text())
+    return read_json(path, "run description", required)
 
 
 def data_dir_fields(data_dir: str | Path, run_dir: str | Path) -> dict[str, str | None]:
@@ -124,6 +133,4 @@ def truncate_metrics(path: Path, last_step: int) -> None:
                 keep.append(line)
         except json.JSONDecodeError:
             continue  # a line cut by a crash
-    from spotlessgs.io.atomic import write_text
-
     write_text(path, "".join(f"{line}\n" for line in keep))

@@ -76,7 +76,7 @@ def _load_linear(path: Path, linear_input: bool, threshold: float) -> tuple[np.n
     img = read_image(path)
     saturated = img.max(axis=2) >= threshold
     linear = img if linear_input else srgb_to_linear(img).astype(np.float32)
-    return linear.astype(np.float32), saturated, frame_stats(img, saturated)
+    return linear.astype(np.float32), saturated, frame_stats(img, saturated, linear=linear_input)
 
 
 def _downscale(images: torch.Tensor, masks: torch.Tensor, size: tuple[int, int]) -> tuple[torch.Tensor, torch.Tensor]:

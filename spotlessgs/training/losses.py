@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import torch
 
-from evaluation.metrics import ssim
+from spotlessgs.metrics import ssim
 
 
 def clipped_l1(pred: torch.Tensor, target: torch.Tensor, saturated: torch.Tensor) -> torch.Tensor:

@@ -51,9 +51,15 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from spotlessgs.io.atomic import write_json
+from spotlessgs.io.errors import InputError
 from spotlessgs.io.folder_lock import folder_lock
+from spotlessgs.io.json_files import read_json, require_keys
+from spotlessgs.io.paths import refuse_overlap
 from spotlessgs.models.shading import ModelConfig, build_appearance_models
+from spotlessgs.training import trainer  # called as trainer.train: patching spotlessgs.training.trainer reaches here
 from spotlessgs.training.config import TrainConfig
+from spotlessgs.training.light_need import dark_level, low_frequency_share
+from spotlessgs.training.validation import block_size, evenly_spaced
 
 log = logging.getLogger(__name__)
 
@@ -252,11 +258,7 @@ def measure_light_need(run_dir: Path, selection: SelectionConfig, device: str = 
         (:func:`~spotlessgs.training.light_need.low_frequency_share` over ``share_views`` evenly spaced training
         views), ``measured_on`` (the proxy's folder name) and ``needed`` (both at least their thresholds).
     """
-    from spotlessgs.training.light_need import dark_level, low_frequency_share
-    from spotlessgs.training.trainer import load_run
-    from spotlessgs.training.validation import block_size, evenly_spaced
-
-    scene, views, config, _info = load_run(run_dir, device=device)
+    scene, views, config, _info = trainer.load_run(run_dir, device=device)
     dev = scene.gaussians.means.device
     level = dark_level(views.images[views.train], block_size(views.width, selection.holdout_block))
     share = low_frequency_share(scene, views.c2w.to(dev), views.viewmats.to(dev), views.K.to(dev),
@@ -309,10 +311,8 @@ def _score(data_dir: Path, proxy_dir: Path, model: ModelConfig, config: TrainCon
            light_prior, resume: bool, progress: bool, start_dir: Path, phase: str,
            criterion: str = "all") -> CandidateResult:
     """Train one proxy run from ``start_dir``'s checkpoint (its checkpoint is kept until the search ends)."""
-    from spotlessgs.training.trainer import train
-
-    result = train(data_dir, proxy_dir, model, config, seed=seed, resume=resume, light_prior=light_prior,
-                   progress=progress, init_from=start_dir)
+    result = trainer.train(data_dir, proxy_dir, model, config, seed=seed, resume=resume, light_prior=light_prior,
+                           progress=progress, init_from=start_dir)
     if result.validation_psnr is None:
         raise RuntimeError(f"{proxy_dir}: the proxy run of {model.name} has no validation PSNR")
     return CandidateResult(model.name, model.sh_degree, model.brdf, float(result.validation_psnr),
@@ -332,25 +332,27 @@ def select_model(
         the decision: ``chosen`` (name), ``chosen_model`` (ModelConfig fields), ``best`` (name of the highest PSNR),
         ``tolerance_db``, ``candidates`` (every scored CandidateResult as a dict, in the order trained), ``settings``.
     Raises:
-        FileExistsError: a decision exists and ``resume`` is False; ValueError: ``resume`` with other settings.
+        FileExistsError: a decision exists and ``resume`` is False; ValueError: ``resume`` with other settings;
+        InputError: the stored decision is damaged (not JSON, a missing entry; names the file).
     """
-    from spotlessgs.training.trainer import train
-
     data_dir, run_dir = Path(data_dir).resolve(), Path(run_dir)
     path = run_dir / SELECTION_FILE
     settings = json.loads(json.dumps(_settings(config, selection, seed, data_dir)))  # as stored (tuples -> lists)
     if path.is_file():
         if not resume:
             raise FileExistsError(f"{path} exists: pass --resume to continue this run or use a new --out")
-        decision = json.loads(path.read_text())
+        decision = read_json(path, "model selection decision")
         if decision.get("version") != SELECTION_VERSION:
             raise ValueError(f"{path}: made by model selection version {decision.get('version')}, this is version "
                              f"{SELECTION_VERSION} (other candidates and measurements); remove {path} and "
                              f"{run_dir / 'selection'} to decide again, or use a new --out")
-        stored = dict(decision.get("settings") or {})
+        stored = decision.get("settings") if isinstance(decision.get("settings"), dict) else {}
         moved = {"data_dir"}  # the dataset may have moved (--data DIR): not another setting
         if {k: v for k, v in stored.items() if k not in moved} != {k: v for k, v in settings.items() if k not in moved}:
             raise ValueError(f"{path}: --resume with other selection settings than the run was started with")
+        require_keys(decision, path, "model selection decision", ("chosen", "chosen_model"))
+        if not isinstance(decision["chosen_model"], dict):
+            raise InputError(f"{path}: damaged model selection decision: 'chosen_model' is not a JSON object")
         return decision
     proxy = proxy_config(config, selection)
     reflectance_proxy = proxy_config(config, selection, selection.reflectance_proxy_fraction)
@@ -358,8 +360,8 @@ def select_model(
     base_dir = selection_dir / "base"
     base_model = dataclasses.replace(candidate_model(0, "lambert"), name="auto-base")
     log.info("model selection: shared base run (%s)", base_model.name)
-    base = train(data_dir, base_dir, base_model, proxy_config(config, selection, selection.base_fraction), seed=seed,
-                 resume=resume, light_prior=light_prior, progress=progress)
+    base = trainer.train(data_dir, base_dir, base_model, proxy_config(config, selection, selection.base_fraction),
+                         seed=seed, resume=resume, light_prior=light_prior, progress=progress)
     scored: list[CandidateResult] = []
 
     def score(model: ModelConfig, schedule: TrainConfig, start_dir: Path, phase: str,
@@ -455,13 +457,17 @@ def train_auto(
     Returns:
         (decision dict, :class:`~spotlessgs.training.trainer.TrainResult` of the full run).
     """
-    from spotlessgs.training.trainer import train
-
+    # before the lock, which creates the folder and its .lock file: `--out` inside `--data` leaves nothing there
+    refuse_overlap(run_dir, {"--data": Path(data_dir).resolve()}, "the run folder (--out)")
     with folder_lock(run_dir, "spotless train --model auto"):
         decision = select_model(data_dir, run_dir, config, seed, selection, light_prior, resume, progress=False)
-        model = ModelConfig(**decision["chosen_model"])
-        result = train(data_dir, run_dir, model, config, seed=seed, resume=resume, light_prior=light_prior,
-                       progress=progress)
+        try:
+            model = ModelConfig(**decision["chosen_model"])
+        except TypeError as exc:  # an unknown or missing field: a decision of another version
+            raise InputError(f"{Path(run_dir) / SELECTION_FILE}: the chosen model does not fit this version "
+                             f"({exc})") from None
+        result = trainer.train(data_dir, run_dir, model, config, seed=seed, resume=resume, light_prior=light_prior,
+                               progress=progress)
     return decision, result
 
 
@@ -472,12 +478,13 @@ def run_decisions(run_dir: str | Path) -> dict:
     info_path = run_dir / "run.json"
     if not info_path.is_file():
         raise FileNotFoundError(f"{run_dir}: not a training run (no run.json)")
-    chosen = json.loads(info_path.read_text())["model"]
+    chosen = read_json(info_path, "run description", ("model",))["model"]
     selection = run_dir / SELECTION_FILE
     if selection.is_file():
-        chosen = json.loads(selection.read_text())["chosen"]
+        chosen = read_json(selection, "model selection decision", ("chosen",))["chosen"]
     summary = run_dir / "train_summary.json"
-    gaussians = json.loads(summary.read_text())["num_gaussians"] if summary.is_file() else None
+    gaussians = read_json(summary, "training summary", ("num_gaussians",))["num_gaussians"] \
+        if summary.is_file() else None
     return {"model chosen": chosen, "Gaussians": gaussians}
 
 

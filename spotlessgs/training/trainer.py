@@ -6,6 +6,7 @@
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import json
 import logging
@@ -19,11 +20,14 @@ import numpy as np
 import torch
 
 from spotlessgs.io.atomic import remove_partial_files, write_json
+from spotlessgs.io.errors import InputError, write_error
 from spotlessgs.io.folder_lock import folder_lock
+from spotlessgs.io.json_files import read_json, require_keys
 from spotlessgs.io.paths import refuse_overlap
 from spotlessgs.io.signals import StopRequest, deferred_interrupts
 from spotlessgs.io.provenance import provenance
 from spotlessgs.io.seeding import numpy_rng, torch_generator
+from spotlessgs.metrics import psnr_from_mse
 from spotlessgs.models.gaussians import GaussianParams
 from spotlessgs.models.relightable import RelightableScene
 from spotlessgs.models.shading import MODEL_VARIANTS, ModelConfig
@@ -33,6 +37,7 @@ from spotlessgs.training.checkpoint import (
 )
 from spotlessgs.training.config import TrainConfig
 from spotlessgs.training.data import TrainingViews, initial_point_cloud, load_training_views
+from spotlessgs.training.light_report import write_light_report
 from spotlessgs.training.losses import photometric_loss
 from spotlessgs.training.strategy import DensifyConfig, DensifyStrategy
 from spotlessgs.training.warm_start import warm_start_scene
@@ -242,8 +247,8 @@ def restore_scene(ckpt: dict[str, Any], run_info: dict[str, Any], config: TrainC
 
 
 def _psnr(pred: torch.Tensor, target: torch.Tensor) -> float:
-    mse = float(torch.mean((pred.detach().clamp(0, 1) - target) ** 2))
-    return float("inf") if mse <= 0 else -10.0 * math.log10(mse)
+    """PSNR (dB) of a render (H, W, 3), clamped to [0, 1], against its linear target image."""
+    return psnr_from_mse(float(torch.mean((pred.detach().clamp(0, 1) - target) ** 2)))
 
 
 def _check_finite(scene: RelightableScene, step: int, ckpt: Path) -> None:
@@ -313,7 +318,9 @@ def _train_locked(data_dir: Path, run_dir: Path, variant: str | ModelConfig, con
     if has_checkpoint and not resume:
         raise FileExistsError(f"{run_dir} already holds a training run; pass --resume to continue it or use a new --out")
     if resume and has_checkpoint:
-        old = json.loads((run_dir / "config.json").read_text())
+        old = read_json(run_dir / "config.json", "run settings", ("train", "run"))
+        if not isinstance(old["run"], dict):
+            raise InputError(f"{run_dir / 'config.json'}: damaged run settings: 'run' is not a JSON object")
         moved = ("data_dir", "data_dir_relative")  # the dataset may have moved (--data DIR): not another setting
         if old["train"] != resolved["train"] or ({k: v for k, v in old["run"].items() if k not in moved}
                                                  != {k: v for k, v in run_info.items() if k not in moved}):
@@ -323,6 +330,7 @@ def _train_locked(data_dir: Path, run_dir: Path, variant: str | ModelConfig, con
     views = load_training_views(data_dir, config.image_width, config.linear_input, config.saturation_threshold)
     if not views.train:
         raise ValueError(f"{data_dir}: the split has no training views")
+    _stop_before_training(stop, run_dir)  # Ctrl-C while the images loaded: stop now, before anything is written
     split = split_training_views(views.train, config.validation_every)
     extent = views.scene_extent()
     images, saturated = views.images.to(device), views.saturated.to(device)
@@ -373,9 +381,15 @@ def _train_locked(data_dir: Path, run_dir: Path, variant: str | ModelConfig, con
         scene.train()
         return {"validation_psnr": score.psnr, "validation_psnr_dark": score.psnr_dark}
 
+    _stop_before_training(stop, run_dir)  # Ctrl-C during the set-up: the step loop would run (and save) one more step
     bar = tqdm(range(start, end), initial=start, total=config.iterations, desc=f"train {scene.config.name}",
                disable=not progress, unit="it")
-    metrics_file = open(run_dir / "metrics.jsonl", "a", encoding="utf-8")
+    metrics_path = run_dir / "metrics.jsonl"
+    try:
+        metrics_file = open(metrics_path, "a", encoding="utf-8")
+    except OSError as exc:
+        bar.close()
+        raise (write_error(metrics_path, exc) or exc) from exc
     t0 = time.perf_counter()
     loss_value = float("nan")
     try:
@@ -414,8 +428,7 @@ def _train_locked(data_dir: Path, run_dir: Path, variant: str | ModelConfig, con
                        "psnr": _psnr(out.image, images[k]), "gaussians": len(scene.gaussians),
                        "ms_per_step": 1000.0 * elapsed / (s - start), **{k2: v for k2, v in changes.items() if v},
                        **held}
-                metrics_file.write(json.dumps(rec) + "\n")
-                metrics_file.flush()
+                _append_line(metrics_file, metrics_path, json.dumps(rec))
                 bar.set_postfix(loss=f"{loss_value:.4f}", psnr=f"{rec['psnr']:.2f}", n=len(scene.gaussians),
                                 ms=f"{rec['ms_per_step']:.0f}")
             if s % config.checkpoint_every == 0 or s == end or stop.requested:
@@ -427,11 +440,17 @@ def _train_locked(data_dir: Path, run_dir: Path, variant: str | ModelConfig, con
                 log.warning("stopped at step %d; the checkpoint %s holds it (resume with --resume)", s, ckpt_file)
                 stop.raise_if_requested()
     finally:
-        metrics_file.close()
+        # every line was flushed when written: a failing close only repeats an error already raised
+        with contextlib.suppress(OSError):
+            metrics_file.close()
         bar.close()
     seconds = time.perf_counter() - t0
     steps_done = max(end - start, 0)
+    # Ctrl-C after the last step's check: its checkpoint is saved (every run saves its last step), so stop before the
+    # final evaluation instead of waiting for it; `--resume` evaluates
+    _stop_after_training(stop, end, ckpt_file)
     test_psnr = evaluate_reconstruction(scene, views, config) if end == config.iterations else None
+    _stop_after_training(stop, end, ckpt_file)
     val_psnr = val_dark = None
     if end == config.iterations and score_views:
         # the held-out pixel blocks of every training view, or the held-out views: the scores logged at
@@ -441,11 +460,10 @@ def _train_locked(data_dir: Path, run_dir: Path, variant: str | ModelConfig, con
             scores.append({"step": end, **score_held_out()})
         val_psnr = sum(r["validation_psnr"] for r in scores) / len(scores)
         val_dark = sum(r["validation_psnr_dark"] for r in scores) / len(scores)
+        _stop_after_training(stop, end, ckpt_file)
     result = TrainResult(run_dir, end, seconds, 1000.0 * seconds / max(steps_done, 1), len(scene.gaussians),
                          loss_value, test_psnr, val_psnr, val_dark)
     if end == config.iterations:
-        from spotlessgs.light_report import write_light_report
-
         write_light_report(scene, views, run_dir)
         write_json(run_dir / "train_summary.json", {
             "steps": result.steps, "seconds_this_session": seconds, "ms_per_step": result.ms_per_step,
@@ -457,6 +475,32 @@ def _train_locked(data_dir: Path, run_dir: Path, variant: str | ModelConfig, con
         if isinstance(strategy, BudgetStrategy):
             write_json(run_dir / "gaussian_budget.json", budget_report(strategy, len(scene.gaussians), config))
     return result
+
+
+def _stop_before_training(stop: StopRequest, run_dir: Path) -> None:
+    """Raise the interrupt of a stop asked for before the first step (nothing of this session was saved)."""
+    if stop.requested:
+        log.warning("stopped before training %s; no step of this session was run or saved", run_dir)
+        stop.raise_if_requested()
+
+
+def _stop_after_training(stop: StopRequest, step: int, ckpt_file: Path) -> None:
+    """Raise the interrupt of a stop asked for after the last step (whose checkpoint is saved) and before the final
+    evaluation is finished; ``--resume`` redoes the evaluation."""
+    if stop.requested:
+        log.warning("stopped at step %d before the final evaluation; the checkpoint %s holds it (resume with "
+                    "--resume to evaluate)", step, ckpt_file)
+        stop.raise_if_requested()
+
+
+def _append_line(fh, path: Path, line: str) -> None:
+    """Append ``line`` and a newline to the open text file ``fh`` (``path``) and flush it; a refused write (full disk,
+    quota) raises :class:`~spotlessgs.io.errors.WriteError` naming ``path``."""
+    try:
+        fh.write(line + "\n")
+        fh.flush()
+    except OSError as exc:
+        raise (write_error(path, exc) or exc) from exc
 
 
 def validation_steps(iterations: int, count: int) -> set[int]:
@@ -479,6 +523,22 @@ def read_metrics(path: Path) -> list[dict]:
     return records
 
 
+def _saved_train_config(path: Path) -> TrainConfig:
+    """The TrainConfig stored in a run's config.json (key ``train``).
+
+    Raises:
+        InputError: the file is missing or damaged, or its settings are not this version's TrainConfig (names the
+            file).
+    """
+    saved = read_json(path, "run settings", ("train",))
+    if not isinstance(saved["train"], dict):
+        raise InputError(f"{path}: damaged run settings: 'train' is not a JSON object")
+    try:
+        return TrainConfig(**saved["train"])
+    except TypeError as exc:  # an unknown or missing field: another version's run
+        raise InputError(f"{path}: the training settings do not fit this version ({exc})") from None
+
+
 @torch.no_grad()
 def evaluate_reconstruction(scene: RelightableScene, views: TrainingViews, config: TrainConfig) -> float | None:
     """Mean PSNR (linear, clamped to [0, 1]) of the spotlight-lit renders of the test views against the inputs."""
@@ -499,8 +559,10 @@ def load_run(run_dir: str | Path, device: str = "auto", data_dir: str | Path | N
     ``data_dir`` points at the dataset when it has moved (else run.json's paths: see ``resolve_data_dir``)."""
     run_dir = Path(run_dir)
     info = read_run_info(run_dir)
-    saved = json.loads((run_dir / "config.json").read_text())
-    config = TrainConfig(**saved["train"])
+    # what restore_scene needs: the model (its name, or the config of `--model auto`) and the seed
+    require_keys(info, run_dir / "run.json", "run description",
+                 ("seed",) if "model_config" in info else ("model", "seed"))
+    config = _saved_train_config(run_dir / "config.json")
     views = load_training_views(resolve_data_dir(run_dir, info, data_dir), config.image_width, config.linear_input,
                                 config.saturation_threshold)
     scene = restore_scene(load_checkpoint(run_dir), info, config).to(resolve_device(device))

@@ -20,6 +20,7 @@ from dataclasses import dataclass
 import torch
 
 from spotlessgs.io.seeding import torch_generator
+from spotlessgs.metrics import psnr_from_mse
 from spotlessgs.models.relightable import RelightableScene
 from spotlessgs.rasterizer import rasterize
 
@@ -87,10 +88,6 @@ class HeldOutScore:
     psnr_dark: float
 
 
-def _psnr_from_mse(mse: float) -> float:
-    return float("inf") if mse <= 0 else -10.0 * math.log10(mse)
-
-
 @torch.no_grad()
 def held_out_score(
     scene: RelightableScene, c2ws: torch.Tensor, viewmats: torch.Tensor, K: torch.Tensor, images: torch.Tensor,
@@ -128,7 +125,7 @@ def held_out_score(
     if err.numel() == 0:
         raise ValueError("held_out_score: the masks select no pixel")
     dark = torch.argsort(bright, stable=True)[: max(1, int(math.ceil(dark_quantile * err.numel())))]
-    return HeldOutScore(_psnr_from_mse(float(err.mean())), _psnr_from_mse(float(err[dark].mean())))
+    return HeldOutScore(psnr_from_mse(float(err.mean())), psnr_from_mse(float(err[dark].mean())))
 
 
 def validation_psnr(

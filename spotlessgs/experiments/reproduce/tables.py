@@ -1,6 +1,6 @@
 """Tables I-IV, the runtime table and the agreement notes, computed from the collected stage results.
 
-Input (``collected``, built by :mod:`spotlessgs.reproduce.report`)::
+Input (``collected``, built by :mod:`spotlessgs.experiments.reproduce.report`)::
 
     {"datasets": {DS: {"room", "variant",
                        "input": {psnr, ssim, lpips, *_aligned, tmp_psnr, tmp_ssim, sfm: {...}} (the uneven inputs,
@@ -25,7 +25,7 @@ import re
 from dataclasses import dataclass, field
 from typing import Any, Sequence
 
-from spotlessgs.reproduce import paper
+from spotlessgs.experiments.reproduce import paper
 from spotlessgs.training.budget import BUDGET_MAX_LOSS_DB, EPS
 from spotlessgs.training.light_need import light_note
 
@@ -493,7 +493,7 @@ def check_auto_vs_spotless(ds_name: str, ds: dict[str, Any]) -> list[Agreement]:
             f"auto ({chosen}{light}) {a:.2f} dB vs SpotlessGS {b:.2f} dB: {diff:+.2f} dB, {verdict} ({tolerance:g} dB "
             f"selection tolerance, allowed on the spotlight-lit PSNR of held-out training views, + "
             f"{BUDGET_MAX_LOSS_DB:g} dB Gaussian budget bound; this is the relit test views; the choice alone is "
-            f"measured by spotlessgs.selection_benchmark).")))
+            f"measured by spotlessgs.experiments.selection_benchmark).")))
     claim = f"Auto on {ds_name}: no more Gaussians than SpotlessGS"
     ga, gb = _get(auto, "decisions", "Gaussians"), _get(spotless, "decisions", "Gaussians")
     if not (_finite(ga) and _finite(gb)) or gb <= 0:

@@ -8,11 +8,11 @@ from typing import Any
 
 from spotlessgs.io.atomic import write_json, write_text
 from spotlessgs.io.provenance import provenance
-from spotlessgs.reproduce import paper
-from spotlessgs.reproduce.config import NOISY_VARIANT, ReproduceConfig
-from spotlessgs.reproduce.figures import qualitative_grid, speed_error_plot
-from spotlessgs.reproduce.stages import MARKER_DIR, read_marker
-from spotlessgs.reproduce.tables import Agreement, Table, agreement_notes, all_tables
+from spotlessgs.experiments.reproduce import paper
+from spotlessgs.experiments.reproduce.config import NOISY_VARIANT, ReproduceConfig
+from spotlessgs.experiments.reproduce.figures import qualitative_grid, speed_error_plot
+from spotlessgs.experiments.reproduce.stages import MARKER_DIR, read_marker
+from spotlessgs.experiments.reproduce.tables import Agreement, Table, agreement_notes, all_tables
 
 RESULTS_FILE = "results.json"
 REPORT_FILE = "REPORT.md"
@@ -36,7 +36,7 @@ def collect(out: Path, config: ReproduceConfig) -> dict[str, Any]:
     Raises:
         FileNotFoundError: a stage the report needs has not finished (named).
     """
-    from spotlessgs.reproduce.pipeline import INPUTS_STAGE, dataset_id
+    from spotlessgs.experiments.reproduce.pipeline import INPUTS_STAGE, dataset_id
     from spotlessgs.training.selection import run_decisions
 
     collected: dict[str, Any] = {"datasets": {}, "cyclegan": None}
@@ -114,7 +114,7 @@ def write_report(out: Path) -> dict[str, Any]:
         {"report": path, "results": path, "figures": [paths]}.
     """
     from evaluation.dataset import read_dataset
-    from spotlessgs.reproduce.pipeline import dataset_id
+    from spotlessgs.experiments.reproduce.pipeline import dataset_id
 
     out = Path(out)
     config = load_config(out)

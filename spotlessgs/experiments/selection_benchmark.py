@@ -1,6 +1,6 @@
 """Acceptance measurements of automatic model selection and the Gaussian budget, rerunnable with one command.
 
-    python -m spotlessgs.selection_benchmark --data data/bedroom --data data/storage --out bench/selection
+    python -m spotlessgs.experiments.selection_benchmark --data data/bedroom --data data/storage --out bench/selection
 
 Per dataset folder (room = folder name), under ``OUT/<room>/``:
 
@@ -14,7 +14,7 @@ With several ``--seed`` values every seed is measured as above under ``OUT/seed-
 over seeds (:func:`aggregate_seeds`): per run the mean, minimum and maximum of each figure, every seed's choice, and
 the verdicts on the means (single runs differ by ~0.15 dB, as much as the bounds' margins).
 
-Each run is scored like :mod:`spotlessgs.benchmark`: every view relit in this process, the
+Each run is scored like :mod:`spotlessgs.experiments.benchmark`: every view relit in this process, the
 test views scored against the ground truth raw and after one exposure gain (``psnr_aligned``, the figure the verdicts
 use). Writes ``OUT/selection_benchmark.json`` (numbers + provenance), ``OUT/selection_benchmark.md`` (a table per
 room and the verdicts) and ``OUT/budget.png``. Rerunning reuses finished runs (``train_summary.json`` present) and
@@ -160,7 +160,7 @@ def measure_run(data: Path, run_dir: Path, model, config, settings: BenchmarkSet
         psnr_aligned / ssim_aligned (dB / SSIM of the relit test views against the ground truth); also stored as
         ``run_dir/selection_benchmark_row.json`` and reused from there.
     """
-    from spotlessgs.reproduce.tasks import relight_views, score_test_views
+    from spotlessgs.experiments.reproduce.tasks import relight_views, score_test_views
     from spotlessgs.training.trainer import train
 
     summary_path, row_path = run_dir / "train_summary.json", run_dir / ROW_FILE
@@ -227,7 +227,7 @@ FPS_ROUNDS = 2
 def paired_relit_fps(run_dirs: dict[str, Path], rounds: int = FPS_ROUNDS) -> dict[str, float]:
     """Relit FPS (every view) of several runs measured back to back: the runs take turns for ``rounds`` rounds and
     each keeps its best round, so that all are timed under the same load. Renders into a temporary folder."""
-    from spotlessgs.reproduce.tasks import relight_views
+    from spotlessgs.experiments.reproduce.tasks import relight_views
 
     if rounds < 1:
         raise ValueError(f"paired_relit_fps: rounds must be >= 1, got {rounds}")

@@ -21,7 +21,7 @@ from typing import Any
 from simulator.child_process import die_with_parent
 from simulator.child_process import drop_blender_script_paths as _drop_blender_script_paths
 from spotlessgs.io.signals import raise_on_sigterm
-from spotlessgs.reproduce.stages import (
+from spotlessgs.experiments.reproduce.stages import (
     Stage, StageGraph, is_done, marker_path, prepare_retry, resolve, write_marker,
 )
 

@@ -1,6 +1,6 @@
 """Relight a run in a fresh process and record that process's peak memory (run by the train stage as a subprocess).
 
-Usage: ``python -m spotlessgs.reproduce.relight_process RUN_DIR WHICH OUT_DIR SUMMARY_JSON``. The summary is
+Usage: ``python -m spotlessgs.experiments.reproduce.relight_process RUN_DIR WHICH OUT_DIR SUMMARY_JSON``. The summary is
 render_run's (views, fps, ...) plus ``peak_rss_mb`` (ru_maxrss of this process: imports, loading the run and
 rendering every view) and ``baseline_rss_mb`` (resident memory right after importing torch and the renderer, before
 loading the run). Importing torch has a transient peak of its own, so for small models the peak can be the import's.
@@ -32,12 +32,13 @@ def _current_rss_mb() -> float:
 def main(argv: list[str] | None = None) -> int:
     args = sys.argv[1:] if argv is None else argv
     if len(args) != 4:
-        raise SystemExit("usage: python -m spotlessgs.reproduce.relight_process RUN_DIR WHICH OUT_DIR SUMMARY_JSON")
+        raise SystemExit("usage: python -m spotlessgs.experiments.reproduce.relight_process RUN_DIR WHICH OUT_DIR "
+                         "SUMMARY_JSON")
     run_dir, which, out_dir, summary_path = Path(args[0]), args[1], Path(args[2]), Path(args[3])
     import torch  # noqa: F401  (part of the baseline)
 
     from spotlessgs.io.atomic import write_json
-    from spotlessgs.reproduce.tasks import relight_views
+    from spotlessgs.experiments.reproduce.tasks import relight_views
 
     baseline = _current_rss_mb()
     summary = relight_views(run_dir, which, out_dir)

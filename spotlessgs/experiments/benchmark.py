@@ -1,7 +1,7 @@
 """What each model component costs and buys: per variant, training ms/step, relit-render FPS, peak memory, and
 test-view PSNR after a fixed iteration budget.
 
-    python -m spotlessgs.benchmark --data data/bedroom --out bench/train --iterations 1500
+    python -m spotlessgs.experiments.benchmark --data data/bedroom --out bench/train --iterations 1500
 
 Each variant trains in its own subprocess (so its peak resident memory, ``ru_maxrss``, is its own), then relights its
 test views and scores them: PSNR of the relit test views against the ground truth after one exposure gain
@@ -67,8 +67,8 @@ def run_benchmark(data: Path, out: Path, variants: tuple[str, ...], preset: str,
         if (run / "benchmark_row.json").is_file():
             rows.append(json.loads((run / "benchmark_row.json").read_text()))
             continue
-        cmd = [sys.executable, "-m", "spotlessgs.benchmark", "--child", "--data", str(data), "--out", str(run),
-               "--variants", variant, "--preset", preset, "--iterations", str(iterations), "--threads", str(threads),
+        cmd = [sys.executable, "-m", "spotlessgs.experiments.benchmark", "--child", "--data", str(data), "--out",
+               str(run), "--variants", variant, "--preset", preset, "--iterations", str(iterations), "--threads", str(threads),
                "--seed", str(seed)]
         proc = subprocess.run(cmd, capture_output=True, text=True)
         if proc.returncode != 0:

@@ -23,13 +23,13 @@ from pathlib import Path
 from spotlessgs.io.atomic import write_json
 from spotlessgs.io.folder_lock import folder_lock
 from spotlessgs.io.paths import refuse_overlap
-from spotlessgs.reproduce.config import NOISY_VARIANT, ReproduceConfig
-from spotlessgs.reproduce.executor import RunReport, execute
-from spotlessgs.reproduce.stages import Stage, StageGraph
-from spotlessgs.reproduce.tasks import AUTO_METHOD
+from spotlessgs.experiments.reproduce.config import NOISY_VARIANT, ReproduceConfig
+from spotlessgs.experiments.reproduce.executor import RunReport, execute
+from spotlessgs.experiments.reproduce.stages import Stage, StageGraph
+from spotlessgs.experiments.reproduce.tasks import AUTO_METHOD
 
 CONFIG_FILE = "reproduce.json"
-TASKS = "spotlessgs.reproduce.tasks"
+TASKS = "spotlessgs.experiments.reproduce.tasks"
 # Stage family that evaluates a dataset's uneven inputs once (``eval-inputs/<dataset>``; the report reads its marker).
 INPUTS_STAGE = "eval-inputs"
 
@@ -141,7 +141,7 @@ def reproduce(config: ReproduceConfig, out: str | Path, jobs: int = 1) -> RunRep
     Raises:
         ValueError: ``out`` was made with other settings; FileNotFoundError: a shipped room is missing;
         spotlessgs.io.errors.FolderLockedError: another process is running a reproduction into ``out``;
-        spotlessgs.reproduce.executor.StageFailedError: a stage raised (the others keep their results).
+        spotlessgs.experiments.reproduce.executor.StageFailedError: a stage raised (the others keep their results).
     """
     out = Path(out)
     refuse_overlap(out, {"--scenes-dir": config.scenes_dir}, "--out")

@@ -8,6 +8,8 @@ return one value per image, shape (B,). SSIM follows the standard definition use
 
 from __future__ import annotations
 
+import math
+
 import torch
 import torch.nn.functional as F
 from torch import Tensor, nn
@@ -70,6 +72,12 @@ def psnr(pred: Tensor, gt: Tensor, data_range: float = 1.0) -> Tensor:
     mse = (pred - gt).pow(2).flatten(1).mean(dim=1, dtype=torch.float64)  # accumulate in float64
     out = 10.0 * torch.log10(data_range**2 / mse)  # mse == 0 gives +inf
     return out.to(pred.dtype)
+
+
+def psnr_from_mse(mse: float, data_range: float = 1.0) -> float:
+    """10·log10(data_range² / mse) in dB for a mean squared error already computed (pooled over pixels or views);
+    +inf for mse 0."""
+    return math.inf if mse <= 0 else 10.0 * math.log10(data_range**2 / mse)
 
 
 def gaussian_kernel1d(window_size: int = 11, sigma: float = 1.5, dtype: torch.dtype = torch.float32) -> Tensor:
@@ -161,3 +169,42 @@ class SSIM(nn.Module):
     def forward(self, pred: Tensor, gt: Tensor) -> Tensor:
         return ssim(pred, gt, self.data_range, self.window_size, self.sigma)
 
+
+def masked_psnr(pred: Tensor, gt: Tensor, mask: Tensor, data_range: float = 1.0) -> float:
+    """PSNR over the pixels where ``mask`` is true.
+
+    Args:
+        pred: (C, H, W); gt: (C, H, W); mask: (H, W) bool.
+
+    Raises:
+        ValueError: the mask is empty or its shape does not match.
+    """
+    pred, gt = check_image_pair(pred, gt)
+    if mask.shape != pred.shape[-2:]:
+        raise ValueError(f"mask shape {tuple(mask.shape)} does not match image size {tuple(pred.shape[-2:])}")
+    n = int(mask.sum())
+    if n == 0:
+        raise ValueError("no valid pixels to score")
+    diff = (pred[0].double() - gt[0].double())[:, mask]
+    return psnr_from_mse(float(diff.pow(2).mean()), data_range)
+
+
+def masked_ssim(pred: Tensor, gt: Tensor, mask: Tensor, window_size: int = 11, sigma: float = 1.5) -> float:
+    """Mean SSIM over the pixels whose whole window lies in ``mask``.
+
+    Args:
+        pred: (C, H, W); gt: (C, H, W); mask: (H, W) bool.
+
+    Raises:
+        ValueError: no window fits entirely inside the mask, or the mask shape does not match.
+    """
+    if mask.shape != pred.shape[-2:]:
+        raise ValueError(f"mask shape {tuple(mask.shape)} does not match image size {tuple(pred.shape[-2:])}")
+    smap = ssim_map(pred, gt, window_size=window_size, sigma=sigma)[0]  # (C, H', W')
+    box = torch.ones(window_size, dtype=torch.float64)
+    m = mask.to(torch.float64)[None, None]
+    inside = F.conv2d(F.conv2d(m, box.view(1, 1, 1, -1)), box.view(1, 1, -1, 1))[0, 0] >= window_size**2 - 0.5
+    n = int(inside.sum())
+    if n == 0:
+        raise ValueError(f"no {window_size}x{window_size} window lies entirely inside the valid pixels")
+    return float(smap[:, inside].double().mean())

@@ -11,7 +11,7 @@ import numpy as np
 from evaluation.plots import save_image_grid
 from spotlessgs.io.figures import pyplot, save_figure
 from spotlessgs.io.images import read_image
-from spotlessgs.reproduce.tables import LABELS, best_darkgs
+from spotlessgs.experiments.reproduce.tables import LABELS, best_darkgs
 
 
 def qualitative_grid(path: Path, data_dir: Path, runs_dir: Path, methods: dict[str, Any], test_views: list[str],

@@ -26,7 +26,7 @@ NOISY_VARIANT = "uneven-noisy"
 # Room kinds shipped under scenes/<kind>/house.json.
 SHIPPED_ROOMS: tuple[str, ...] = ("bedroom", "living_room", "office", "storage_room", "corridor")
 # The default location of the shipped rooms (the repository's scenes/ folder).
-DEFAULT_SCENES_DIR = Path(__file__).resolve().parents[2] / "scenes"
+DEFAULT_SCENES_DIR = Path(__file__).resolve().parents[3] / "scenes"
 
 
 @dataclass(frozen=True)

@@ -1,4 +1,4 @@
-"""``spotless reproduce``: a thin click command over :func:`spotlessgs.reproduce.pipeline.reproduce`."""
+"""``spotless reproduce``: a thin click command over :func:`spotlessgs.experiments.reproduce.pipeline.reproduce`."""
 
 from __future__ import annotations
 
@@ -7,7 +7,7 @@ from pathlib import Path
 
 import click
 
-from spotlessgs.reproduce.config import SHIPPED_ROOMS, ReproduceConfig, preset
+from spotlessgs.experiments.reproduce.config import SHIPPED_ROOMS, ReproduceConfig, preset
 
 
 def config_from_options(preset_name: str, scenes: tuple[str, ...], seed: int, scenes_dir: Path | None,
@@ -49,7 +49,7 @@ def config_from_options(preset_name: str, scenes: tuple[str, ...], seed: int, sc
               help="Skip the copy of each uneven dataset with camera sensor noise (Table III's robot-camera rows).")
 def reproduce(preset_name, scenes, out_dir, jobs, seed, scenes_dir, no_sfm, no_sensor_noise):
     """Render, train, evaluate and write REPORT.md with the paper's Tables I-IV, runtime and figures."""
-    from spotlessgs.reproduce.pipeline import reproduce as run_pipeline
+    from spotlessgs.experiments.reproduce.pipeline import reproduce as run_pipeline
 
     try:
         config = config_from_options(preset_name, scenes, seed, scenes_dir, no_sfm, no_sensor_noise)

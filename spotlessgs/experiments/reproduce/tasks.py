@@ -52,8 +52,8 @@ def relight_in_fresh_process(run_dir: Path, threads: int) -> dict[str, Any]:
     env["PYTHONPATH"] = os.pathsep.join([root] + ([env["PYTHONPATH"]] if env.get("PYTHONPATH") else []))
     for key in ("OMP_NUM_THREADS", "MKL_NUM_THREADS"):
         env[key] = str(threads)
-    proc = subprocess.run([sys.executable, "-m", "spotlessgs.reproduce.relight_process", str(run_dir), "all",
-                           str(run_dir / "relit"), str(summary_path)], env=env, capture_output=True, text=True)
+    proc = subprocess.run([sys.executable, "-m", "spotlessgs.experiments.reproduce.relight_process", str(run_dir),
+                           "all", str(run_dir / "relit"), str(summary_path)], env=env, capture_output=True, text=True)
     if proc.returncode != 0:
         raise RuntimeError(f"relighting {run_dir} failed (exit {proc.returncode}): {proc.stderr.strip()[-2000:]}")
     return json.loads(summary_path.read_text(encoding="utf-8"))
@@ -357,7 +357,8 @@ def run_baseline2d(method: str, data_dir: str, out_dir: str, checkpoint: str | N
 
 
 def write_report_stage(out_dir: str, threads: int) -> dict[str, Any]:
-    """Collect every stage's summary into results.json, REPORT.md and the figures (see spotlessgs.reproduce.report)."""
-    from spotlessgs.reproduce.report import write_report
+    """Collect every stage's summary into results.json, REPORT.md and the figures (see
+    spotlessgs.experiments.reproduce.report)."""
+    from spotlessgs.experiments.reproduce.report import write_report
 
     return write_report(Path(out_dir))

@@ -1,0 +1,256 @@
+"""Outputs never destroy what the user did not ask to replace, on a tiny trained run of a synthetic dataset:
+
+- `spotless relight/render --out DIR` replaces an existing non-empty DIR only when it is an earlier render (its
+  manifest says so, or it is the run's own RUN/relit or RUN/render); a folder of photos, another dataset's images,
+  a repository or the run's checkpoints are refused with one line (exit 2) and left as they were;
+- a render interrupted between the two renames of the folder swap gets its previous folder back on the next run;
+- `spotless eval` never writes its folder or its --json into its inputs (both modes);
+- `spotless export --out` never replaces the dataset's files, the checkpoint, run.json or config.json;
+- `spotless eval RUN` finds the dataset like every other command (run.json's relative path, --data).
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import shutil
+from pathlib import Path
+
+import numpy as np
+import pytest
+from click.testing import CliRunner
+
+from conftest import synthetic_box_dataset
+from evaluation.runner import EvalConfig, evaluate_folders, evaluate_run
+from spotlessgs.io.errors import InputError, OutputOverlapError
+from spotlessgs.io.images import write_png
+from spotlessgs.manifest import MANIFEST_NAME, read_manifest
+
+pytestmark = pytest.mark.usefixtures("one_torch_thread")
+
+QUICK = EvalConfig(lpips=False, temporal=False, progress=False, num_threads=1)
+TEST_VIEWS = ["frame_00000.png", "frame_00011.png"]  # 14 frames, every 11th is a test view
+
+
+@pytest.fixture(scope="module")
+def trained(tmp_path_factory):
+    """``ROOT/data`` (14 frames, 40x30) and ``ROOT/run`` (darkgs, 10 steps) with ``RUN/relit`` of every view."""
+    from spotlessgs.rendering import render_run
+    from spotlessgs.training.config import preset
+    from spotlessgs.training.trainer import train
+
+    data = synthetic_box_dataset(tmp_path_factory, "safety-data", seed=3)
+    root = data.parent
+    data = data.rename(root / "data")
+    config = preset("tiny", iterations=10, image_width=40, num_threads=1, densify_from=1000, log_every=10,
+                    checkpoint_every=10, init_points=200, max_gaussians=300, brdf_hidden=8)
+    train(data, root / "run", "darkgs", config, seed=0, progress=False)
+    render_run(root / "run", "relit", "all", progress=False, device="cpu")
+    return root
+
+
+def _cli(*args: str):
+    from spotlessgs.cli import main
+
+    return CliRunner().invoke(main, list(args))
+
+
+def _one_line_error(res, *fragments: str) -> None:
+    assert res.exit_code == 2, res.output
+    assert len(res.output.strip().splitlines()) == 1 and "Traceback" not in res.output, res.output
+    for fragment in fragments:
+        assert fragment in res.output, res.output
+
+
+def _snapshot(folder: Path) -> dict[str, bytes]:
+    return {p.relative_to(folder).as_posix(): p.read_bytes() for p in sorted(folder.rglob("*")) if p.is_file()}
+
+
+def _photos(folder: Path, n: int = 2) -> dict[str, bytes]:
+    for k in range(n):
+        write_png(folder / f"IMG_{k:04d}.png", np.full((12, 16, 3), 0.2 + 0.3 * k, dtype=np.float32))
+    return _snapshot(folder)
+
+
+def _relight(run: Path, *extra: str):
+    return _cli("relight", str(run), "-q", "--device", "cpu", "--views", "test", *extra)
+
+
+# ---- (1) relight/render replace only an earlier render ------------------------------------------------------------
+
+
+def test_relight_refuses_a_folder_of_photos_and_another_datasets_images(trained, tmp_path):
+    run = trained / "run"
+    photos = tmp_path / "holiday"
+    before = _photos(photos)
+    _one_line_error(_relight(run, "--out", str(photos)), str(photos), "not images of an earlier render",
+                    MANIFEST_NAME, "choose an empty or new --out")
+    assert _snapshot(photos) == before
+
+    other = shutil.copytree(trained / "data" / "images", tmp_path / "other_dataset" / "images")
+    before = _snapshot(other)
+    res = _cli("render", str(run), "-q", "--device", "cpu", "--views", "test", "--out", str(other))
+    _one_line_error(res, str(other), "choose an empty or new --out")
+    assert _snapshot(other) == before
+
+    repo = tmp_path / "repo"  # hidden entries only: still not an empty folder
+    (repo / ".git").mkdir(parents=True)
+    (repo / ".git" / "HEAD").write_text("ref: refs/heads/main\n")
+    _one_line_error(_relight(run, "--out", str(repo)), str(repo), ".git")
+    assert (repo / ".git" / "HEAD").read_text() == "ref: refs/heads/main\n"
+    assert not any(p.name.startswith(".holiday") or p.name.startswith(".repo") for p in tmp_path.iterdir())
+
+
+def test_relight_refuses_the_checkpoints_folder_and_the_dataset(trained, tmp_path):
+    from spotlessgs.rendering import _check_output
+
+    run, data = trained / "run", trained / "data"
+    with pytest.raises(OutputOverlapError, match=r"--out is the same path as the input RUN/checkpoints"):
+        _check_output(run / "checkpoints", run, data)
+    with pytest.raises(OutputOverlapError, match=r"--out is inside the input RUN/checkpoints"):
+        _check_output(run / "checkpoints" / "relit", run, data)
+    with pytest.raises(OutputOverlapError, match=r"--out is inside the input --data"):
+        _check_output(data / "images", run, data)
+    empty = tmp_path / "empty"
+    empty.mkdir()
+    _check_output(empty, run, data)  # an empty folder, a new one: fine
+    _check_output(tmp_path / "new", run, data)
+
+
+def test_relight_replaces_an_earlier_render_and_a_legacy_run_folder(trained, tmp_path):
+    run = shutil.copytree(trained / "run", tmp_path / "run")
+    out = tmp_path / "renders"
+    assert _relight(run, "--out", str(out)).exit_code == 0
+    assert read_manifest(out)["kind"] == "relit"
+    res = _cli("render", str(run), "-q", "--device", "cpu", "--views", "test", "--out", str(out))
+    assert res.exit_code == 0, res.output  # an earlier render (its manifest says so) is replaced
+    assert read_manifest(out)["kind"] == "render"
+    assert sorted(p.name for p in out.iterdir() if not p.name.startswith(".")) == TEST_VIEWS
+
+    (run / "relit" / MANIFEST_NAME).unlink()  # RUN/relit as an older version left it: images, no manifest
+    res = _relight(run)
+    assert res.exit_code == 0, res.output
+    assert read_manifest(run / "relit")["kind"] == "relit"
+
+
+# ---- (2) an interrupted folder swap ---------------------------------------------------------------------------------
+
+
+def test_a_crash_between_the_swap_renames_restores_the_previous_folder(tmp_path):
+    from spotlessgs.manifest import partial_sibling
+    from spotlessgs.rendering import _remove_partial_siblings
+
+    out = tmp_path / "relit"
+    old = partial_sibling(out, "old-")  # _swap_in renamed OUT away, then the process died
+    before = _photos(old)
+    new = partial_sibling(out)  # the new render's folder, not yet renamed to OUT
+    _photos(new, 1)
+    (tmp_path / "relit_keep").mkdir()  # a neighbour with a similar name is none of its business
+    _remove_partial_siblings(out)
+    assert out.is_dir() and _snapshot(out) == before
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["relit", "relit_keep"]
+    _remove_partial_siblings(out)  # OUT present: temporary siblings only are removed, OUT stays
+    assert _snapshot(out) == before
+
+
+def test_a_failed_second_rename_puts_the_previous_folder_back(tmp_path, monkeypatch):
+    import spotlessgs.rendering as rendering
+
+    out, tmp = tmp_path / "relit", tmp_path / ".relit.partial-new"
+    before = _photos(out)
+    _photos(tmp, 1)
+    monkeypatch.setattr(rendering, "_exchange", lambda a, b: False)
+    real_rename, calls = os.rename, []
+
+    def rename(src, dst):
+        calls.append((src, dst))
+        if len(calls) == 2:
+            raise OSError(28, "No space left on device")
+        real_rename(src, dst)
+
+    monkeypatch.setattr(rendering.os, "rename", rename)
+    with pytest.raises(OSError):
+        rendering._swap_in(tmp, out)
+    monkeypatch.undo()
+    assert _snapshot(out) == before
+
+
+# ---- (3) eval never writes into its inputs --------------------------------------------------------------------------
+
+
+def test_eval_folders_refuses_out_and_json_in_its_inputs(tmp_path):
+    pred, gt = tmp_path / "pred", tmp_path / "gt"
+    before_pred, before_gt = _photos(pred), _photos(gt)
+    with pytest.raises(OutputOverlapError, match=r"pred: --out is the same path as the input --pred"):
+        evaluate_folders(pred, gt, QUICK, out_dir=pred)
+    with pytest.raises(OutputOverlapError, match=r"--out is inside the input --gt"):
+        evaluate_folders(pred, gt, QUICK, out_dir=gt / "scores")
+    with pytest.raises(OutputOverlapError, match=r"--json is inside the input --gt"):
+        evaluate_folders(pred, gt, QUICK, json_path=gt / "results.json")
+    res = _cli("eval", "--pred", str(pred), "--gt", str(gt), "--out", str(pred), "--quiet", "--no-lpips")
+    _one_line_error(res, "--out is the same path as the input --pred")
+    assert _snapshot(pred) == before_pred and _snapshot(gt) == before_gt
+    evaluate_folders(pred, gt, QUICK, out_dir=tmp_path / "scores", json_path=tmp_path / "r.json")
+    assert (tmp_path / "r.json").is_file()
+
+
+def test_eval_run_refuses_json_in_its_inputs(trained):
+    run, data = trained / "run", trained / "data"
+    guarded = [data / "transforms.json", run / "run.json", run / "config.json",
+               run / "checkpoints" / "last.safetensors", run / "relit" / "results.json"]
+    before = {p: p.read_bytes() if p.exists() else None for p in guarded}
+    for path in guarded:
+        with pytest.raises(OutputOverlapError, match=r"--json is (inside|the same path as) the input"):
+            evaluate_run(run, QUICK, json_path=path)
+    res = _cli("eval", str(run), "--json", str(data / "transforms.json"), "--quiet", "--no-lpips")
+    _one_line_error(res, "transforms.json: --json is inside the input --data")
+    assert {p: p.read_bytes() if p.exists() else None for p in guarded} == before
+    assert not (run / "eval").exists()  # refused before anything was written
+
+
+# ---- (4) export never replaces the run's or the dataset's files ----------------------------------------------------
+
+
+def test_export_refuses_the_checkpoint_run_files_and_the_dataset(trained, tmp_path):
+    from spotlessgs.export import export_ply
+
+    run, data = trained / "run", trained / "data"
+    guarded = {"RUN/checkpoints": run / "checkpoints" / "last.safetensors", "RUN/run.json": run / "run.json",
+               "RUN/config.json": run / "config.json", "--data": data / "points3d.ply"}
+    before = {p: p.read_bytes() if p.exists() else None for p in guarded.values()}
+    for name, path in guarded.items():
+        res = _cli("export", str(run), "--out", str(path))
+        _one_line_error(res, str(path), f"the input {name}")
+    assert {p: p.read_bytes() if p.exists() else None for p in guarded.values()} == before
+    with pytest.raises(OutputOverlapError, match="contains the input"):
+        export_ply(run, run)
+    with pytest.raises(InputError, match="--out is a folder"):
+        export_ply(run, tmp_path)
+    assert export_ply(run, tmp_path / "model.ply").is_file()
+
+
+# ---- (5) eval finds a run's dataset like every other command --------------------------------------------------------
+
+
+def test_eval_run_uses_the_relative_dataset_path_and_data(trained, tmp_path):
+    run = shutil.copytree(trained / "run", tmp_path / "run")
+    info = json.loads((run / "run.json").read_text())
+    relative = os.path.relpath(trained / "data", run)
+    (run / "run.json").write_text(json.dumps({**{k: v for k, v in info.items() if k != "data_dir"},
+                                              "data_dir_relative": relative}))
+    results = evaluate_run(run, QUICK)  # only data_dir_relative: found
+    assert results["data_dir"] == str((trained / "data").resolve()) and results["num_images"] == 2
+
+    (run / "run.json").write_text(json.dumps({k: v for k, v in info.items()
+                                              if k not in ("data_dir", "data_dir_relative")}))
+    with pytest.raises(InputError, match=r"run.json has no data_dir.*--data DIR"):
+        evaluate_run(run, QUICK)
+    assert evaluate_run(run, QUICK, data_dir=trained / "data")["num_images"] == 2
+
+    (run / "run.json").write_text("[1")
+    with pytest.raises(ValueError, match=r"run.json: .*not valid JSON"):
+        evaluate_run(run, QUICK)
+    (run / "run.json").write_text(json.dumps(info))
+    shutil.rmtree(run / "relit")
+    with pytest.raises(FileNotFoundError, match=r"relit: the run has no relit images; run `spotless relight"):
+        evaluate_run(run, QUICK)
