@@ -169,7 +169,7 @@ def _numbers(node, path: str = ""):
     """The metric values of a results.json, without timings, memory and dates (which differ run to run)."""
     if isinstance(node, dict):
         for key, value in node.items():
-            if re.search(r"second|fps|ms_per|time|peak_rss|created|command|path|dir", key, re.I):
+            if re.search(r"second|fps|ms_per|time|rss|created|command|path|dir", key, re.I):
                 continue
             yield from _numbers(value, f"{path}.{key}")
     elif isinstance(node, list):

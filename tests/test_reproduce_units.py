@@ -698,11 +698,27 @@ def test_every_preset_camera_loop_is_admissible(name):
         assert len(poses) == frames, room
 
 
+def _start_pipeline(script: str, tmp_path: Path, **popen_kwargs):
+    """Run ``script`` (a pipeline whose one stage is :func:`sleep_forever`) in a new Python process; return the
+    process and the stage worker's pid once the stage runs. The script gets sys.argv = [tests dir, repository root,
+    pid file, pipeline root]."""
+    import subprocess
+    import sys
+
+    pid_file = tmp_path / "pid"
+    here, root = str(Path(__file__).parent), str(Path(__file__).parents[1])
+    parent = subprocess.Popen([sys.executable, "-c", script, here, root, str(pid_file), str(tmp_path / "root")],
+                              **popen_kwargs)
+    deadline = time.time() + 60
+    while not pid_file.exists() or not pid_file.read_text():
+        assert time.time() < deadline and parent.poll() is None, "the stage never started"
+        time.sleep(0.2)
+    return parent, int(pid_file.read_text())
+
+
 def test_workers_die_with_the_parent(tmp_path):
     """Killing the pipeline's process stops its running stage (no orphan keeps working without a parent)."""
     import signal
-    import subprocess
-    import sys
 
     script = (
         "import sys; sys.path[:0] = sys.argv[1:3]\n"
@@ -712,15 +728,7 @@ def test_workers_die_with_the_parent(tmp_path):
         "    execute(StageGraph([Stage('s', 'test_reproduce_units:sleep_forever', {'path': sys.argv[3]})]), "
         "sys.argv[4], jobs=1)\n"
     )
-    pid_file = tmp_path / "pid"
-    here = str(Path(__file__).parent)
-    root = str(Path(__file__).parents[1])
-    parent = subprocess.Popen([sys.executable, "-c", script, here, root, str(pid_file), str(tmp_path / "root")])
-    deadline = time.time() + 60
-    while not pid_file.exists() or not pid_file.read_text():
-        assert time.time() < deadline and parent.poll() is None, "the stage never started"
-        time.sleep(0.2)
-    worker = int(pid_file.read_text())
+    parent, worker = _start_pipeline(script, tmp_path)
     parent.send_signal(signal.SIGKILL)
     parent.wait()
     deadline = time.time() + 10
@@ -756,7 +764,6 @@ def test_a_stopped_pipeline_stops_its_workers_without_a_traceback(tmp_path, sign
     print nothing (a pool shut down before its workers were stopped failed in its manager thread)."""
     import signal
     import subprocess
-    import sys
 
     script = (
         "import sys; sys.path[:0] = sys.argv[1:3]\n"
@@ -772,16 +779,7 @@ def test_a_stopped_pipeline_stops_its_workers_without_a_traceback(tmp_path, sign
         "        print('stopped by', type(exc).__name__, file=sys.stderr)\n"
         "        sys.exit(3)\n"
     )
-    pid_file = tmp_path / "pid"
-    here = str(Path(__file__).parent)
-    root = str(Path(__file__).parents[1])
-    parent = subprocess.Popen([sys.executable, "-c", script, here, root, str(pid_file), str(tmp_path / "root")],
-                              stderr=subprocess.PIPE, text=True)
-    deadline = time.time() + 60
-    while not pid_file.exists() or not pid_file.read_text():
-        assert time.time() < deadline and parent.poll() is None, "the stage never started"
-        time.sleep(0.2)
-    worker = int(pid_file.read_text())
+    parent, worker = _start_pipeline(script, tmp_path, stderr=subprocess.PIPE, text=True)
     parent.send_signal(getattr(signal, signame))
     _out, err = parent.communicate(timeout=30)
     assert parent.returncode == 3, err
