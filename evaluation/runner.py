@@ -161,6 +161,18 @@ def score_pairs(pairs: Sequence[ImagePair], config: EvalConfig = EvalConfig(), l
     return out
 
 
+
+def score_test_views(data_dir: str | os.PathLike, pred_dir: str | os.PathLike,
+                     num_threads: int | None = None) -> dict[str, float]:
+    """Mean PSNR/SSIM (raw and after one exposure gain) of ``pred_dir``'s images of the dataset's test views against
+    their ground truth: the quick score of the reproduction's curve points and the benchmarks' rows (no LPIPS, no
+    temporal metrics)."""
+    data = read_dataset(data_dir)
+    pairs = [ImagePair(f.name, Path(pred_dir) / f.name, f.gt_path) for f in data.test_frames if f.gt_path is not None]
+    scores = score_pairs(pairs, EvalConfig(lpips=False, temporal=False, num_threads=num_threads, progress=False))
+    return {k: scores[k] for k in ("psnr", "ssim", "psnr_aligned", "ssim_aligned")}
+
+
 def temporal_block(
     paths: Sequence[Path], config: EvalConfig, label: str, posed: DatasetViews | None = None
 ) -> dict:

@@ -58,31 +58,28 @@ def main(verbose: bool) -> None:
 def train(data_dir, run_dir, model, preset, iterations, image_width, seed, resume, light_prior, light_prior_weight,
           linear_input, max_gaussians, tolerance_db, selection_search, gaussian_budget, threads, device, quiet):
     """Train a relightable model (or a baseline) on the uneven images of a dataset."""
-    from spotlessgs.training.config import preset as make_preset
-    from spotlessgs.training.trainer import train as run_training
+    # deferred (here and in the other commands): the torch-based library, kept out of `spotless --help`
+    from spotlessgs.run import RunSpec, train as train_run
+    from spotlessgs.training.selection import format_selection_table, selection_config
 
+    if model != "auto" and (tolerance_db is not None or selection_search is not None):
+        raise click.UsageError("--tolerance-db and --selection-search only apply to --model auto")
     overrides = {"device": device, "linear_input": linear_input}
     for key, value in (("iterations", iterations), ("image_width", image_width), ("num_threads", threads),
                        ("light_prior_weight", light_prior_weight), ("max_gaussians", max_gaussians)):
         if value is not None:
             overrides[key] = value
-    config = make_preset(preset, strategy="budget" if gaussian_budget else "default", **overrides)
-    prior = list(light_prior) if light_prior else None
-    if model == "auto":
-        from spotlessgs.training.selection import format_selection_table, selection_config, train_auto
-
-        decision, result = train_auto(data_dir, run_dir, config, seed=seed,
-                                      selection=selection_config(tolerance_db, selection_search), light_prior=prior,
-                                      resume=resume, progress=not quiet)
-        click.echo(format_selection_table(decision))
-    elif tolerance_db is not None or selection_search is not None:
-        raise click.UsageError("--tolerance-db and --selection-search only apply to --model auto")
-    else:
-        result = run_training(data_dir, run_dir, model, config, seed=seed, resume=resume, light_prior=prior,
-                              progress=not quiet)
-    psnr = "n/a" if result.test_psnr is None else f"{result.test_psnr:.2f} dB"
-    click.echo(f"{run_dir}: {result.steps} steps, {result.num_gaussians} Gaussians, {result.ms_per_step:.0f} ms/step, "
-               f"test reconstruction PSNR {psnr}")
+    spec = RunSpec(data=data_dir, model=model, preset=preset, strategy="budget" if gaussian_budget else "default",
+                   seed=seed, overrides=tuple(overrides.items()), light_prior=light_prior or None,
+                   selection=selection_config(tolerance_db, selection_search) if model == "auto" else None)
+    run = train_run(spec, run_dir, resume=resume, progress=not quiet)
+    if run.decision is not None:
+        click.echo(format_selection_table(run.decision))
+    summary = run.summary or {}
+    psnr = summary.get("test_psnr_reconstruction")
+    psnr = "n/a" if psnr is None else f"{psnr:.2f} dB"
+    click.echo(f"{run_dir}: {summary.get('steps')} steps, {summary.get('num_gaussians')} Gaussians, "
+               f"{summary.get('ms_per_step', float('nan')):.0f} ms/step, test reconstruction PSNR {psnr}")
 
 
 @main.command()

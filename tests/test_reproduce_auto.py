@@ -5,6 +5,7 @@ what each run needed from the run folders (run_decisions) into the tables."""
 from __future__ import annotations
 
 import json
+from pathlib import Path
 
 import pytest
 
@@ -15,7 +16,7 @@ from spotlessgs.experiments.reproduce.pipeline import check_or_record_config
 from spotlessgs.experiments.reproduce.report import collect
 from spotlessgs.experiments.reproduce.stages import write_marker
 from spotlessgs.experiments.reproduce.tables import runtime_table, table1
-from spotlessgs.experiments.reproduce.tasks import method_train_config, train_method
+from spotlessgs.experiments.reproduce.tasks import method_spec, train_method
 from spotlessgs.training.selection import SELECTION_FILE, run_decisions
 
 pytestmark = pytest.mark.usefixtures("one_torch_thread")
@@ -37,8 +38,8 @@ def auto_run(tmp_path_factory):
 def test_auto_config_is_the_gaussian_budget_of_the_command_line():
     from spotlessgs.training.config import STRATEGIES
 
-    auto = method_train_config("auto", "tiny", 40, 32, threads=1)
-    fixed = method_train_config("spotless", "tiny", 40, 32, threads=1)
+    auto = method_spec(Path("data"), "auto", "tiny", 40, 32, threads=1, seed=0).train_config()
+    fixed = method_spec(Path("data"), "spotless", "tiny", 40, 32, threads=1, seed=0).train_config()
     assert auto.gaussian_budget and auto.validation_every >= 2 and not fixed.gaussian_budget
     assert auto.replace(**{k: getattr(fixed, k) for k in STRATEGIES["budget"]}) == fixed  # nothing else differs
     assert (auto.iterations, auto.image_width, auto.num_threads) == (40, 32, 1)

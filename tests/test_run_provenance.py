@@ -319,3 +319,20 @@ def test_resume_accepts_the_dataset_at_its_new_place(moved):
     assert info["data_dir"] == str((moved / "data").resolve()) and info["data_dir_relative"] == "../data"
     with pytest.raises(ValueError, match="other settings"):
         train(moved / "data", run, "darkgs", _config().replace(lr_albedo=0.01), seed=0, progress=False, resume=True)
+
+
+def test_a_run_records_what_its_floating_point_results_depend_on(trained):
+    """CPU model, torch's CPU kernel level, the C++ kernel's build flags and the thread count: the facts that make two
+    runs of the same code, data and seed bit-identical or not (docs/results.md, "Determinism")."""
+    import platform
+
+    import torch
+
+    from spotlessgs.rasterizer.cpp_kernel import CXX_FLAGS
+
+    numerics = json.loads((trained / "run" / "config.json").read_text())["provenance"]["numerics"]
+    assert numerics["torch_cpu_capability"] == torch.backends.cpu.get_cpu_capability()
+    assert numerics["threads"] == json.loads((trained / "run" / "config.json").read_text())["train"]["num_threads"]
+    assert numerics["kernel_flags"][:len(CXX_FLAGS)] == list(CXX_FLAGS)  # then -march=native where the compiler took it
+    cpuinfo = Path("/proc/cpuinfo").read_text() if Path("/proc/cpuinfo").is_file() else ""
+    assert numerics["cpu"] and (numerics["cpu"] in cpuinfo or numerics["cpu"] == platform.processor())

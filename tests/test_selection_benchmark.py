@@ -300,18 +300,18 @@ def test_several_seeds_measure_each_seed_and_summarise(bench, tmp_path, monkeypa
 
 
 def test_paired_relit_fps_alternates_the_runs_and_keeps_each_ones_best_round(monkeypatch, tmp_path):
-    import spotlessgs.experiments.reproduce.tasks as tasks
     from spotlessgs.experiments.selection_benchmark import paired_relit_fps
+    from spotlessgs.run import Run
 
     timings = iter([10.0, 30.0, 14.0, 12.0, 11.0, 31.0])  # round 0: a, b, c; round 1: a, b, c
     calls = []
 
-    def fake_relight(run_dir, which, out_dir):
-        calls.append((run_dir.name, which))
-        assert out_dir.parent != run_dir  # a scratch folder, never the run's own relit/
+    def fake_relight(run, which, out_dir, **options):
+        calls.append((run.dir.name, which))
+        assert out_dir.parent != run.dir  # a scratch folder, never the run's own relit/
         return {"fps": next(timings)}
 
-    monkeypatch.setattr(tasks, "relight_views", fake_relight)
+    monkeypatch.setattr(Run, "relight", fake_relight)
     runs = {"a": tmp_path / "ra", "b": tmp_path / "rb", "c": tmp_path / "rc"}
     assert paired_relit_fps(runs, rounds=2) == {"a": 12.0, "b": 30.0, "c": 31.0}
     assert calls == [("ra", "all"), ("rb", "all"), ("rc", "all")] * 2

@@ -27,33 +27,23 @@ VARIANTS = ("3dgs", "darkgs", "darkgs-calibrated", "darkgs+sh", "darkgs+brdf", "
 
 def _child(data: str, run: str, variant: str, preset: str, iterations: int, threads: int, seed: int) -> None:
     """Train, relight the test views and score them, in this (sub)process; prints one JSON line."""
-    from evaluation.runner import EvalConfig, evaluate_folders
-    from spotlessgs.rendering import render_run
-    from spotlessgs.training.config import preset as make_preset
-    from spotlessgs.training.trainer import train
+    from spotlessgs.run import RunSpec, train
 
-    config = make_preset(preset, iterations=iterations, num_threads=threads)
-    result = train(data, run, variant, config, seed=seed, progress=False)
-    relit = render_run(run, "relit", "test", Path(run) / "relit_test", progress=False)
-    row = {"variant": variant, "iterations": iterations, "ms_per_step": result.ms_per_step,
-           "train_seconds": result.seconds, "gaussians": result.num_gaussians,
-           "test_psnr_reconstruction": result.test_psnr, "relit_fps": relit["fps"]}
-    gt_dir = Path(data) / "gt"
-    if gt_dir.is_dir():
-        from spotlessgs.training.trainer import load_run
-
-        _scene, views, _cfg, _info = load_run(run)
-        names = [views.names[k] for k in views.test]
-        gt_test = Path(run) / "gt_test"
-        gt_test.mkdir(exist_ok=True)
-        for name in names:
-            target = gt_test / name
-            if not target.exists():
-                target.symlink_to((gt_dir / name).resolve())
-        scores = evaluate_folders(Path(run) / "relit_test", gt_test,
-                                  EvalConfig(lpips=False, temporal=False, num_threads=threads, progress=False))
+    spec = RunSpec(data=Path(data), model=variant, preset=preset, seed=seed,
+                   overrides=(("iterations", iterations), ("num_threads", threads)))
+    trained = train(spec, run, progress=False)
+    summary = trained.summary
+    row = {"variant": variant, "iterations": iterations, "ms_per_step": summary["ms_per_step"],
+           "train_seconds": summary["seconds_this_session"], "gaussians": summary["num_gaussians"],
+           "test_psnr_reconstruction": summary["test_psnr_reconstruction"]}
+    if (Path(data) / "gt").is_dir():
+        scores = trained.score_views(Path(run) / "relit_test", "test", threads)
         row.update({"psnr": scores["psnr"], "psnr_aligned": scores["psnr_aligned"],
                     "ssim_aligned": scores["ssim_aligned"]})
+        relit = scores["relight"]
+    else:
+        relit = trained.relight("test", Path(run) / "relit_test", progress=False)
+    row["relit_fps"] = relit["fps"]
     row["peak_rss_mb"] = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
     print(json.dumps(row))
 
@@ -68,8 +58,8 @@ def run_benchmark(data: Path, out: Path, variants: tuple[str, ...], preset: str,
             rows.append(json.loads((run / "benchmark_row.json").read_text()))
             continue
         cmd = [sys.executable, "-m", "spotlessgs.experiments.benchmark", "--child", "--data", str(data), "--out",
-               str(run), "--variants", variant, "--preset", preset, "--iterations", str(iterations), "--threads", str(threads),
-               "--seed", str(seed)]
+               str(run), "--variants", variant, "--preset", preset, "--iterations", str(iterations), "--threads",
+               str(threads), "--seed", str(seed)]
         proc = subprocess.run(cmd, capture_output=True, text=True)
         if proc.returncode != 0:
             raise RuntimeError(f"benchmark of {variant} failed:\n{proc.stderr[-3000:]}")

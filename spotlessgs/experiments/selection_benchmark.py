@@ -40,6 +40,7 @@ import click
 
 from spotlessgs.io.atomic import write_json, write_text
 from spotlessgs.io.provenance import provenance
+from spotlessgs.run import Run
 from spotlessgs.training.budget import (
     BUDGET_MAX_LOSS_DB, BUDGET_MIN_REDUCTION_PCT, EPS, budget_verdict, check_finite,
 )
@@ -160,7 +161,6 @@ def measure_run(data: Path, run_dir: Path, model, config, settings: BenchmarkSet
         psnr_aligned / ssim_aligned (dB / SSIM of the relit test views against the ground truth); also stored as
         ``run_dir/selection_benchmark_row.json`` and reused from there.
     """
-    from spotlessgs.experiments.reproduce.tasks import relight_views, score_test_views
     from spotlessgs.training.trainer import train
 
     summary_path, row_path = run_dir / "train_summary.json", run_dir / ROW_FILE
@@ -173,8 +173,9 @@ def measure_run(data: Path, run_dir: Path, model, config, settings: BenchmarkSet
         train(data, run_dir, model, config, seed=settings.seed, resume=True, progress=False)
     summary = json.loads(summary_path.read_text())
     log.info("relighting and scoring %s", run_dir)
-    relit = relight_views(run_dir, "all", run_dir / "relit")
-    scores = score_test_views(data, run_dir / "relit", settings.threads)
+    scored = Run.load(run_dir).score_views(run_dir / "relit", "all", settings.threads, data_dir=data)
+    relit = scored.pop("relight")
+    scores = scored
     row = {"model": json.loads((run_dir / "run.json").read_text())["model"], "strategy": strategy,
            "steps": summary["steps"], "gaussians": summary["num_gaussians"],
            "train_seconds": summary["seconds_this_session"], "ms_per_step": summary["ms_per_step"],
@@ -227,15 +228,14 @@ FPS_ROUNDS = 2
 def paired_relit_fps(run_dirs: dict[str, Path], rounds: int = FPS_ROUNDS) -> dict[str, float]:
     """Relit FPS (every view) of several runs measured back to back: the runs take turns for ``rounds`` rounds and
     each keeps its best round, so that all are timed under the same load. Renders into a temporary folder."""
-    from spotlessgs.experiments.reproduce.tasks import relight_views
-
     if rounds < 1:
         raise ValueError(f"paired_relit_fps: rounds must be >= 1, got {rounds}")
     best = {key: 0.0 for key in run_dirs}
     with tempfile.TemporaryDirectory(prefix="relit-fps-") as tmp:
         for r in range(rounds):
             for key, run_dir in run_dirs.items():
-                best[key] = max(best[key], float(relight_views(run_dir, "all", Path(tmp) / f"{key}-{r}")["fps"]))
+                relit = Run(Path(run_dir)).relight("all", Path(tmp) / f"{key}-{r}", progress=False)
+                best[key] = max(best[key], float(relit["fps"]))
     return best
 
 

@@ -11,8 +11,10 @@ build or load failure is logged once as a warning and ``backend="auto"`` falls b
 
 from __future__ import annotations
 
+import contextlib
 import ctypes
 import hashlib
+import json
 import logging
 import os
 import shutil
@@ -23,7 +25,7 @@ from pathlib import Path
 
 from torch import Tensor
 
-from spotlessgs.io.atomic import atomic_path
+from spotlessgs.io.atomic import atomic_path, write_json
 
 log = logging.getLogger(__name__)
 
@@ -85,7 +87,8 @@ def _library_path(cxx: str) -> Path:
         raise KernelBuildError(f"cannot run the C++ compiler {cxx!r}: {exc}") from exc
     digest = hashlib.sha256()
     sources = [src.read_bytes() for src in SOURCES]
-    for part in (*sources, cxx.encode(), version.encode(), " ".join(CXX_FLAGS).encode(), _cpu_signature()):
+    for part in (*sources, cxx.encode(), version.encode(), " ".join(CXX_FLAGS).encode(), _cpu_signature(),
+                 b"with-flags-record"):  # builds that record their flags (numerics_record) get their own name
         digest.update(part)
         digest.update(b"\0")
     return cache_dir() / f"composite_{digest.hexdigest()[:16]}.so"
@@ -114,7 +117,32 @@ def build_kernel() -> Path:
             error = f"{' '.join(cmd)} exited with {proc.returncode}:\n{proc.stderr.strip()}"
         else:
             raise KernelBuildError(error)
+    write_json(_flags_path(target), {"flags": list(flags)})
     return target
+
+
+def _flags_path(library: Path) -> Path:
+    return library.with_suffix(".flags.json")
+
+
+def numerics_record(num_threads: int | None, device: str = "cpu") -> dict[str, object]:
+    """What a CPU run's floating-point results depend on besides its code, data and seed (docs/results.md,
+    "Determinism"): the CPU model, torch's CPU kernel level, the C++ kernel's build flags (``-march=native`` lets the
+    compiler fuse multiply-adds where the CPU has FMA) and the thread count. Two runs that agree on all of these give
+    bit-identical results; a change in any of them changes the last bits, and training amplifies that."""
+    import platform
+
+    import torch
+
+    cpu = next((line.split(":", 1)[1].strip() for line in _cpu_signature().decode(errors="replace").splitlines()
+                if line.startswith("model name")), platform.processor() or None)
+    flags = None
+    kernel = load_kernel() if device == "cpu" else None  # built once per machine, used by the CPU rasterizer anyway
+    if kernel is not None:
+        with contextlib.suppress(OSError, ValueError):
+            flags = json.loads(_flags_path(kernel.path).read_text())["flags"]
+    return {"cpu": cpu, "torch_cpu_capability": torch.backends.cpu.get_cpu_capability(),
+            "kernel_flags": flags, "threads": num_threads}
 
 
 def _bind(path: Path) -> CppKernel:

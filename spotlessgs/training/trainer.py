@@ -31,6 +31,7 @@ from spotlessgs.metrics import psnr_from_mse
 from spotlessgs.models.gaussians import GaussianParams
 from spotlessgs.models.relightable import RelightableScene
 from spotlessgs.models.shading import MODEL_VARIANTS, ModelConfig
+from spotlessgs.rasterizer.cpp_kernel import numerics_record
 from spotlessgs.training.checkpoint import (
     checkpoint_path, data_dir_fields, existing_checkpoint, load_checkpoint, read_run_info, resolve_data_dir,
     save_checkpoint, truncate_metrics,
@@ -363,7 +364,9 @@ def _train_locked(data_dir: Path, run_dir: Path, variant: str | ModelConfig, con
         opts = build_optimizers(scene, config, extent)
         write_json(run_dir / "run.json", run_info)
         write_json(run_dir / "config.json", {**resolved, "model_config": dataclasses.asdict(scene.config),
-                                             "provenance": provenance(seed=seed)})
+                                             "provenance": provenance(
+                                                 seed=seed, numerics=numerics_record(config.num_threads,
+                                                                                     device.type))})
         (run_dir / "metrics.jsonl").unlink(missing_ok=True)
     prior = None if light_prior is None else torch.as_tensor(light_prior, dtype=torch.float32, device=device)
 
@@ -523,7 +526,7 @@ def read_metrics(path: Path) -> list[dict]:
     return records
 
 
-def _saved_train_config(path: Path) -> TrainConfig:
+def saved_train_config(path: Path) -> TrainConfig:
     """The TrainConfig stored in a run's config.json (key ``train``).
 
     Raises:
@@ -562,7 +565,7 @@ def load_run(run_dir: str | Path, device: str = "auto", data_dir: str | Path | N
     # what restore_scene needs: the model (its name, or the config of `--model auto`) and the seed
     require_keys(info, run_dir / "run.json", "run description",
                  ("seed",) if "model_config" in info else ("model", "seed"))
-    config = _saved_train_config(run_dir / "config.json")
+    config = saved_train_config(run_dir / "config.json")
     views = load_training_views(resolve_data_dir(run_dir, info, data_dir), config.image_width, config.linear_input,
                                 config.saturation_threshold)
     scene = restore_scene(load_checkpoint(run_dir), info, config).to(resolve_device(device))

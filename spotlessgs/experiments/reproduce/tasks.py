@@ -18,6 +18,7 @@ from pathlib import Path
 from typing import Any, Sequence
 
 from spotlessgs.io.atomic import write_json
+from spotlessgs.run import AUTO, Run, RunSpec
 
 # Keys of an evaluation result that hold per-image lists, configs or provenance (kept in the per-stage JSON only).
 _BULKY_KEYS = ("per_image", "config", "provenance", "test_views")
@@ -137,33 +138,6 @@ def evaluate_inputs(data_dir: str, out_dir: str, sfm: bool, sfm_matcher: str, lp
     return {"metrics": to_jsonable(metrics)}
 
 
-def relight_views(run_dir: Path, which: str, out_dir: Path) -> dict[str, Any]:
-    """``render_run(run_dir, "relit", which)`` into ``out_dir``, keeping ``out_dir`` image-only.
-
-    The render summary (``render.json``, which render_run writes beside the images) is moved to
-    ``<out_dir>.render.json`` because the evaluation refuses image folders that hold other files.
-    """
-    from spotlessgs.rendering import render_run
-
-    summary = render_run(run_dir, "relit", which, out_dir, progress=False)
-    sidecar = out_dir / "render.json"
-    if sidecar.is_file():
-        os.replace(sidecar, out_dir.parent / f"{out_dir.name}.render.json")
-    return summary
-
-
-def score_test_views(data_dir: Path, pred_dir: Path, threads: int) -> dict[str, float]:
-    """Mean PSNR/SSIM (raw and exposure-aligned) of ``pred_dir``'s test views against the dataset's ground truth."""
-    from evaluation.dataset import read_dataset
-    from evaluation.folders import ImagePair
-    from evaluation.runner import EvalConfig, score_pairs
-
-    data = read_dataset(data_dir)
-    pairs = [ImagePair(f.name, pred_dir / f.name, f.gt_path) for f in data.test_frames if f.gt_path is not None]
-    scores = score_pairs(pairs, EvalConfig(lpips=False, temporal=False, num_threads=threads, progress=False))
-    return {k: scores[k] for k in ("psnr", "ssim", "psnr_aligned", "ssim_aligned")}
-
-
 def curve_milestones(iterations: int, fractions: Sequence[float]) -> list[int]:
     """Training steps at which the speed-against-error curve is sampled: each fraction of ``iterations`` (at least
     step 1), then ``iterations`` itself; sorted, without duplicates."""
@@ -172,22 +146,22 @@ def curve_milestones(iterations: int, fractions: Sequence[float]) -> list[int]:
     return sorted(s for s in steps if s <= iterations)
 
 
-AUTO_METHOD = "auto"
+AUTO_METHOD = AUTO
 
 
-def method_train_config(variant: str, train_preset: str, iterations: int | None, image_width: int | None,
-                        threads: int):
-    """The TrainConfig of one method: the trainer preset with the run's overrides; for ``auto`` the ``budget``
+def method_spec(data: Path, variant: str, train_preset: str, iterations: int | None, image_width: int | None,
+                threads: int, seed: int) -> RunSpec:
+    """The run of one method: the trainer preset with the reproduction's overrides; for ``auto`` the ``budget``
     densification strategy of ``spotless train --gaussian-budget``, so that the reproduction trains exactly what the
     command line does."""
-    from spotlessgs.training.config import preset as train_config
-
     overrides: dict[str, Any] = {"num_threads": threads}
     if iterations is not None:
         overrides["iterations"] = iterations
     if image_width is not None:
         overrides["image_width"] = image_width
-    return train_config(train_preset, strategy="budget" if variant == AUTO_METHOD else "default", **overrides)
+    return RunSpec(data=data, model=variant, preset=train_preset,
+                   strategy="budget" if variant == AUTO_METHOD else "default", seed=seed,
+                   overrides=tuple(overrides.items()))
 
 
 def select_auto_model(data: Path, run: Path, config, seed: int,
@@ -237,7 +211,7 @@ def train_method(data_dir: str, run_dir: str, variant: str, train_preset: str, i
     from spotlessgs.training.trainer import train
 
     data, run = Path(data_dir), Path(run_dir)
-    config = method_train_config(variant, train_preset, iterations, image_width, threads)
+    config = method_spec(data, variant, train_preset, iterations, image_width, threads, seed).train_config()
     model: Any = variant
     selection = None
     selection_seconds = 0.0
@@ -252,10 +226,9 @@ def train_method(data_dir: str, run_dir: str, variant: str, train_preset: str, i
         result = train(data, run, model, config, seed=seed, resume=True, progress=False, stop_after=step)
         loop_seconds += result.seconds
         if step < config.iterations:
-            curve_dir = run / "curve" / f"step_{step:06d}"
-            relight_views(run, "test", curve_dir)
+            scores = Run.load(run).score_views(run / "curve" / f"step_{step:06d}", "test", threads)
             curve.append({"step": step, "train_seconds": selection_seconds + loop_seconds,
-                          **score_test_views(data, curve_dir, threads)})
+                          **{k: scores[k] for k in ("psnr", "ssim", "psnr_aligned", "ssim_aligned")}})
     train_peak = peak_rss_mb()
     summary = json.loads((run / "train_summary.json").read_text(encoding="utf-8"))
 
