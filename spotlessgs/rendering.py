@@ -285,7 +285,8 @@ def render_run(
             raise ValueError(f"l0 must be three finite non-negative numbers, got {l0!r}")
     run_dir = Path(run_dir)
     data = resolve_data_dir(run_dir, read_run_info(run_dir), data_dir)  # a clear error before locking or loading
-    out = Path(out_dir) if out_dir is not None else run_dir / ("relit" if mode == "relit" else "render")
+    default_out = run_dir / ("relit" if mode == "relit" else "render")
+    out = Path(out_dir) if out_dir is not None else default_out
     _check_output(out, run_dir, data)
     with folder_lock(run_dir, "spotless relight" if mode == "relit" else "spotless render"):
         _remove_partial_siblings(out)
@@ -298,7 +299,8 @@ def render_run(
         except BaseException:
             shutil.rmtree(tmp, ignore_errors=True)
             raise
-        write_json(run_dir / f"{'relit' if mode == 'relit' else 'render'}.json", summary)
+        if os.path.realpath(out) == os.path.realpath(default_out):  # the run's own folder: its summary beside it;
+            write_json(default_out.with_suffix(".json"), summary)   # another --out never replaces that summary
     return summary
 
 

@@ -79,7 +79,11 @@ def test_a_run_owns_its_folder(run, box):
 def test_a_run_relights_renders_and_evaluates(run, tmp_path):
     relit = run.relight("test", tmp_path / "relit", progress=False, device="cpu")
     assert relit["count"] == len(list((tmp_path / "relit").glob("*.png"))) > 0
-    run.relight(progress=False, device="cpu")  # RUN/relit, what evaluate scores
+    assert not (run.dir / "relit.json").exists()  # another folder's render never writes the run's own summary
+    own = run.relight(progress=False, device="cpu")  # RUN/relit, what evaluate scores
+    assert json.loads((run.dir / "relit.json").read_text()) == json.loads(json.dumps(own))
+    run.relight("test", tmp_path / "relit-2", progress=False, device="cpu")
+    assert json.loads((run.dir / "relit.json").read_text())["count"] == own["count"]  # still the run's own
     results = run.evaluate(EvalConfig(lpips=False, temporal=False, progress=False, num_threads=1),
                            out_dir=tmp_path / "eval")
     saved = json.loads((tmp_path / "eval" / "results.json").read_text())
