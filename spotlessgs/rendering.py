@@ -38,7 +38,7 @@ from spotlessgs.manifest import (
 )
 from spotlessgs.models.shading import shade
 from spotlessgs.rasterizer import rasterize
-from spotlessgs.training.checkpoint import read_run_info, resolve_data_dir
+from spotlessgs.training.checkpoint import RUN_SCHEMA_VERSION, read_run_info, resolve_data_dir
 from spotlessgs.training.trainer import load_run
 
 log = logging.getLogger(__name__)
@@ -300,7 +300,8 @@ def render_run(
             shutil.rmtree(tmp, ignore_errors=True)
             raise
         if os.path.realpath(out) == os.path.realpath(default_out):  # the run's own folder: its summary beside it;
-            write_json(default_out.with_suffix(".json"), summary)   # another --out never replaces that summary
+            write_json(default_out.with_suffix(".json"),              # another --out never replaces that summary
+                       {"schema_version": RUN_SCHEMA_VERSION, **summary})
     return summary
 
 

@@ -26,7 +26,7 @@ from spotlessgs.io.json_files import read_json
 from spotlessgs.models.shading import MODEL_VARIANTS
 from spotlessgs.rendering import render_run
 from spotlessgs.training import trainer
-from spotlessgs.training.checkpoint import read_run_info, resolve_data_dir
+from spotlessgs.training.checkpoint import check_schema_version, read_run_info, resolve_data_dir
 from spotlessgs.training.config import PRESETS, STRATEGIES, TrainConfig, preset
 from spotlessgs.training.selection import SELECTION_FILE, SelectionConfig, train_auto
 
@@ -195,4 +195,8 @@ class Run:
 
     def _optional(self, name: str, what: str) -> dict[str, Any] | None:
         path = self.dir / name
-        return read_json(path, what) if path.is_file() else None
+        if not path.is_file():
+            return None
+        record = read_json(path, what)
+        check_schema_version(path, record)
+        return record

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import dataclasses
 import json
+from pathlib import Path
 
 import pytest
 import torch
@@ -81,7 +82,7 @@ def test_a_run_relights_renders_and_evaluates(run, tmp_path):
     assert relit["count"] == len(list((tmp_path / "relit").glob("*.png"))) > 0
     assert not (run.dir / "relit.json").exists()  # another folder's render never writes the run's own summary
     own = run.relight(progress=False, device="cpu")  # RUN/relit, what evaluate scores
-    assert json.loads((run.dir / "relit.json").read_text()) == json.loads(json.dumps(own))
+    assert json.loads((run.dir / "relit.json").read_text()) == {"schema_version": 1, **json.loads(json.dumps(own))}
     run.relight("test", tmp_path / "relit-2", progress=False, device="cpu")
     assert json.loads((run.dir / "relit.json").read_text())["count"] == own["count"]  # still the run's own
     results = run.evaluate(EvalConfig(lpips=False, temporal=False, progress=False, num_threads=1),
@@ -107,3 +108,25 @@ def test_auto_through_the_spec_records_the_decision(box, tmp_path):
     run = train(spec, tmp_path / "auto", progress=False)
     assert run.decision is not None and run.model == run.decision["chosen"]
     assert dataclasses.replace(spec, seed=1) != spec
+
+
+def test_run_files_carry_a_schema_version_and_a_newer_one_is_refused(run, tmp_path):
+    import shutil
+
+    from spotlessgs.training.checkpoint import RUN_SCHEMA_VERSION
+
+    for name in ("run.json", "config.json", "train_summary.json", "light.json"):
+        assert json.loads((run.dir / name).read_text())["schema_version"] == RUN_SCHEMA_VERSION, name
+    copy = Path(shutil.copytree(run.dir, tmp_path / "run"))
+    info = json.loads((copy / "run.json").read_text())
+    del info["schema_version"]  # an older version's run: read as before
+    (copy / "run.json").write_text(json.dumps(info))
+    assert Run.load(copy).model == "darkgs"
+    (copy / "run.json").write_text(json.dumps({**info, "schema_version": RUN_SCHEMA_VERSION + 1}))
+    with pytest.raises(InputError, match=r"run.json: written by a newer SpotlessGS \(run schema version 2"):
+        Run.load(copy)
+    summary = json.loads((copy / "train_summary.json").read_text())
+    (copy / "run.json").write_text(json.dumps(info))
+    (copy / "train_summary.json").write_text(json.dumps({**summary, "schema_version": 7}))
+    with pytest.raises(InputError, match="train_summary.json: written by a newer SpotlessGS"):
+        Run.load(copy).summary

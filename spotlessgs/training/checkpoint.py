@@ -80,7 +80,25 @@ def read_run_info(run_dir: Path, required: Sequence[str] = ()) -> dict[str, Any]
     path = Path(run_dir) / "run.json"
     if not path.is_file():
         raise FileNotFoundError(f"{run_dir}: not a training run (no run.json)")
-    return read_json(path, "run description", required)
+    info = read_json(path, "run description", required)
+    check_schema_version(path, info)
+    return info
+
+
+#: Version of the run folder's JSON files (run.json, config.json, train_summary.json, light.json, relit.json,
+#: render.json, gaussian_budget.json: their ``schema_version``; docs/run.md). Files without one are version 0
+#: (older runs: read as before). Raise it when a file's meaning changes; readers refuse newer versions.
+RUN_SCHEMA_VERSION = 1
+
+
+def check_schema_version(path: Path, record: dict[str, Any]) -> None:
+    """InputError naming ``path`` when ``record`` was written by a newer version of the run folder's files."""
+    version = record.get("schema_version", 0)
+    if not isinstance(version, int) or isinstance(version, bool) or version < 0:
+        raise InputError(f"{path}: damaged file: schema_version {version!r} is not a version number")
+    if version > RUN_SCHEMA_VERSION:
+        raise InputError(f"{path}: written by a newer SpotlessGS (run schema version {version}; this version reads "
+                         f"up to {RUN_SCHEMA_VERSION}): update SpotlessGS to read this run")
 
 
 def data_dir_fields(data_dir: str | Path, run_dir: str | Path) -> dict[str, str | None]:

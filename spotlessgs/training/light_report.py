@@ -14,6 +14,7 @@ from spotlessgs.io.atomic import write_json
 from spotlessgs.io.figures import pyplot, save_figure
 from spotlessgs.io.transforms import LightTruth
 from spotlessgs.models.light import ConstantAmbient, LowFrequencyLight, cone_profile
+from spotlessgs.training.checkpoint import RUN_SCHEMA_VERSION
 
 
 def axis_angle_error_deg(rotation_a: np.ndarray, rotation_b: np.ndarray) -> float:
@@ -63,7 +64,7 @@ def write_light_report(scene, views, run_dir: Path) -> dict[str, Any]:
         report["truth"] = views.light.to_json()
         if est is not None:
             report["errors"] = light_errors(est, views.light)
-    write_json(Path(run_dir) / "light.json", report)
+    write_json(Path(run_dir) / "light.json", {"schema_version": RUN_SCHEMA_VERSION, **report})
     if est is not None:
         plot_rid(scene, views.light, Path(run_dir) / "light_rid.png")
     return report

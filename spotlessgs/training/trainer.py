@@ -33,8 +33,8 @@ from spotlessgs.models.relightable import RelightableScene
 from spotlessgs.models.shading import MODEL_VARIANTS, ModelConfig
 from spotlessgs.rasterizer.cpp_kernel import numerics_record
 from spotlessgs.training.checkpoint import (
-    checkpoint_path, data_dir_fields, existing_checkpoint, load_checkpoint, read_run_info, resolve_data_dir,
-    save_checkpoint, truncate_metrics,
+    RUN_SCHEMA_VERSION, check_schema_version, checkpoint_path, data_dir_fields, existing_checkpoint, load_checkpoint,
+    read_run_info, resolve_data_dir, save_checkpoint, truncate_metrics,
 )
 from spotlessgs.training.config import TrainConfig
 from spotlessgs.training.data import TrainingViews, initial_point_cloud, load_training_views
@@ -304,7 +304,7 @@ def _train_locked(data_dir: Path, run_dir: Path, variant: str | ModelConfig, con
         torch.set_num_threads(config.num_threads)
     device = resolve_device(config.device)
     ckpt_file = checkpoint_path(run_dir)
-    run_info = {**data_dir_fields(data_dir, run_dir),
+    run_info = {"schema_version": RUN_SCHEMA_VERSION, **data_dir_fields(data_dir, run_dir),
                 "model": variant.name if isinstance(variant, ModelConfig) else variant,
                 "seed": seed, "preset": config.preset,
                 "light_prior": None if light_prior is None else [float(v) for v in light_prior]}
@@ -322,7 +322,8 @@ def _train_locked(data_dir: Path, run_dir: Path, variant: str | ModelConfig, con
         old = read_json(run_dir / "config.json", "run settings", ("train", "run"))
         if not isinstance(old["run"], dict):
             raise InputError(f"{run_dir / 'config.json'}: damaged run settings: 'run' is not a JSON object")
-        moved = ("data_dir", "data_dir_relative")  # the dataset may have moved (--data DIR): not another setting
+        # the dataset may have moved (--data DIR), an older version wrote the file: not another setting
+        moved = ("data_dir", "data_dir_relative", "schema_version")
         if old["train"] != resolved["train"] or ({k: v for k, v in old["run"].items() if k not in moved}
                                                  != {k: v for k, v in run_info.items() if k not in moved}):
             raise ValueError(f"{run_dir}: --resume with other settings than the run was started with")
@@ -363,10 +364,10 @@ def _train_locked(data_dir: Path, run_dir: Path, variant: str | ModelConfig, con
         strategy = make_strategy(config, extent, seed, device, scene, views, split)
         opts = build_optimizers(scene, config, extent)
         write_json(run_dir / "run.json", run_info)
-        write_json(run_dir / "config.json", {**resolved, "model_config": dataclasses.asdict(scene.config),
-                                             "provenance": provenance(
-                                                 seed=seed, numerics=numerics_record(config.num_threads,
-                                                                                     device.type))})
+        numerics = numerics_record(config.num_threads, device.type)
+        write_json(run_dir / "config.json", {"schema_version": RUN_SCHEMA_VERSION, **resolved,
+                                             "model_config": dataclasses.asdict(scene.config),
+                                             "provenance": provenance(seed=seed, numerics=numerics)})
         (run_dir / "metrics.jsonl").unlink(missing_ok=True)
     prior = None if light_prior is None else torch.as_tensor(light_prior, dtype=torch.float32, device=device)
 
@@ -468,7 +469,7 @@ def _train_locked(data_dir: Path, run_dir: Path, variant: str | ModelConfig, con
                          loss_value, test_psnr, val_psnr, val_dark)
     if end == config.iterations:
         write_light_report(scene, views, run_dir)
-        write_json(run_dir / "train_summary.json", {
+        write_json(run_dir / "train_summary.json", {"schema_version": RUN_SCHEMA_VERSION,
             "steps": result.steps, "seconds_this_session": seconds, "ms_per_step": result.ms_per_step,
             "num_gaussians": result.num_gaussians,
             "final_loss": loss_value if math.isfinite(loss_value) else None,  # None: resumed a finished run
@@ -476,7 +477,8 @@ def _train_locked(data_dir: Path, run_dir: Path, variant: str | ModelConfig, con
             "validation_views": split.validation, "validation_psnr": val_psnr, "validation_psnr_dark": val_dark,
         })
         if isinstance(strategy, BudgetStrategy):
-            write_json(run_dir / "gaussian_budget.json", budget_report(strategy, len(scene.gaussians), config))
+            write_json(run_dir / "gaussian_budget.json", {"schema_version": RUN_SCHEMA_VERSION,
+                                                          **budget_report(strategy, len(scene.gaussians), config)})
     return result
 
 
@@ -534,6 +536,7 @@ def saved_train_config(path: Path) -> TrainConfig:
             file).
     """
     saved = read_json(path, "run settings", ("train",))
+    check_schema_version(path, saved)
     if not isinstance(saved["train"], dict):
         raise InputError(f"{path}: damaged run settings: 'train' is not a JSON object")
     try:
