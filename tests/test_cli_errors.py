@@ -318,3 +318,14 @@ def test_debug_shows_the_traceback_of_a_users_error(shared, tmp_path):
     program, argv = _relight_not_a_run(tmp_path, shared)
     result = _invoke(program, ["--debug", *argv])
     assert result.exit_code == 2 and "Traceback" in result.output, result.output
+
+
+def test_the_command_line_programs_start_without_torch_or_blender():
+    """`spotless --help` and `spotless-sim --help` load neither torch nor bpy (the library is imported by the command
+    that needs it), so a mistyped option is answered at once."""
+    import subprocess
+    import sys
+
+    code = "import sys, spotlessgs.cli, simulator.cli; print(sorted(m for m in ('torch', 'bpy') if m in sys.modules))"
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True, cwd=ROOT)
+    assert out.stdout.strip() == "[]", out.stdout + out.stderr

@@ -1,8 +1,8 @@
 """Reading and writing sRGB image files (PNG/JPEG, 8 or 16 bit) as float arrays in [0, 1].
 
 Pillow reads 16-bit *colour* PNGs only at 8-bit precision, so those (colour types 2, 4 and 6 at bit depth 16) are
-decoded here with zlib and numpy (exact, but slow for Average/Paeth-filtered rows: about 3 s for a 640x480 image);
-everything else goes through Pillow.
+decoded with OpenCV (exact; 6.7 ms for a 640x480 RGB image with Paeth/Average-filtered rows, where the numpy decoder
+it replaced took 1.75 s); everything else goes through Pillow.
 
 Alpha: by default an alpha channel is dropped (the colour is kept as stored). ``alpha="over_black"`` composites it
 over black instead (straight alpha: ``rgb * a``), so transparent pixels become black and opaque ones are unchanged; the
@@ -14,18 +14,15 @@ evaluation reads every image this way, because renderers with a transparent film
 from __future__ import annotations
 
 import os
-import struct
-import zlib
 from pathlib import Path
 
+import cv2
 import numpy as np
 
 from spotlessgs.io.atomic import atomic_path
 from spotlessgs.io.colorspace import to_uint8
 
 _PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
-# PNG colour type -> samples per pixel (for the types decoded here).
-_PNG_CHANNELS = {0: 1, 2: 3, 4: 2, 6: 4}
 # How read_image treats an alpha channel (see the module docstring).
 _ALPHA_MODES = ("drop", "over_black")
 
@@ -144,74 +141,16 @@ def _to_rgb(data: np.ndarray, path: Path, alpha: str) -> np.ndarray:
 
 
 def _decode_png16(path: Path) -> np.ndarray:
-    """Decode a non-interlaced 16-bit PNG into float32 (H, W, C) in [0, 1] (C = samples per pixel)."""
-    blob = path.read_bytes()
-    pos = len(_PNG_SIGNATURE)
-    header = None
-    idat = []
-    while pos + 8 <= len(blob):
-        (length,) = struct.unpack(">I", blob[pos : pos + 4])
-        kind = blob[pos + 4 : pos + 8]
-        body = blob[pos + 8 : pos + 8 + length]
-        if len(body) != length:
-            raise ValueError(f"{path}: truncated PNG chunk {kind!r}")
-        if kind == b"IHDR":
-            header = struct.unpack(">IIBBBBB", body)
-        elif kind == b"IDAT":
-            idat.append(body)
-        elif kind == b"IEND":
-            break
-        pos += 12 + length
-    if header is None or not idat:
-        raise ValueError(f"{path}: PNG without IHDR or IDAT chunk")
-    width, height, bit_depth, colour_type, _, _, interlace = header
-    if interlace != 0:
-        raise ValueError(f"{path}: interlaced 16-bit PNG files are not supported")
-    channels = _PNG_CHANNELS[colour_type]
-    bpp = 2 * channels
-    stride = width * bpp
-    try:
-        raw = np.frombuffer(zlib.decompress(b"".join(idat)), dtype=np.uint8)
-    except zlib.error as exc:
-        raise ValueError(f"{path}: corrupt PNG image data ({exc})") from exc
-    if raw.size != height * (stride + 1):
-        raise ValueError(f"{path}: PNG image data has {raw.size} bytes, expected {height * (stride + 1)}")
-    rows = raw.reshape(height, stride + 1)
-    out = np.zeros((height, stride), dtype=np.uint8)
-    prev = np.zeros(stride, dtype=np.uint8)
-    for y in range(height):
-        kind, line = rows[y, 0], rows[y, 1:]
-        out[y] = _unfilter_row(kind, line, prev, bpp, path, y)
-        prev = out[y]
-    values = out.view(">u2").reshape(height, width, channels)
-    return values.astype(np.float32) / 65535.0
-
-
-def _unfilter_row(kind: int, line: np.ndarray, prev: np.ndarray, bpp: int, path: Path, y: int) -> np.ndarray:
-    """Undo one PNG scanline filter (types 0-4) and return the reconstructed (stride,) uint8 row."""
-    if kind == 0:
-        return line
-    if kind == 1:  # Sub: cumulative sum along pixels, modulo 256
-        return np.cumsum(line.reshape(-1, bpp), axis=0, dtype=np.uint8).reshape(-1)
-    if kind == 2:  # Up
-        return line + prev
-    if kind not in (3, 4):
-        raise ValueError(f"{path}: unknown PNG filter type {kind} in row {y}")
-    cur = line.astype(np.int32).reshape(-1, bpp)
-    up = prev.astype(np.int32).reshape(-1, bpp)
-    left = np.zeros(bpp, dtype=np.int32)
-    up_left = np.zeros(bpp, dtype=np.int32)
-    for x in range(cur.shape[0]):
-        if kind == 3:  # Average
-            cur[x] = (cur[x] + ((left + up[x]) >> 1)) & 0xFF
-        else:  # Paeth
-            p = left + up[x] - up_left
-            pa, pb, pc = np.abs(p - left), np.abs(p - up[x]), np.abs(p - up_left)
-            pred = np.where((pa <= pb) & (pa <= pc), left, np.where(pb <= pc, up[x], up_left))
-            cur[x] = (cur[x] + pred) & 0xFF
-        left = cur[x]
-        up_left = up[x]
-    return cur.reshape(-1).astype(np.uint8)
+    """Decode a 16-bit PNG with OpenCV into float32 (H, W, C) in [0, 1]: RGB or RGBA (alpha last); grey + alpha comes
+    back from OpenCV as grey repeated in RGB plus alpha."""
+    data = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
+    if data is None:
+        raise ValueError(f"{path}: cannot decode image (a damaged or truncated PNG)")
+    if data.dtype != np.uint16:
+        raise ValueError(f"{path}: expected 16-bit samples, OpenCV decoded {data.dtype}")
+    if data.ndim == 3 and data.shape[2] in (3, 4):  # OpenCV's channel order is BGR(A)
+        data = data[:, :, [2, 1, 0, 3][: data.shape[2]]]
+    return data.astype(np.float32) / 65535.0
 
 
 def write_png(path: str | os.PathLike, img: np.ndarray) -> None:
