@@ -5,5 +5,6 @@ set -euo pipefail
 cd "$(dirname "$0")/.."
 PY=${PYTHON:-python3}
 "$PY" -m ruff check spotlessgs simulator evaluation scripts tests
-lint-imports --no-cache
+# import-linter's `lint-imports`, run through the same Python (a venv need not be activated)
+"$PY" -c "import sys; from importlinter.cli import lint_imports_command; sys.argv = ['lint-imports', '--no-cache']; lint_imports_command()"
 "$PY" -m pytest -q "$@"
