@@ -1,4 +1,5 @@
-"""`spotless eval`: thin click command; it builds an :class:`EvalConfig` and calls one runner function."""
+"""`spotless eval` and `spotless sfm-rings`: thin click commands over the evaluation library (`spotless eval` builds an
+:class:`EvalConfig` and calls one runner function)."""
 
 from __future__ import annotations
 
@@ -50,3 +51,32 @@ def eval_command(run, pred, gt, data_dir, sfm, matcher, out_dir, json_path, no_l
     click.echo(markdown_report(results))
     if where is not None:
         click.echo(f"results written to {where}")
+
+
+def _labelled(_ctx, _param, values: tuple[str, ...]) -> dict[str, Path]:
+    runs: dict[str, Path] = {}
+    for value in values:
+        label, sep, path = value.partition("=")
+        if not sep or not label or not path:
+            raise click.BadParameter(f"{value!r}: expected LABEL=SPARSE_DIR")
+        if label in runs:
+            raise click.BadParameter(f"label {label!r} given twice")
+        runs[label] = Path(path)
+    return runs
+
+
+@click.command("sfm-rings", context_settings={"help_option_names": ["-h", "--help"]})
+@click.argument("runs", nargs=-1, required=True, callback=_labelled)
+@click.option("--bins", default=4, show_default=True, type=click.IntRange(1, 20), help="Rings of image radius.")
+def sfm_rings_command(runs: dict[str, Path], bins: int) -> None:
+    """Reprojection error by image radius of finished SfM runs (LABEL=SPARSE_DIR, the folder of COLMAP sub-models).
+
+    One Markdown row per run: its mean reprojection error (COLMAP's, over 3D points) and, per ring of image radius
+    (fraction of the half-diagonal), the share of the observations and their mean reprojection error. Under a
+    camera-mounted spotlight the features of the original images crowd in the bright centre, which changes the mean
+    error for reasons other than image quality; the rings compare like with like."""
+    from evaluation.sfm import ring_table  # deferred: the evaluation library, kept out of `spotless --help`
+    try:
+        click.echo(ring_table(runs, bins))
+    except FileNotFoundError as err:
+        raise click.ClickException(str(err)) from err

@@ -334,3 +334,18 @@ def load_sfm_result(sparse_root: str | os.PathLike, total_images: int | None = N
     models = {k: pycolmap.Reconstruction(str(d)) for k, d in enumerate(dirs)}
     registered = sum(r.num_reg_images() for r in models.values())
     return _result_from_models(models, total=registered if total_images is None else total_images)
+
+
+def ring_table(runs: dict[str, Path], bins: int) -> str:
+    """Markdown table of :meth:`evaluation.sfm.SfmResult.errors_by_radius` for every labelled sparse folder."""
+    rows = []
+    for label, sparse in runs.items():
+        result = load_sfm_result(sparse)
+        rings = result.errors_by_radius(bins)
+        total = sum(r["observations"] for r in rings)
+        cells = [ring_cell(r, total) for r in rings]
+        mean = "n/a" if result.reprojection_error_px is None else f"{result.reprojection_error_px:.3f}"
+        rows.append(f"| {label} | {total} | {mean} | " + " | ".join(cells) + " |")
+    edges = [f"r {k / bins:.2f}–{(k + 1) / bins:.2f}" for k in range(bins)]
+    header = "| run | observations | reprojection error (px) | " + " | ".join(edges) + " |"
+    return "\n".join([header, "|" + "---|" * (3 + bins)] + rows)

@@ -1,6 +1,6 @@
 """Render speed against error: one view at several sample counts vs a high-sample reference.
 
-    python -m simulator.benchmark --scene scenes/bedroom/house.json --out bench/render
+    spotless-sim benchmark --scene scenes/bedroom/house.json --out bench/render
 
 renders the first pose of the room's camera loop at each sample count (with and without OpenImageDenoise) and a
 reference at ``--reference-samples`` (denoised), then reports seconds per paired frame (both renders) against the
@@ -14,7 +14,6 @@ import dataclasses
 import time
 from pathlib import Path
 
-import click
 import numpy as np
 import torch
 
@@ -103,22 +102,3 @@ def plot(rows: list[dict], path: Path, width: int, height: int) -> None:
     ax.grid(True, alpha=0.3)
     ax.legend(fontsize=8)
     save_figure(fig, path)
-
-
-@click.command()
-@click.option("--scene", "scene_path", required=True, type=click.Path(exists=True, dir_okay=False, path_type=Path))
-@click.option("--out", "out_dir", required=True, type=click.Path(file_okay=False, path_type=Path))
-@click.option("--samples", default="4,8,16,32,64", show_default=True, help="Comma-separated sample counts.")
-@click.option("--reference-samples", default=512, show_default=True, type=int)
-@click.option("--width", default=320, show_default=True, type=int)
-@click.option("--height", default=240, show_default=True, type=int)
-@click.option("--threads", default=2, show_default=True, type=int)
-def main(scene_path, out_dir, samples, reference_samples, width, height, threads):
-    """Benchmark render speed against error."""
-    counts = [int(s) for s in samples.split(",") if s.strip()]
-    rows = run_benchmark(scene_path, out_dir, counts, reference_samples, width, height, threads)
-    click.echo(markdown_table(rows, width, height))
-
-
-if __name__ == "__main__":
-    main()

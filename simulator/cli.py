@@ -149,5 +149,26 @@ def inspect(scene_path, future_dir, texture_dir, allow_missing):
     click.echo(json.dumps({"scene_id": scene.scene_id, "objects": len(scene.objects), "rooms": rooms}, indent=2))
 
 
+
+@main.command()
+@click.option("--scene", "scene_path", required=True, type=click.Path(exists=True, dir_okay=False, path_type=Path))
+@click.option("--out", "out_dir", required=True, type=click.Path(file_okay=False, path_type=Path))
+@click.option("--samples", default="4,8,16,32,64", show_default=True, help="Comma-separated sample counts.")
+@click.option("--reference-samples", default=512, show_default=True, type=click.IntRange(1))
+@click.option("--width", default=320, show_default=True, type=click.IntRange(8))
+@click.option("--height", default=240, show_default=True, type=click.IntRange(8))
+@click.option("--threads", default=2, show_default=True, type=click.IntRange(1))
+def benchmark(scene_path, out_dir, samples, reference_samples, width, height, threads):
+    """Render speed against error: one view at several sample counts against a high-sample reference."""
+    from simulator.benchmark import markdown_table, run_benchmark
+
+    try:
+        counts = [int(s) for s in samples.split(",") if s.strip()]
+    except ValueError:
+        raise click.BadParameter(f"{samples!r}: expected comma-separated integers", param_hint="--samples") from None
+    rows = run_benchmark(scene_path, out_dir, counts, reference_samples, width, height, threads)
+    click.echo(markdown_table(rows, width, height))
+
+
 if __name__ == "__main__":
     main()

@@ -11,8 +11,9 @@ import click
 
 from spotlessgs.clitools import SafeGroup
 
-from evaluation.cli import eval_command
+from evaluation.cli import eval_command, sfm_rings_command
 from spotlessgs.baselines2d.cli import baseline2d
+from spotlessgs.experiments.cli import benchmark
 from spotlessgs.experiments.reproduce.cli import reproduce
 
 MODELS = ["3dgs", "darkgs", "darkgs-calibrated", "darkgs+sh", "darkgs+brdf", "spotless"]
@@ -140,8 +141,10 @@ def export(run_dir, out_path, l0, data_dir):
 
 
 main.add_command(eval_command, name="eval")
+main.add_command(sfm_rings_command)
 main.add_command(baseline2d)
 main.add_command(reproduce)
+main.add_command(benchmark)
 
 if __name__ == "__main__":
     main()

@@ -1,4 +1,4 @@
-"""`python -m spotlessgs.experiments.benchmark`: one row per model from a train -> relight -> score run."""
+"""`spotless benchmark models`: one row per model from a train -> relight -> score run."""
 
 from __future__ import annotations
 

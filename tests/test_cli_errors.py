@@ -248,6 +248,19 @@ def _sim_add_noise_into_source(tmp, s):
     return "sim", ["add-noise", "--data", str(data), "--out", str(data / "noisy")]
 
 
+def _sim_benchmark_bad_samples(tmp, s):
+    return "sim", ["benchmark", "--scene", str(SHIPPED_SCENE), "--out", str(tmp / "bench"), "--samples", "4,many"]
+
+
+def _benchmark_unknown_preset(tmp, s):
+    return "spotless", ["benchmark", "models", "--data", str(s["data"]), "--out", str(tmp / "bench"),
+                        "--preset", "huge"]
+
+
+def _sfm_rings_bad_label(tmp, s):
+    return "spotless", ["sfm-rings", str(tmp)]
+
+
 CASES = [
     Case("train: damaged transforms.json", _damaged_transforms, 2, ("{tmp}/box/transforms.json", "not valid JSON")),
     Case("train: a frame's image is missing", _missing_image, 2, ("frame_00003.png",)),
@@ -283,6 +296,9 @@ CASES = [
     Case("spotless-sim inspect: not a house file", _sim_inspect_damaged_scene, 2, ("{tmp}/house.json",)),
     Case("spotless-sim add-noise: not a dataset", _sim_add_noise_not_a_dataset, 2, ("{tmp}/folder",)),
     Case("spotless-sim add-noise: --out inside --data", _sim_add_noise_into_source, 2, ("inside the input --data",)),
+    Case("spotless-sim benchmark: bad sample counts", _sim_benchmark_bad_samples, 2, ("--samples", "'4,many'")),
+    Case("benchmark models: unknown preset", _benchmark_unknown_preset, 2, ("'huge'",)),
+    Case("sfm-rings: a run without a label", _sfm_rings_bad_label, 2, ("expected LABEL=SPARSE_DIR",)),
 ]
 
 

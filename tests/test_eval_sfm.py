@@ -55,10 +55,10 @@ def test_all_images_register_with_accurate_poses(room_images, tmp_path, matcher)
     assert (again.reprojection_error_px, again.observations_per_image, again.registered_images) == \
         (result.reprojection_error_px, result.observations_per_image, result.registered_images)
     np.testing.assert_allclose(again.models[0].observation_errors[:, 2].mean(), obs[:, 2].mean())
-    # the ring table of `python -m evaluation.sfm_rings` shows the same counts and errors
+    # the ring table of `spotless sfm-rings` shows the same counts and errors
     from click.testing import CliRunner
 
-    from evaluation.sfm_rings import main as rings_main
+    from evaluation.cli import sfm_rings_command as rings_main
 
     out = CliRunner().invoke(rings_main, [f"even={tmp_path / 'work' / 'sparse'}", "--bins", "2"])
     assert out.exit_code == 0, out.output

@@ -13,9 +13,10 @@ from click.testing import CliRunner
 
 from conftest import synthetic_box_dataset
 from spotlessgs.experiments.selection_benchmark import (
-    PLOT, RESULTS_JSON, RESULTS_MD, ROW_FILE, RUN_FOLDERS, BenchmarkSettings, aggregate_seeds, main, run_seeds,
+    PLOT, RESULTS_JSON, RESULTS_MD, ROW_FILE, RUN_FOLDERS, BenchmarkSettings, aggregate_seeds, run_seeds,
     run_selection_benchmark, selection_verdict, train_config, verdict_lines,
 )
+from spotlessgs.experiments.cli import selection as main
 from spotlessgs.training.budget import budget_verdict
 from spotlessgs.training.light_need import light_note
 

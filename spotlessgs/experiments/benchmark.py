@@ -1,7 +1,7 @@
 """What each model component costs and buys: per variant, training ms/step, relit-render FPS, peak memory, and
 test-view PSNR after a fixed iteration budget.
 
-    python -m spotlessgs.experiments.benchmark --data data/bedroom --out bench/train --iterations 1500
+    spotless benchmark models --data data/bedroom --out bench/train --iterations 1500
 
 Each variant trains in its own subprocess (so its peak resident memory, ``ru_maxrss``, is its own), then relights its
 test views and scores them: PSNR of the relit test views against the ground truth after one exposure gain
@@ -17,15 +17,13 @@ import subprocess
 import sys
 from pathlib import Path
 
-import click
-
 from spotlessgs.io.atomic import write_json, write_text
 from spotlessgs.io.provenance import provenance
 
 VARIANTS = ("3dgs", "darkgs", "darkgs-calibrated", "darkgs+sh", "darkgs+brdf", "spotless")
 
 
-def _child(data: str, run: str, variant: str, preset: str, iterations: int, threads: int, seed: int) -> None:
+def child(data: str, run: str, variant: str, preset: str, iterations: int, threads: int, seed: int) -> None:
     """Train, relight the test views and score them, in this (sub)process; prints one JSON line."""
     from spotlessgs.run import RunSpec, train
 
@@ -57,7 +55,7 @@ def run_benchmark(data: Path, out: Path, variants: tuple[str, ...], preset: str,
         if (run / "benchmark_row.json").is_file():
             rows.append(json.loads((run / "benchmark_row.json").read_text()))
             continue
-        cmd = [sys.executable, "-m", "spotlessgs.experiments.benchmark", "--child", "--data", str(data), "--out",
+        cmd = [sys.executable, "-m", "spotlessgs.cli", "benchmark", "models", "--child", "--data", str(data), "--out",
                str(run), "--variants", variant, "--preset", preset, "--iterations", str(iterations), "--threads",
                str(threads), "--seed", str(seed)]
         proc = subprocess.run(cmd, capture_output=True, text=True)
@@ -87,26 +85,3 @@ def markdown_table(rows: list[dict], iterations: int, threads: int) -> str:
             f"{r['relit_fps']:.1f} | {r['peak_rss_mb']:.0f} | {fmt(r.get('test_psnr_reconstruction'), '.2f')} | "
             f"{fmt(r.get('psnr'), '.2f')} | {fmt(r.get('psnr_aligned'), '.2f')} | {fmt(r.get('ssim_aligned'), '.3f')} |")
     return "\n".join(lines) + "\n"
-
-
-@click.command()
-@click.option("--data", required=True, type=click.Path(exists=True, file_okay=False, path_type=Path))
-@click.option("--out", required=True, type=click.Path(file_okay=False, path_type=Path))
-@click.option("--variants", default=",".join(VARIANTS), show_default=True)
-@click.option("--preset", default="quick", show_default=True)
-@click.option("--iterations", default=1500, show_default=True, type=int)
-@click.option("--threads", default=1, show_default=True, type=int)
-@click.option("--seed", default=0, show_default=True, type=int)
-@click.option("--child", is_flag=True, hidden=True)
-def main(data, out, variants, preset, iterations, threads, seed, child):
-    """Benchmark training and relit rendering per model variant."""
-    names = tuple(v for v in variants.split(",") if v)
-    if child:
-        _child(str(data), str(out), names[0], preset, iterations, threads, seed)
-        return
-    rows = run_benchmark(data, out, names, preset, iterations, threads, seed)
-    click.echo(markdown_table(rows, iterations, threads))
-
-
-if __name__ == "__main__":
-    main()

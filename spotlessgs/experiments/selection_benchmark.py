@@ -1,6 +1,6 @@
 """Acceptance measurements of automatic model selection and the Gaussian budget, rerunnable with one command.
 
-    python -m spotlessgs.experiments.selection_benchmark --data data/bedroom --data data/storage --out bench/selection
+    spotless benchmark selection --data data/bedroom --data data/storage --out bench/selection
 
 Per dataset folder (room = folder name), under ``OUT/<room>/``:
 
@@ -35,8 +35,6 @@ import time
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
-
-import click
 
 from spotlessgs.io.atomic import write_json, write_text
 from spotlessgs.io.provenance import provenance
@@ -439,30 +437,3 @@ def run_seeds(data_dirs: list[Path], out: Path, settings: BenchmarkSettings, see
     plot_budget(seed_budget_points(summary), out / PLOT,
                 title=f"Gaussian budget: default vs budget strategy (mean of {len(seeds)} seeds)")
     return results
-
-
-@click.command()
-@click.option("--data", "data_dirs", required=True, multiple=True,
-              type=click.Path(exists=True, file_okay=False, path_type=Path),
-              help="Dataset folder with ground truth (repeat for several rooms; room = folder name).")
-@click.option("--out", required=True, type=click.Path(file_okay=False, path_type=Path))
-@click.option("--preset", default="quick", show_default=True, type=click.Choice(["tiny", "quick", "paper"]))
-@click.option("--iterations", type=click.IntRange(1), default=None, help="Override the preset's iteration count.")
-@click.option("--width", "image_width", type=click.IntRange(8), default=None,
-              help="Override the training image width (pixels).")
-@click.option("--threads", default=1, show_default=True, type=click.IntRange(1))
-@click.option("--seed", "seeds", default=(0,), show_default=True, type=int, multiple=True,
-              help="Seed of training, selection holdout and view order; repeat to measure several seeds and "
-                   "summarise them (OUT/seed-<s>/ each).")
-@click.option("--min-proxy-iterations", type=click.IntRange(1), default=None,
-              help="Shortest selection proxy run (default: the selection's; small only for tests).")
-def main(data_dirs, out, preset, iterations, image_width, threads, seeds, min_proxy_iterations):
-    """Measure automatic model selection and the Gaussian budget against SpotlessGS."""
-    logging.basicConfig(level=logging.INFO, format="%(levelname)s %(name)s: %(message)s")
-    settings = BenchmarkSettings(preset, iterations, image_width, threads, seeds[0], min_proxy_iterations)
-    run_seeds(list(data_dirs), out, settings, list(seeds))
-    click.echo((out / RESULTS_MD).read_text())
-
-
-if __name__ == "__main__":
-    main()

@@ -1,0 +1,69 @@
+"""``spotless benchmark``: the experiments' benchmarks as commands, thin over their library modules.
+
+    spotless benchmark models --data data/bedroom --out bench/train --iterations 1500
+    spotless benchmark selection --data data/bedroom --data data/storage_room --out bench/selection --seed 0 --seed 1
+
+``models`` is :mod:`spotlessgs.experiments.benchmark` (what each model component costs and buys), ``selection`` is
+:mod:`spotlessgs.experiments.selection_benchmark` (model selection and the Gaussian budget against SpotlessGS).
+"""
+
+from __future__ import annotations
+
+import logging
+from pathlib import Path
+
+import click
+
+from spotlessgs.experiments.benchmark import VARIANTS
+
+
+@click.group()
+def benchmark() -> None:
+    """Benchmarks: per-model cost and quality (models); model selection and the Gaussian budget (selection)."""
+
+
+@benchmark.command("models")
+@click.option("--data", required=True, type=click.Path(exists=True, file_okay=False, path_type=Path))
+@click.option("--out", required=True, type=click.Path(file_okay=False, path_type=Path))
+@click.option("--variants", default=",".join(VARIANTS), show_default=True)
+@click.option("--preset", default="quick", show_default=True, type=click.Choice(["tiny", "quick", "paper"]))
+@click.option("--iterations", default=1500, show_default=True, type=click.IntRange(1))
+@click.option("--threads", default=1, show_default=True, type=click.IntRange(1))
+@click.option("--seed", default=0, show_default=True, type=int)
+@click.option("--child", is_flag=True, hidden=True, help="Train one variant in this process (used by the benchmark).")
+def models(data, out, variants, preset, iterations, threads, seed, child):
+    """Training ms/step, relit FPS, peak memory and relit PSNR of each model variant after a fixed step budget."""
+    # deferred (as in every command): the torch-based library, kept out of `spotless --help`
+    from spotlessgs.experiments.benchmark import child as train_one, markdown_table, run_benchmark
+
+    names = tuple(v for v in variants.split(",") if v)
+    if child:
+        train_one(str(data), str(out), names[0], preset, iterations, threads, seed)
+        return
+    rows = run_benchmark(data, out, names, preset, iterations, threads, seed)
+    click.echo(markdown_table(rows, iterations, threads))
+
+
+@benchmark.command("selection")
+@click.option("--data", "data_dirs", required=True, multiple=True,
+              type=click.Path(exists=True, file_okay=False, path_type=Path),
+              help="Dataset folder with ground truth (repeat for several rooms; room = folder name).")
+@click.option("--out", required=True, type=click.Path(file_okay=False, path_type=Path))
+@click.option("--preset", default="quick", show_default=True, type=click.Choice(["tiny", "quick", "paper"]))
+@click.option("--iterations", type=click.IntRange(1), default=None, help="Override the preset's iteration count.")
+@click.option("--width", "image_width", type=click.IntRange(8), default=None,
+              help="Override the training image width (pixels).")
+@click.option("--threads", default=1, show_default=True, type=click.IntRange(1))
+@click.option("--seed", "seeds", default=(0,), show_default=True, type=int, multiple=True,
+              help="Seed of training, selection holdout and view order; repeat to measure several seeds and "
+                   "summarise them (OUT/seed-<s>/ each).")
+@click.option("--min-proxy-iterations", type=click.IntRange(1), default=None,
+              help="Shortest selection proxy run (default: the selection's; small only for tests).")
+def selection(data_dirs, out, preset, iterations, image_width, threads, seeds, min_proxy_iterations):
+    """Measure automatic model selection and the Gaussian budget against SpotlessGS."""
+    from spotlessgs.experiments.selection_benchmark import RESULTS_MD, BenchmarkSettings, run_seeds
+
+    logging.basicConfig(level=logging.INFO, format="%(levelname)s %(name)s: %(message)s")
+    settings = BenchmarkSettings(preset, iterations, image_width, threads, seeds[0], min_proxy_iterations)
+    run_seeds(list(data_dirs), out, settings, list(seeds))
+    click.echo((out / RESULTS_MD).read_text())
