@@ -41,6 +41,7 @@ from typing import Any, Iterable, Mapping
 
 from spotlessgs.io.atomic import PARTIAL_MARK, to_jsonable, write_json
 from spotlessgs.io.errors import InputError
+from spotlessgs.io.json_files import read_json
 from spotlessgs.io.provenance import provenance
 from spotlessgs.training.checkpoint import existing_checkpoint, load_checkpoint
 
@@ -160,11 +161,9 @@ def read_manifest(folder: str | os.PathLike) -> dict[str, Any] | None:
     if not path.is_file():
         return None
     try:
-        record = json.loads(path.read_text(encoding="utf-8"))
-    except (json.JSONDecodeError, UnicodeDecodeError) as exc:
-        raise InputError(f"{path}: damaged manifest (not valid JSON: {exc}); write the folder again") from None
-    if not isinstance(record, dict):
-        raise InputError(f"{path}: damaged manifest (not a JSON object); write the folder again")
+        record = read_json(path, "manifest")
+    except InputError as exc:
+        raise InputError(f"{exc}; write the folder again") from None
     if record.get("schema_version") != SCHEMA_VERSION:
         raise InputError(f"{path}: manifest schema_version {record.get('schema_version')!r} is not {SCHEMA_VERSION} "
                          "(written by another version of spotlessgs); write the folder again")

@@ -169,12 +169,12 @@ def measure_run(data: Path, run_dir: Path, model, config, settings: BenchmarkSet
     else:
         log.info("training %s (%s, %s strategy)", run_dir, getattr(model, "name", model), strategy)
         train(data, run_dir, model, config, seed=settings.seed, resume=True, progress=False)
-    summary = json.loads(summary_path.read_text())
+    run = Run.load(run_dir)
+    summary = run.summary
     log.info("relighting and scoring %s", run_dir)
-    scored = Run.load(run_dir).score_views(run_dir / "relit", "all", settings.threads, data_dir=data)
-    relit = scored.pop("relight")
-    scores = scored
-    row = {"model": json.loads((run_dir / "run.json").read_text())["model"], "strategy": strategy,
+    scores = run.score_views(run_dir / "relit", "all", settings.threads, data_dir=data)
+    relit = scores.pop("relight")
+    row = {"model": run.model, "strategy": strategy,
            "steps": summary["steps"], "gaussians": summary["num_gaussians"],
            "train_seconds": summary["seconds_this_session"], "ms_per_step": summary["ms_per_step"],
            "relit_fps": relit["fps"], "relit_views": relit["count"], **scores}

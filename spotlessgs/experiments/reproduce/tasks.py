@@ -230,7 +230,7 @@ def train_method(data_dir: str, run_dir: str, variant: str, train_preset: str, i
             curve.append({"step": step, "train_seconds": selection_seconds + loop_seconds,
                           **{k: scores[k] for k in ("psnr", "ssim", "psnr_aligned", "ssim_aligned")}})
     train_peak = peak_rss_mb()
-    summary = json.loads((run / "train_summary.json").read_text(encoding="utf-8"))
+    summary = Run.load(run).summary
 
     relit = relight_in_fresh_process(run, threads)
 
