@@ -49,10 +49,10 @@ def export_ply(run_dir: str | Path, out_path: str | Path, l0: Sequence[float] = 
         f_dc, f_rest = sh[:, 0, :], sh[:, 1:, :]
     else:
         # relit colour per Gaussian, seen from the first camera (relit colours do not depend on the camera)
-        colour = scene.colours(views.c2w[0], relight_l0=list(map(float, l0))).numpy()
+        colour = scene.colours(views.cameras.c2w[0], relight_l0=list(map(float, l0))).numpy()
         f_dc = (linear_to_srgb(colour) - 0.5) / SH_C0
         f_rest = np.zeros((n, 15, 3))
-    cam0 = views.c2w[0, :3, 3]
+    cam0 = views.cameras.centres[0]
     fields = {
         **{k: g.means[:, i].numpy() for i, k in enumerate("xyz")},
         **{f"n{k}": g.normals(cam0)[:, i].numpy() for i, k in enumerate("xyz")},

@@ -314,28 +314,26 @@ def _render_into(run_dir: Path, data_dir: Path, mode: str, which: str, out: Path
     checkpoint = checkpoint_identity(run_dir)  # the file the model is loaded from (the lock keeps it unchanged)
     scene, views, config, _info = load_run(run_dir, device=device, data_dir=data_dir)
     dev = scene.gaussians.means.device
-    native = views.dataset.intrinsics
-    K = torch.as_tensor(native.K(), dtype=torch.float32, device=dev)
-    width, height = int(native.width), int(native.height)
+    cameras = views.cameras.with_intrinsics(views.dataset.intrinsics).to(dev)  # rendered at the native size
+    K, width, height = cameras.K, cameras.width, cameras.height
     indices = select_views(views, which)
     g = scene.gaussians
     start = time.perf_counter()
     parts = None
     if mode == "relit" and scene.config.light_model != "none":  # 3dgs "relit" = its ordinary render
-        parts = RelitColours(scene, views.c2w[indices[0]].to(dev))
+        parts = RelitColours(scene, cameras.c2w[indices[0]])
 
     def raster(k: int, feats: torch.Tensor) -> np.ndarray:
-        res = rasterize(g.means, g.quats, g.scales, g.opacities, feats, views.viewmats[k].to(dev), K, width, height,
+        res = rasterize(g.means, g.quats, g.scales, g.opacities, feats, cameras.viewmat[k], K, width, height,
                         backend=config.raster_backend, num_threads=config.num_threads)
         return res.image.float().cpu().numpy()
 
     def relit_image(k: int, light: list[float] | None) -> np.ndarray:
         if parts is None:  # 3dgs: its ordinary render
-            res = scene.render(views.c2w[k].to(dev), views.viewmats[k].to(dev), K, width, height,
-                               relight_l0=[1.0, 1.0, 1.0], backend=config.raster_backend,
+            res = scene.render(cameras[k], relight_l0=[1.0, 1.0, 1.0], backend=config.raster_backend,
                                num_threads=config.num_threads)
             return res.image.float().cpu().numpy()
-        both = raster(k, parts.features(views.c2w[k].to(dev)))
+        both = raster(k, parts.features(cameras.c2w[k]))
         return both[..., :3] * np.asarray(light, dtype=np.float32) + low_part(both)
 
     def low_part(both: np.ndarray) -> np.ndarray:
@@ -346,7 +344,7 @@ def _render_into(run_dir: Path, data_dir: Path, mode: str, which: str, out: Path
     if mode == "relit" and parts is not None:
         if isinstance(l0, str):
             sample = [indices[i] for i in np.linspace(0, len(indices) - 1, min(AUTO_L0_VIEWS, len(indices))).astype(int)]
-            both = [raster(k, parts.features(views.c2w[k].to(dev))) for k in sample]
+            both = [raster(k, parts.features(cameras.c2w[k])) for k in sample]
             relight = auto_l0([b[..., :3] for b in both], [low_part(b) for b in both])
         else:
             relight = [float(v) for v in l0]
@@ -356,8 +354,7 @@ def _render_into(run_dir: Path, data_dir: Path, mode: str, which: str, out: Path
         if mode == "relit":
             img = relit_image(k, relight)
         else:
-            res = scene.render(views.c2w[k].to(dev), views.viewmats[k].to(dev), K, width, height,
-                               backend=config.raster_backend, num_threads=config.num_threads)
+            res = scene.render(cameras[k], backend=config.raster_backend, num_threads=config.num_threads)
             img = res.image.float().cpu().numpy()
         clipped += int((img.max(axis=2) > 1.0).sum())
         total += img.shape[0] * img.shape[1]

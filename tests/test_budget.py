@@ -11,6 +11,8 @@ import pytest
 import torch
 
 from conftest import synthetic_box_dataset
+from spotlessgs.io.camera_batch import Cameras
+from spotlessgs.io.cameras import Intrinsics
 from spotlessgs.models.gaussians import GaussianParams
 from spotlessgs.training.budget import BudgetConfig, BudgetStrategy, negligible_mask
 from spotlessgs.training.config import TrainConfig, preset
@@ -47,9 +49,9 @@ def test_evenly_spaced_subset():
 # ---- contributions ----------------------------------------------------------------------------------------------
 
 
-def _camera(width=24, height=18):
-    K = torch.tensor([[20.0, 0, width / 2], [0, 20.0, height / 2], [0, 0, 1]])
-    return torch.eye(4)[None], K, width, height
+def _cameras(width=24, height=18):
+    """One view at the origin looking along +z, f = 20 px."""
+    return Cameras(torch.eye(4)[None], Intrinsics(20.0, 20.0, width / 2, height / 2, width, height))
 
 
 def test_contributions_equal_the_one_hot_channel_sums_of_a_plain_render():
@@ -61,10 +63,11 @@ def test_contributions_equal_the_one_hot_channel_sums_of_a_plain_render():
     quats = torch.nn.functional.normalize(torch.randn(n, 4, generator=g), dim=1)
     scales = 0.05 + 0.1 * torch.rand(n, 3, generator=g)
     opacities = torch.tensor([0.9, 0.5, 0.2, 0.05, 0.7])
-    viewmats, K, w, h = _camera()
-    got = gaussian_contributions(means, quats, scales, opacities, viewmats, K, w, h, [0, 0], backend="torch")
+    cams = _cameras()
+    got = gaussian_contributions(means, quats, scales, opacities, cams, [0, 0], backend="torch")
     # reference: channel i of a render with one-hot features is Σ_px α_i T_i; two identical views double it
-    ref = rasterize(means, quats, scales, opacities, torch.eye(n), viewmats[0], K, w, h, backend="torch")
+    K = torch.tensor([[20.0, 0, 12.0], [0, 20.0, 9.0], [0, 0, 1]])
+    ref = rasterize(means, quats, scales, opacities, torch.eye(n), torch.eye(4), K, 24, 18, backend="torch")
     expected = 2.0 * ref.image.sum(dim=(0, 1))
     torch.testing.assert_close(got, expected, rtol=1e-4, atol=1e-5)
     assert float(got.min()) > 0.0

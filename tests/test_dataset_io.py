@@ -13,11 +13,13 @@ import numpy as np
 import OpenEXR
 import pycolmap
 import pytest
+import torch
 from PIL import Image
 from plyfile import PlyData, PlyElement
 from scipy.spatial.transform import Rotation
 
 from simulator.pointcloud import Points, backproject_depth, merge_point_clouds
+from spotlessgs.io.camera_batch import Cameras
 from spotlessgs.io.cameras import (
     Intrinsics,
     axis_angle_to_matrix,
@@ -866,6 +868,43 @@ def test_read_dataset_dispatch_and_colmap_folder(tmp_path):
     write_colmap_text(tmp_path / "two" / "sparse", two_camera_model)
     with pytest.raises(DatasetError, match="images use 2 different cameras; only one camera is supported"):
         read_dataset(tmp_path / "two")
+
+
+def test_cameras_of_a_colmap_dataset_project_points_as_pycolmap_does(tmp_path):
+    """Independent reference: pycolmap's own projection of the model's 3D points into each image."""
+    intr, c2w, names, xyz, rgb, model = _model(5)
+    write_colmap_text(tmp_path / "sparse" / "0", model)
+    rec = pycolmap.Reconstruction(str(tmp_path / "sparse" / "0"))
+    cams = Cameras.from_dataset(read_dataset(tmp_path))
+    assert len(cams) == 5 and cams.is_batch and cams.c2w.dtype == torch.float32 and cams.intrinsics == intr
+    for i in range(5):
+        cam = cams[i]
+        assert not cam.is_batch and (cam.width, cam.height) == (320, 240)
+        # points 1-3 m in front of camera i (pycolmap gives NaN behind a camera)
+        ahead = c2w[i, :3, 3] - np.outer(np.linspace(1, 3, 6), c2w[i, :3, 2]) + 0.1 * xyz
+        points = torch.as_tensor(ahead, dtype=torch.float32)
+        in_camera = points @ cam.viewmat[:3, :3].T + cam.viewmat[:3, 3]
+        pixels = in_camera @ cam.K.T
+        expected = rec.camera(1).img_from_cam(rec.image(i + 1).cam_from_world() * ahead)
+        assert np.isfinite(expected).all()
+        np.testing.assert_allclose((pixels[:, :2] / pixels[:, 2:]).numpy(), expected, rtol=1e-4, atol=1e-3)
+        np.testing.assert_allclose(cam.centres.numpy(), rec.image(i + 1).projection_center(), atol=1e-5)
+    half = cams.with_intrinsics(intr.scaled(0.5))
+    assert (half.width, half.height) == (160, 120) and half.viewmat is cams.viewmat
+    torch.testing.assert_close(half.K, torch.tensor([[150.0, 0, 80.25], [0, 155.0, 59.625], [0, 0, 1]]))
+
+
+def test_cameras_errors():
+    intr = Intrinsics.from_fov(60.0, 8, 6)
+    with pytest.raises(ValueError, match=r"c2w must be \(4, 4\) or \(V, 4, 4\), got \(3, 4\)"):
+        Cameras(torch.eye(4)[:3], intr)
+    with pytest.raises(ValueError, match="viewmat .* does not match c2w"):
+        Cameras(torch.eye(4)[None].repeat(2, 1, 1), intr, torch.eye(4))
+    one = Cameras(torch.eye(4), intr)
+    with pytest.raises(TypeError, match="single view cannot be indexed"):
+        one[0]
+    with pytest.raises(TypeError, match="single view has no length"):
+        len(one)
 
 
 # --------------------------------------------------------------------------------------------------- point clouds

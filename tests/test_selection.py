@@ -13,6 +13,8 @@ import torch
 from click.testing import CliRunner
 
 from conftest import synthetic_box_dataset
+from spotlessgs.io.camera_batch import Cameras
+from spotlessgs.io.cameras import Intrinsics
 from spotlessgs.models.shading import ModelConfig
 from spotlessgs.training.config import preset
 from spotlessgs.training.trainer import validation_steps
@@ -191,22 +193,21 @@ def test_low_frequency_share_is_what_the_light_adds_to_the_renders():
     from spotlessgs.training.light_need import low_frequency_share
 
     scene = _random_scene(candidate_model(3, "lambert"))
-    K = torch.tensor([[30.0, 0.0, 16.0], [0.0, 30.0, 12.0], [0.0, 0.0, 1.0]])
     c2ws = torch.stack([torch.eye(4), torch.eye(4)])
     c2ws[1, 0, 3] = 0.4  # a second camera, moved sideways
-    viewmats = torch.linalg.inv(c2ws)
+    cams = Cameras(c2ws, Intrinsics(30.0, 30.0, 16.0, 12.0, 32, 24))
     lf = scene.appearance.lf_light.coeffs
     with torch.no_grad():
         lf.zero_()
-        assert low_frequency_share(scene, c2ws, viewmats, K, [0, 1], 32, 24) == 0.0
-        dark = sum(float(scene.render(c2ws[k], viewmats[k], K, 32, 24).image.double().sum()) for k in (0, 1))
+        assert low_frequency_share(scene, cams, [0, 1]) == 0.0
+        dark = sum(float(scene.render(cams[k]).image.double().sum()) for k in (0, 1))
         lf[0] = torch.tensor([0.8, 0.5, 0.3])
         lf[1:] = 0.1
-        lit = sum(float(scene.render(c2ws[k], viewmats[k], K, 32, 24).image.double().sum()) for k in (0, 1))
-        share = low_frequency_share(scene, c2ws, viewmats, K, [0, 1], 32, 24)
+        lit = sum(float(scene.render(cams[k]).image.double().sum()) for k in (0, 1))
+        share = low_frequency_share(scene, cams, [0, 1])
     assert 0.05 < share < 0.95 and share == pytest.approx(1.0 - dark / lit, rel=1e-5)
     with pytest.raises(ValueError, match="no views"):
-        low_frequency_share(scene, c2ws, viewmats, K, [], 32, 24)
+        low_frequency_share(scene, cams, [])
 
 
 def test_dark_level_is_the_dark_end_of_each_view_over_its_bright_end():
@@ -257,25 +258,25 @@ class _FixedRenders:
     def __init__(self, images):
         self.images = images
 
-    def render(self, c2w, viewmat, K, width, height, backend="auto", num_threads=None):
+    def render(self, camera, backend="auto", num_threads=None):
         from types import SimpleNamespace
 
-        return SimpleNamespace(image=self.images[int(c2w)])
+        return SimpleNamespace(image=self.images[int(camera.c2w[0, 3])])
 
 
 def test_held_out_score_on_all_and_on_the_darkest_pixels():
     # one view, 1 x 4 pixels, grey; observed brightness 0.1, 0.2, 0.8, 0.9; errors 0.1, 0.3, 0.0, 0.2 (every channel)
     seen = torch.tensor([0.1, 0.2, 0.8, 0.9]).reshape(1, 1, 4, 1).expand(1, 1, 4, 3)
     pred = (seen[0] + torch.tensor([0.1, 0.3, 0.0, -0.2]).reshape(1, 4, 1)).clone()
-    score = held_out_score(_FixedRenders([pred]), torch.zeros(1), torch.zeros(1), None, seen, [0], 4, 1)
+    one_view = Cameras(torch.eye(4)[None], Intrinsics(4.0, 4.0, 2.0, 0.5, 4, 1))
+    score = held_out_score(_FixedRenders([pred]), one_view, seen, [0])
     assert score.psnr == pytest.approx(-10 * math.log10((0.01 + 0.09 + 0.0 + 0.04) / 4))
     assert score.psnr_dark == pytest.approx(-10 * math.log10((0.01 + 0.09) / 2))  # the darker half
-    masked = held_out_score(_FixedRenders([pred]), torch.zeros(1), torch.zeros(1), None, seen, [0], 4, 1,
-                            pixel_masks=torch.tensor([[[False, True, True, False]]]))
+    masked = held_out_score(_FixedRenders([pred]), one_view, seen, [0], pixel_masks=torch.tensor([[[False, True, True, False]]]))
     assert masked.psnr == pytest.approx(-10 * math.log10(0.09 / 2)) and masked.psnr_dark == pytest.approx(
         -10 * math.log10(0.09))
     with pytest.raises(ValueError, match="dark_quantile"):
-        held_out_score(_FixedRenders([pred]), torch.zeros(1), torch.zeros(1), None, seen, [0], 4, 1, dark_quantile=0.0)
+        held_out_score(_FixedRenders([pred]), one_view, seen, [0], dark_quantile=0.0)
 
 
 # ---- run folders ------------------------------------------------------------------------------------------------
@@ -490,7 +491,7 @@ def test_held_out_pixels_never_influence_training_only_the_validation_score(box_
     cfg = _tiny(iterations=30, image_width=None, densify_from=10, densify_until=25, checkpoint_every=30,
                 validation_blocks=0.3, validation_block=4)
     views = load_training_views(box_room)
-    masks = holdout_blocks(len(views.names), views.height, views.width, 0.3, 4, seed=0).numpy()
+    masks = holdout_blocks(len(views.names), views.cameras.height, views.cameras.width, 0.3, 4, seed=0).numpy()
     altered = tmp_path / "altered"
     shutil.copytree(box_room, altered)
     for k, name in enumerate(views.names):

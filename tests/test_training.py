@@ -351,6 +351,8 @@ def test_auto_l0_puts_the_chosen_percentile_at_the_target():
 
 @pytest.mark.parametrize("variant", ["3dgs", "darkgs", "spotless"])
 def test_a_view_with_no_visible_gaussian_renders_black_with_finite_gradients(variant):
+    from spotlessgs.io.camera_batch import Cameras
+    from spotlessgs.io.cameras import Intrinsics
     from spotlessgs.models.relightable import RelightableScene
 
     rng = np.random.default_rng(0)
@@ -358,8 +360,7 @@ def test_a_view_with_no_visible_gaussian_renders_black_with_finite_gradients(var
     scene = RelightableScene.create(variant, g, seed=0)
     c2w = torch.eye(4)
     c2w[2, 3] = 5.0  # at z = 5 looking along +z: every Gaussian is behind the camera
-    K = torch.tensor([[50.0, 0.0, 16.0], [0.0, 50.0, 12.0], [0.0, 0.0, 1.0]])
-    out = scene.render(c2w, torch.linalg.inv(c2w), K, 32, 24)
+    out = scene.render(Cameras(c2w, Intrinsics(50.0, 50.0, 16.0, 12.0, 32, 24)))
     assert float(out.image.detach().abs().sum()) == 0.0 and int(out.visible.sum()) == 0
     loss, _ = photometric_loss(out.image, torch.full((24, 32, 3), 0.2), torch.zeros(24, 32, dtype=torch.bool))
     loss.backward()
@@ -389,7 +390,7 @@ def test_random_initialisation_in_the_frusta_when_a_dataset_has_no_points(tmp_pa
     # every point lies in front of some training camera and projects inside its image
     inside_any = np.zeros(len(cloud.xyz), dtype=bool)
     for k in views.train:
-        w2c = np.linalg.inv(views.c2w[k].double().numpy())
+        w2c = np.linalg.inv(views.cameras.c2w[k].double().numpy())
         cam = cloud.xyz @ w2c[:3, :3].T + w2c[:3, 3]
         u = intr.fx * cam[:, 0] / cam[:, 2] + intr.cx
         v = intr.fy * cam[:, 1] / cam[:, 2] + intr.cy

@@ -11,6 +11,7 @@ from collections.abc import Sequence
 import torch
 from torch import nn
 
+from spotlessgs.io.camera_batch import Cameras
 from spotlessgs.models.gaussians import GaussianParams
 from spotlessgs.models.shading import AppearanceModels, ModelConfig, build_appearance_models, resolve_variant, shade
 from spotlessgs.rasterizer import RasterOutput, rasterize
@@ -74,15 +75,18 @@ class RelightableScene(nn.Module):
         return out.index_copy(0, idx, colours)
 
     def render(
-        self, c2w: torch.Tensor, viewmat: torch.Tensor, K: torch.Tensor, width: int, height: int, *,
-        relight_l0: torch.Tensor | Sequence[float] | None = None, backend: str = "auto",
+        self, camera: Cameras, *, relight_l0: torch.Tensor | Sequence[float] | None = None, backend: str = "auto",
         num_threads: int | None = None, background: torch.Tensor | None = None, split_lights: bool = False,
     ) -> RasterOutput:
-        """Render one view: under the learned spotlight, or relit by L0 when ``relight_l0`` is given;
-        ``split_lights``: a six-channel image, [spotlight part, low-frequency part] (their sum is the normal render)."""
+        """Render one view (``camera``: a single view): under the learned spotlight, or relit by L0 when
+        ``relight_l0`` is given; ``split_lights``: a six-channel image, [spotlight part, low-frequency part] (their sum
+        is the normal render)."""
+        if camera.is_batch:
+            raise ValueError("RelightableScene.render: expected one view, got a batch of cameras")
         g = self.gaussians
         scales = g.scales
-        mask = frustum_mask(g.means, scales, viewmat, K, width, height)
-        feats = self.colours(c2w, mask=mask, relight_l0=relight_l0, split_lights=split_lights)
-        return rasterize(g.means, g.quats, scales, g.opacities, feats, viewmat, K, width, height,
+        K, width, height = camera.K, camera.width, camera.height
+        mask = frustum_mask(g.means, scales, camera.viewmat, K, width, height)
+        feats = self.colours(camera.c2w, mask=mask, relight_l0=relight_l0, split_lights=split_lights)
+        return rasterize(g.means, g.quats, scales, g.opacities, feats, camera.viewmat, K, width, height,
                          background=background, backend=backend, num_threads=num_threads)

@@ -13,7 +13,7 @@ import numpy as np
 import torch
 import torch.nn.functional as F
 
-from spotlessgs.io.cameras import Intrinsics
+from spotlessgs.io.camera_batch import Cameras
 from spotlessgs.io.colorspace import srgb_to_linear
 from spotlessgs.io.dataset import load_initial_points, read_dataset
 from spotlessgs.io.frame_quality import FrameStats, frame_stats, usable_frames
@@ -33,9 +33,7 @@ class TrainingViews:
         names: N image file names (``frame_00000.png``), used to name rendered outputs.
         images: (N, H, W, 3) float32 linear RGB inputs.
         saturated: (N, H, W) bool, True where an input pixel was clipped (any channel >= the threshold).
-        c2w: (N, 4, 4) float32 camera-to-world, OpenCV axes.
-        viewmats: (N, 4, 4) float32 world-to-camera, OpenCV axes.
-        intrinsics: the camera at the training resolution.
+        cameras: the N views' poses (float32, OpenCV axes) and the camera at the training resolution.
         train: indices of training views; test: indices of held-out views.
         light: the true spotlight (simulated data) or None.
     """
@@ -44,29 +42,14 @@ class TrainingViews:
     names: list[str]
     images: torch.Tensor
     saturated: torch.Tensor
-    c2w: torch.Tensor
-    viewmats: torch.Tensor
-    intrinsics: Intrinsics
+    cameras: Cameras
     train: list[int]
     test: list[int]
     light: LightTruth | None
 
-    @property
-    def K(self) -> torch.Tensor:
-        """(3, 3) float32 pinhole matrix at the training resolution."""
-        return torch.as_tensor(self.intrinsics.K(), dtype=torch.float32)
-
-    @property
-    def width(self) -> int:
-        return int(self.intrinsics.width)
-
-    @property
-    def height(self) -> int:
-        return int(self.intrinsics.height)
-
     def scene_extent(self) -> float:
         """Radius of the camera centres around their mean × 1.1 (3DGS's 'cameras extent'); at least 0.1 m."""
-        centres = self.c2w[:, :3, 3]
+        centres = self.cameras.centres
         radius = torch.linalg.norm(centres - centres.mean(0), dim=1).max().item()
         return max(1.1 * radius, 0.1)
 
@@ -120,7 +103,6 @@ def load_training_views(
                                   (int(intr.height), int(intr.width)))
         imgs.append(t_img[0])
         masks.append(t_sat[0])
-    c2w = torch.as_tensor(dataset.c2w_opencv, dtype=torch.float32)
     names = [p.name for p in dataset.image_paths]
     train = usable_frames(str(dataset.root), names, stats, list(dataset.split.train))
     return TrainingViews(
@@ -128,9 +110,7 @@ def load_training_views(
         names=names,
         images=torch.stack(imgs),
         saturated=torch.stack(masks),
-        c2w=c2w,
-        viewmats=torch.linalg.inv(c2w),
-        intrinsics=intr,
+        cameras=Cameras.from_dataset(dataset, intr),
         train=train,
         test=list(dataset.split.test),
         light=dataset.light,
@@ -147,7 +127,7 @@ def initial_point_cloud(views: TrainingViews, rng: np.random.Generator, n_random
         return cloud
     log.warning("%s has no point cloud: initialising %d Gaussians at random in the camera frusta",
                 views.dataset.root, n_random)
-    intr = views.intrinsics
+    intr = views.cameras.intrinsics
     per_view = max(n_random // max(len(views.train), 1), 1)
     far = 2.0 * views.scene_extent()
     pts = []
@@ -156,7 +136,7 @@ def initial_point_cloud(views: TrainingViews, rng: np.random.Generator, n_random
         v = rng.uniform(0, intr.height, per_view)
         z = rng.uniform(0.3, max(far, 0.6), per_view)
         cam = np.stack([(u - intr.cx) / intr.fx * z, (v - intr.cy) / intr.fy * z, z], axis=1)
-        c2w = views.c2w[k].double().numpy()
+        c2w = views.cameras.c2w[k].double().numpy()
         pts.append(cam @ c2w[:3, :3].T + c2w[:3, 3])
     xyz = np.concatenate(pts).astype(np.float32)
     rgb = np.full((len(xyz), 3), 128, dtype=np.uint8)

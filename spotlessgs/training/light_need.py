@@ -21,6 +21,7 @@ from typing import Any
 import torch
 import torch.nn.functional as F
 
+from spotlessgs.io.camera_batch import Cameras
 from spotlessgs.models.relightable import RelightableScene
 
 #: The dark level is this quantile of a view's block brightness ...
@@ -71,8 +72,8 @@ def dark_level(images: torch.Tensor, block: int, dark_quantile: float = DARK_QUA
 
 @torch.no_grad()
 def low_frequency_share(
-    scene: RelightableScene, c2ws: torch.Tensor, viewmats: torch.Tensor, K: torch.Tensor, indices: Sequence[int],
-    width: int, height: int, backend: str = "auto", num_threads: int | None = None,
+    scene: RelightableScene, cameras: Cameras, indices: Sequence[int], backend: str = "auto",
+    num_threads: int | None = None,
 ) -> float:
     """The share of the spotlight-lit rendered radiance that the low-frequency light carries, in [0, 1].
 
@@ -82,15 +83,13 @@ def low_frequency_share(
     light. Without any such light in the scene the learned low-frequency light fades to ~0 and so does the share.
 
     Args:
-        scene: a spotlight model (not "3dgs"); c2ws, viewmats: (V, 4, 4) cameras (OpenCV); K: (3, 3);
-        indices: views to render (non-empty).
+        scene: a spotlight model (not "3dgs"); cameras: V views; indices: views to render (non-empty).
     """
     if len(indices) == 0:
         raise ValueError("low_frequency_share: no views given")
     spot_total = low_total = 0.0
     for k in indices:
-        image = scene.render(c2ws[k], viewmats[k], K, width, height, backend=backend, num_threads=num_threads,
-                             split_lights=True).image.double()
+        image = scene.render(cameras[k], backend=backend, num_threads=num_threads, split_lights=True).image.double()
         spot_total += float(image[..., :3].sum())
         low_total += float(image[..., 3:].sum())
     total = spot_total + low_total

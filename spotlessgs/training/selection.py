@@ -260,9 +260,8 @@ def measure_light_need(run_dir: Path, selection: SelectionConfig, device: str = 
     """
     scene, views, config, _info = trainer.load_run(run_dir, device=device)
     dev = scene.gaussians.means.device
-    level = dark_level(views.images[views.train], block_size(views.width, selection.holdout_block))
-    share = low_frequency_share(scene, views.c2w.to(dev), views.viewmats.to(dev), views.K.to(dev),
-                                evenly_spaced(views.train, selection.share_views), views.width, views.height,
+    level = dark_level(views.images[views.train], block_size(views.cameras.width, selection.holdout_block))
+    share = low_frequency_share(scene, views.cameras.to(dev), evenly_spaced(views.train, selection.share_views),
                                 config.raster_backend, config.num_threads)
     return {"dark_level": level, "low_frequency_share": share, "measured_on": Path(run_dir).name,
             "needed": level >= selection.min_dark_level and share >= selection.min_low_frequency_share}

@@ -190,17 +190,16 @@ def make_strategy(
     generator = torch_generator(seed, "densify", device=str(device))
     if not config.gaussian_budget:
         return DensifyStrategy(densify_config(config), extent, generator)
-    c2ws, viewmats, K = views.c2w.to(device), views.viewmats.to(device), views.K.to(device)
+    cameras = views.cameras.to(device)
     images = views.images.to(device)
     contribution_views = evenly_spaced(split.fit, config.budget_contribution_views)
 
     def validate(_gaussians: GaussianParams) -> float:
-        return validation_psnr(scene, c2ws, viewmats, K, images, split.validation, views.width, views.height,
-                               config.raster_backend, config.num_threads)
+        return validation_psnr(scene, cameras, images, split.validation, config.raster_backend, config.num_threads)
 
     def contributions(g: GaussianParams) -> torch.Tensor:
-        return gaussian_contributions(g.means, g.quats, g.scales, g.opacities, viewmats, K, views.width,
-                                      views.height, contribution_views, config.raster_backend, config.num_threads)
+        return gaussian_contributions(g.means, g.quats, g.scales, g.opacities, cameras, contribution_views,
+                                      config.raster_backend, config.num_threads)
 
     budget = BudgetConfig(config.budget_patience, config.budget_min_gain_db, config.budget_prune_fraction)
     return BudgetStrategy(densify_config(config), budget, extent, generator, validate, contributions)
@@ -338,10 +337,10 @@ def _train_locked(data_dir: Path, run_dir: Path, variant: str | ModelConfig, con
     images, saturated = views.images.to(device), views.saturated.to(device)
     held_out = None  # (V, H, W) bool pixel blocks never fitted (validation_blocks > 0)
     if config.validation_blocks > 0:
-        block = block_size(views.width, config.validation_block)
-        held_out = holdout_blocks(len(views.names), views.height, views.width, config.validation_blocks, block,
-                                  seed).to(device)
-    c2ws, viewmats, K = views.c2w.to(device), views.viewmats.to(device), views.K.to(device)
+        block = block_size(views.cameras.width, config.validation_block)
+        held_out = holdout_blocks(len(views.names), views.cameras.height, views.cameras.width,
+                                  config.validation_blocks, block, seed).to(device)
+    cameras = views.cameras.to(device)
 
     start = 0
     if resume and has_checkpoint:
@@ -380,8 +379,8 @@ def _train_locked(data_dir: Path, run_dir: Path, variant: str | ModelConfig, con
 
     def score_held_out() -> dict:
         scene.eval()
-        score = held_out_score(scene, c2ws, viewmats, K, images, score_views, views.width, views.height,
-                               config.raster_backend, config.num_threads, pixel_masks=held_out)
+        score = held_out_score(scene, cameras, images, score_views, config.raster_backend, config.num_threads,
+                               pixel_masks=held_out)
         scene.train()
         return {"validation_psnr": score.psnr, "validation_psnr_dark": score.psnr_dark}
 
@@ -400,8 +399,7 @@ def _train_locked(data_dir: Path, run_dir: Path, variant: str | ModelConfig, con
         for step in bar:
             k = fitted_view(seed, step, views.train, split, config)
             opts["means"].param_groups[0]["lr"] = means_lr(config, step, extent)
-            out = scene.render(c2ws[k], viewmats[k], K, views.width, views.height,
-                               backend=config.raster_backend, num_threads=config.num_threads)
+            out = scene.render(cameras[k], backend=config.raster_backend, num_threads=config.num_threads)
             if not torch.isfinite(out.image).all():
                 raise TrainingDivergedError(f"step {step}: the render of view {views.names[k]} has NaN/Inf; "
                                             f"the last good checkpoint {ckpt_file} is intact")
@@ -423,7 +421,7 @@ def _train_locked(data_dir: Path, run_dir: Path, variant: str | ModelConfig, con
                 o.step()
                 o.zero_grad(set_to_none=True)
             changes = strategy.step_post_backward(step, scene.gaussians, opts, out.means2d_grad(), out.radii,
-                                                  views.width, views.height)
+                                                  cameras.width, cameras.height)
             s = step + 1
             held = score_held_out() if s in score_steps else {}
             if s % config.log_every == 0 or s == end or held:
@@ -550,11 +548,10 @@ def evaluate_reconstruction(scene: RelightableScene, views: TrainingViews, confi
     """Mean PSNR (linear, clamped to [0, 1]) of the spotlight-lit renders of the test views against the inputs."""
     if not views.test:
         return None
-    device = views.images.device
+    cameras = views.cameras.to(views.images.device)
     values = []
     for k in views.test:
-        out = scene.render(views.c2w[k].to(device), views.viewmats[k].to(device), views.K.to(device), views.width,
-                           views.height, backend=config.raster_backend, num_threads=config.num_threads)
+        out = scene.render(cameras[k], backend=config.raster_backend, num_threads=config.num_threads)
         values.append(_psnr(out.image, views.images[k]))
     return float(np.mean(values))
 

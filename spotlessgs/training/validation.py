@@ -19,6 +19,7 @@ from dataclasses import dataclass
 
 import torch
 
+from spotlessgs.io.camera_batch import Cameras
 from spotlessgs.io.seeding import torch_generator
 from spotlessgs.metrics import psnr_from_mse
 from spotlessgs.models.relightable import RelightableScene
@@ -90,15 +91,14 @@ class HeldOutScore:
 
 @torch.no_grad()
 def held_out_score(
-    scene: RelightableScene, c2ws: torch.Tensor, viewmats: torch.Tensor, K: torch.Tensor, images: torch.Tensor,
-    indices: Sequence[int], width: int, height: int, backend: str = "auto", num_threads: int | None = None,
-    pixel_masks: torch.Tensor | None = None, dark_quantile: float = 0.5,
+    scene: RelightableScene, cameras: Cameras, images: torch.Tensor, indices: Sequence[int], backend: str = "auto",
+    num_threads: int | None = None, pixel_masks: torch.Tensor | None = None, dark_quantile: float = 0.5,
 ) -> HeldOutScore:
     """PSNR (dB) of the spotlight-lit renders against the input images over ``indices``, on all scored pixels and on
     the darkest ``dark_quantile`` of them.
 
     Args:
-        scene: the model; c2ws, viewmats: (V, 4, 4) cameras (OpenCV); K: (3, 3); images: (V, H, W, 3) linear inputs.
+        scene: the model; cameras: V views; images: (V, H, W, 3) linear inputs.
         indices: the views to render (non-empty).
         pixel_masks: optional (V, H, W) bool: score only these pixels of each view (held-out blocks).
         dark_quantile: in (0, 1]: the share of scored pixels, darkest first by observed brightness, in ``psnr_dark``.
@@ -113,7 +113,7 @@ def held_out_score(
         raise ValueError(f"held_out_score: dark_quantile must be in (0, 1], got {dark_quantile}")
     errors, brightness = [], []
     for k in indices:
-        out = scene.render(c2ws[k], viewmats[k], K, width, height, backend=backend, num_threads=num_threads)
+        out = scene.render(cameras[k], backend=backend, num_threads=num_threads)
         sq = ((out.image.clamp(0, 1) - images[k]) ** 2).mean(-1)  # (H, W), mean over the colour channels
         seen = images[k].mean(-1)
         if pixel_masks is not None:
@@ -129,13 +129,11 @@ def held_out_score(
 
 
 def validation_psnr(
-    scene: RelightableScene, c2ws: torch.Tensor, viewmats: torch.Tensor, K: torch.Tensor, images: torch.Tensor,
-    indices: Sequence[int], width: int, height: int, backend: str = "auto", num_threads: int | None = None,
-    pixel_masks: torch.Tensor | None = None,
+    scene: RelightableScene, cameras: Cameras, images: torch.Tensor, indices: Sequence[int], backend: str = "auto",
+    num_threads: int | None = None, pixel_masks: torch.Tensor | None = None,
 ) -> float:
     """PSNR (dB) over all scored pixels (:func:`held_out_score` ``.psnr``; arguments as there)."""
-    return held_out_score(scene, c2ws, viewmats, K, images, indices, width, height, backend, num_threads,
-                          pixel_masks).psnr
+    return held_out_score(scene, cameras, images, indices, backend, num_threads, pixel_masks).psnr
 
 
 def evenly_spaced(indices: Sequence[int], count: int) -> list[int]:
@@ -148,9 +146,8 @@ def evenly_spaced(indices: Sequence[int], count: int) -> list[int]:
 
 
 def gaussian_contributions(
-    means: torch.Tensor, quats: torch.Tensor, scales: torch.Tensor, opacities: torch.Tensor,
-    viewmats: torch.Tensor, K: torch.Tensor, width: int, height: int, indices: Sequence[int],
-    backend: str = "auto", num_threads: int | None = None,
+    means: torch.Tensor, quats: torch.Tensor, scales: torch.Tensor, opacities: torch.Tensor, cameras: Cameras,
+    indices: Sequence[int], backend: str = "auto", num_threads: int | None = None,
 ) -> torch.Tensor:
     """(N,) total blending weight Σ_views Σ_pixels α_i T_i of every Gaussian (pixel units, ≥ 0).
 
@@ -161,13 +158,14 @@ def gaussian_contributions(
 
     Args:
         means (N, 3), quats (N, 4), scales (N, 3), opacities (N,): the Gaussians (activated values; no gradient is
-        taken for them). viewmats: (V, 4, 4) world-to-camera; K: (3, 3); indices: views to sum over.
+        taken for them). cameras: V views; indices: views to sum over.
     """
     means, quats, scales, opacities = (t.detach() for t in (means, quats, scales, opacities))
     total = torch.zeros(len(means), dtype=means.dtype, device=means.device)
+    K, width, height = cameras.K, cameras.width, cameras.height
     for k in indices:
         ones = torch.ones((len(means), 1), dtype=means.dtype, device=means.device, requires_grad=True)
-        out = rasterize(means, quats, scales, opacities, ones, viewmats[k], K, width, height,
+        out = rasterize(means, quats, scales, opacities, ones, cameras.viewmat[k], K, width, height,
                         background=torch.zeros(1, dtype=means.dtype, device=means.device), backend=backend,
                         num_threads=num_threads)
         (grad,) = torch.autograd.grad(out.image.sum(), ones)
