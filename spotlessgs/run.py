@@ -83,10 +83,20 @@ class RunSpec:
         return preset(self.preset, strategy=self.strategy, **dict(self.overrides))
 
 
-def train(spec: RunSpec, run_dir: str | Path, resume: bool = False, progress: bool = True) -> Run:
-    """Train (or, with ``resume``, continue) the run ``spec`` describes into ``run_dir``; for ``auto``, select the
-    model first (``RUN/model_selection.json``).
+def given_overrides(**fields: Any) -> tuple[tuple[str, Any], ...]:
+    """``RunSpec.overrides`` of the fields that are not None: ``given_overrides(iterations=None, num_threads=2)`` is
+    ``(("num_threads", 2),)``."""
+    return tuple((name, value) for name, value in fields.items() if value is not None)
 
+
+def train(spec: RunSpec, run_dir: str | Path, resume: bool = False, progress: bool = True,
+          stop_after: int | None = None) -> Run:
+    """Train (or, with ``resume``, continue) the run ``spec`` describes into ``run_dir``; for ``auto``, select the
+    model first (``RUN/model_selection.json``). ``stop_after``: stop with a checkpoint after this many steps in all
+    (as if interrupted; a later call with ``resume`` continues), e.g. to score the model on the way.
+
+    Returns:
+        the Run, with ``result``: what this call measured (steps, seconds of its training loop, ms per step, ...).
     Raises:
         FileExistsError: ``run_dir`` holds a run and ``resume`` is False; ValueError: ``resume`` with other settings;
         and what :func:`spotlessgs.training.trainer.train` raises.
@@ -94,19 +104,26 @@ def train(spec: RunSpec, run_dir: str | Path, resume: bool = False, progress: bo
     config = spec.train_config()
     prior = list(spec.light_prior) if spec.light_prior is not None else None
     if spec.model == AUTO:
-        train_auto(spec.data, run_dir, config, seed=spec.seed, selection=spec.selection or SelectionConfig(),
-                   light_prior=prior, resume=resume, progress=progress)
+        _decision, result = train_auto(spec.data, run_dir, config, seed=spec.seed,
+                                       selection=spec.selection or SelectionConfig(), light_prior=prior,
+                                       resume=resume, progress=progress, stop_after=stop_after)
     else:
-        trainer.train(spec.data, run_dir, spec.model, config, seed=spec.seed, resume=resume, light_prior=prior,
-                      progress=progress)
-    return Run.load(run_dir)
+        result = trainer.train(spec.data, run_dir, spec.model, config, seed=spec.seed, resume=resume,
+                               light_prior=prior, progress=progress, stop_after=stop_after)
+    return dataclasses.replace(Run.load(run_dir), result=result)
 
 
 @dataclass(frozen=True)
 class Run:
-    """A run folder made by :func:`train` (or ``spotless train``)."""
+    """A run folder made by :func:`train` (or ``spotless train``).
+
+    Attributes:
+        dir: the run folder.
+        result: what the :func:`train` call that returned this Run measured; None from :meth:`load`.
+    """
 
     dir: Path
+    result: trainer.TrainResult | None = field(default=None, compare=False)
 
     @classmethod
     def load(cls, run_dir: str | Path) -> Run:

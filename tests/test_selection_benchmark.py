@@ -14,7 +14,7 @@ from click.testing import CliRunner
 from conftest import synthetic_box_dataset
 from spotlessgs.experiments.selection_benchmark import (
     PLOT, RESULTS_JSON, RESULTS_MD, ROW_FILE, RUN_FOLDERS, BenchmarkSettings, aggregate_seeds, run_seeds,
-    run_selection_benchmark, selection_verdict, train_config, verdict_lines,
+    run_selection_benchmark, run_spec, selection_verdict, verdict_lines,
 )
 from spotlessgs.experiments.cli import selection as main
 from spotlessgs.training.budget import budget_verdict
@@ -100,7 +100,10 @@ def test_bad_inputs_are_refused(call, match):
 def test_budget_run_uses_the_command_line_budget_fields():
     from spotlessgs.training.config import STRATEGIES
 
-    default, budget = train_config(SETTINGS, False), train_config(SETTINGS, True)
+    default = run_spec(Path("data"), SETTINGS, "spotless", "default").train_config()
+    budget = run_spec(Path("data"), SETTINGS, "spotless", "budget").train_config()
+    auto = run_spec(Path("data"), SETTINGS, "auto", "default")
+    assert auto.train_config() == default and auto.selection.min_proxy_iterations == SETTINGS.min_proxy_iterations
     assert (default.iterations, default.image_width, default.num_threads) == (40, 32, 1)
     assert not default.gaussian_budget
     assert budget == default.replace(**STRATEGIES["budget"])

@@ -25,10 +25,10 @@ VARIANTS = ("3dgs", "darkgs", "darkgs-calibrated", "darkgs+sh", "darkgs+brdf", "
 
 def child(data: str, run: str, variant: str, preset: str, iterations: int, threads: int, seed: int) -> None:
     """Train, relight the test views and score them, in this (sub)process; prints one JSON line."""
-    from spotlessgs.run import RunSpec, train
+    from spotlessgs.run import RunSpec, given_overrides, train  # torch: not needed by ``spotless --help``
 
     spec = RunSpec(data=Path(data), model=variant, preset=preset, seed=seed,
-                   overrides=(("iterations", iterations), ("num_threads", threads)))
+                   overrides=given_overrides(iterations=iterations, num_threads=threads))
     trained = train(spec, run, progress=False)
     summary = trained.summary
     row = {"variant": variant, "iterations": iterations, "ms_per_step": summary["ms_per_step"],

@@ -5,8 +5,8 @@
 Per dataset folder (room = folder name), under ``OUT/<room>/``:
 
 * ``auto/``: model selection (:func:`spotlessgs.training.selection.select_model`, its decision with every candidate
-  in ``auto/model_selection.json``, its wall time in ``selection_timing.json``), then the chosen model trained there
-  with the default strategy (as ``spotless train --model auto`` does);
+  and its wall time in ``auto/model_selection.json``), then the chosen model trained there with the default strategy
+  (as ``spotless train --model auto`` does);
 * ``spotless/``: the fixed SpotlessGS model, default strategy;
 * ``spotless-budget/``: SpotlessGS with the Gaussian budget (the fields of ``spotless train --gaussian-budget``).
 
@@ -31,14 +31,16 @@ import dataclasses
 import json
 import logging
 import tempfile
-import time
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+from evaluation.dataset import read_dataset
 from spotlessgs.io.atomic import write_json, write_text
 from spotlessgs.io.provenance import provenance
-from spotlessgs.run import Run
+from spotlessgs.run import AUTO, Run, RunSpec, given_overrides, train
+from spotlessgs.training.budget_plot import BudgetPoint, plot_budget
+from spotlessgs.training.selection import SelectionConfig
 from spotlessgs.training.budget import (
     BUDGET_MAX_LOSS_DB, BUDGET_MIN_REDUCTION_PCT, EPS, budget_verdict, check_finite,
 )
@@ -50,7 +52,6 @@ RESULTS_JSON = "selection_benchmark.json"
 RESULTS_MD = "selection_benchmark.md"
 PLOT = "budget.png"
 ROW_FILE = "selection_benchmark_row.json"
-TIMING_FILE = "selection_timing.json"
 # Run key -> folder under OUT/<room>/.
 RUN_FOLDERS = {"spotless": "spotless", "chosen": "auto", "budget": "spotless-budget"}
 # The bounds as recorded in the results JSON.
@@ -83,61 +84,32 @@ class BenchmarkSettings:
                 raise ValueError(f"BenchmarkSettings: {name} must be >= 1, got {value}")
 
 
-def train_config(settings: BenchmarkSettings, gaussian_budget: bool):
-    """The TrainConfig of a run: the preset with the settings' overrides, with the ``budget`` densification strategy
-    (``spotless train --gaussian-budget``) when ``gaussian_budget``."""
-    from spotlessgs.training.config import preset
-
-    overrides: dict[str, Any] = {"num_threads": settings.threads}
-    if settings.iterations is not None:
-        overrides["iterations"] = settings.iterations
-    if settings.image_width is not None:
-        overrides["image_width"] = settings.image_width
-    return preset(settings.preset, strategy="budget" if gaussian_budget else "default", **overrides)
-
-
-def selection_config(settings: BenchmarkSettings):
-    """The SelectionConfig: defaults, with ``min_proxy_iterations`` from the settings when given."""
-    from spotlessgs.training.selection import SelectionConfig
-
-    if settings.min_proxy_iterations is None:
-        return SelectionConfig()
-    return SelectionConfig(min_proxy_iterations=settings.min_proxy_iterations)
+def run_spec(data: Path, settings: BenchmarkSettings, model: str, strategy: str) -> RunSpec:
+    """One benchmark run: ``model`` (a variant or ``auto``) with the preset, the settings' overrides and the
+    densification ``strategy`` (``default``, or ``budget``: the fields of ``spotless train --gaussian-budget``); for
+    ``auto`` the settings' ``min_proxy_iterations`` when given."""
+    selection = None
+    if model == AUTO and settings.min_proxy_iterations is not None:
+        selection = SelectionConfig(min_proxy_iterations=settings.min_proxy_iterations)
+    return RunSpec(data=data, model=model, preset=settings.preset, strategy=strategy, seed=settings.seed,
+                   overrides=given_overrides(num_threads=settings.threads, iterations=settings.iterations,
+                                             image_width=settings.image_width), selection=selection)
 
 
 def check_has_ground_truth(data: Path) -> None:
     """ValueError naming ``data`` when none of its test views has a ground-truth image (nothing to score)."""
-    from evaluation.dataset import read_dataset
-
     if not any(f.gt_path is not None for f in read_dataset(data).test_frames):
         raise ValueError(f"{data}: no test view has a ground-truth image; the selection benchmark scores relit test "
                          "views against the ground truth")
 
 
-def run_selection(data: Path, room_dir: Path, settings: BenchmarkSettings) -> dict[str, Any]:
-    """Model selection into ``room_dir/auto`` (reused when already decided with the same settings).
-
-    Returns:
-        ``chosen``, ``chosen_model`` (ModelConfig fields), ``best``, ``tolerance_db``, ``candidates`` (every scored
-        candidate of the decision), ``low_frequency_light`` (the light phase's measurements) and ``seconds``: wall
-        time of the whole selection (None when the decision was made by an earlier invocation that did not record
-        it).
-    """
-    from spotlessgs.training.selection import SELECTION_FILE, select_model
-
-    auto_dir = room_dir / RUN_FOLDERS["chosen"]
-    timing = room_dir / TIMING_FILE
-    decided_before = (auto_dir / SELECTION_FILE).is_file()
-    start = time.perf_counter()
-    decision = select_model(data, auto_dir, train_config(settings, False), seed=settings.seed,
-                            selection=selection_config(settings), resume=True, progress=False)
-    if decided_before:
-        seconds = json.loads(timing.read_text())["seconds"] if timing.is_file() else None
-    else:
-        seconds = time.perf_counter() - start
-        write_json(timing, {"seconds": seconds})
+def selection_summary(decision: dict[str, Any]) -> dict[str, Any]:
+    """What the benchmark reports of a model-selection decision: ``chosen``, ``chosen_model`` (ModelConfig fields),
+    ``best``, ``tolerance_db``, ``candidates`` (every scored candidate), ``low_frequency_light`` (the light phase's
+    measurements) and ``seconds``: wall time of the whole selection (None for a decision of an earlier version,
+    which did not record it)."""
     return {**{k: decision[k] for k in ("chosen", "chosen_model", "best", "tolerance_db", "candidates")},
-            "low_frequency_light": decision["low_frequency_light"], "seconds": seconds}
+            "low_frequency_light": decision["low_frequency_light"], "seconds": decision.get("seconds")}
 
 
 def _check_same_settings(run_dir: Path, config, seed: int) -> None:
@@ -148,33 +120,29 @@ def _check_same_settings(run_dir: Path, config, seed: int) -> None:
         raise ValueError(f"{run_dir}: this run was trained with other settings; use a new --out")
 
 
-def measure_run(data: Path, run_dir: Path, model, config, settings: BenchmarkSettings, strategy: str) -> dict:
-    """Train (unless ``train_summary.json`` exists), relight every view and score the test views of one run.
+def measure_run(spec: RunSpec, run_dir: Path, threads: int) -> dict:
+    """Train ``spec`` (unless ``train_summary.json`` exists), relight every view and score the test views of one run.
 
-    Args:
-        model: variant name or ModelConfig; strategy: ``default`` or ``budget`` (a label for the tables).
     Returns:
         the row: model, strategy, steps, gaussians, train_seconds (the training loop's wall time of the session that
         finished it), ms_per_step, relit_fps (every view, native resolution), relit_views, psnr / ssim /
         psnr_aligned / ssim_aligned (dB / SSIM of the relit test views against the ground truth); also stored as
         ``run_dir/selection_benchmark_row.json`` and reused from there.
     """
-    from spotlessgs.training.trainer import train
-
     summary_path, row_path = run_dir / "train_summary.json", run_dir / ROW_FILE
     if summary_path.is_file():
-        _check_same_settings(run_dir, config, settings.seed)
+        _check_same_settings(run_dir, spec.train_config(), spec.seed)
         if row_path.is_file():
             return json.loads(row_path.read_text())
+        run = Run.load(run_dir)
     else:
-        log.info("training %s (%s, %s strategy)", run_dir, getattr(model, "name", model), strategy)
-        train(data, run_dir, model, config, seed=settings.seed, resume=True, progress=False)
-    run = Run.load(run_dir)
+        log.info("training %s (%s, %s strategy)", run_dir, spec.model, spec.strategy)
+        run = train(spec, run_dir, resume=True, progress=False)
     summary = run.summary
     log.info("relighting and scoring %s", run_dir)
-    scores = run.score_views(run_dir / "relit", "all", settings.threads, data_dir=data)
+    scores = run.score_views(run_dir / "relit", "all", threads, data_dir=spec.data)
     relit = scores.pop("relight")
-    row = {"model": run.model, "strategy": strategy,
+    row = {"model": run.model, "strategy": spec.strategy,
            "steps": summary["steps"], "gaussians": summary["num_gaussians"],
            "train_seconds": summary["seconds_this_session"], "ms_per_step": summary["ms_per_step"],
            "relit_fps": relit["fps"], "relit_views": relit["count"], **scores}
@@ -239,18 +207,13 @@ def paired_relit_fps(run_dirs: dict[str, Path], rounds: int = FPS_ROUNDS) -> dic
 
 def measure_room(data: Path, room_dir: Path, settings: BenchmarkSettings) -> dict[str, Any]:
     """Selection and the three runs of one dataset; returns ``data``, ``selection``, ``runs`` and ``verdicts``."""
-    from spotlessgs.models.shading import ModelConfig
-
     check_has_ground_truth(data)
-    log.info("%s: model selection", room_dir.name)
-    selection = run_selection(data, room_dir, settings)
-    log.info("%s: chose %s", room_dir.name, selection["chosen"])
-    default, budget = train_config(settings, False), train_config(settings, True)
-    plan = {"spotless": ("spotless", default, "default"),
-            "chosen": (ModelConfig(**selection["chosen_model"]), default, "default"),
-            "budget": ("spotless", budget, "budget")}
-    runs = {key: measure_run(data, room_dir / RUN_FOLDERS[key], model, config, settings, strategy)
-            for key, (model, config, strategy) in plan.items()}
+    specs = {"spotless": run_spec(data, settings, "spotless", "default"),
+             "chosen": run_spec(data, settings, AUTO, "default"),  # model selection, then the chosen model
+             "budget": run_spec(data, settings, "spotless", "budget")}
+    runs = {key: measure_run(spec, room_dir / RUN_FOLDERS[key], settings.threads) for key, spec in specs.items()}
+    selection = selection_summary(Run.load(room_dir / RUN_FOLDERS["chosen"]).decision)
+    log.info("%s: model selection chose %s", room_dir.name, selection["chosen"])
     log.info("%s: relit FPS of the three runs, back to back", room_dir.name)
     fps = paired_relit_fps({key: room_dir / RUN_FOLDERS[key] for key in runs})
     runs = {key: {**row, "relit_fps_after_training": row["relit_fps"], "relit_fps": fps[key]}
@@ -288,8 +251,6 @@ def markdown_report(rooms: dict[str, dict[str, Any]], settings: BenchmarkSetting
 
 def budget_points(rooms: dict[str, dict[str, Any]]) -> list:
     """BudgetPoints of the default and the budget SpotlessGS run of every room."""
-    from spotlessgs.training.budget_plot import BudgetPoint
-
     return [BudgetPoint(name, strategy, int(r["gaussians"]), float(r["psnr_aligned"]), float(r["relit_fps"]))
             for name, room in rooms.items()
             for strategy, r in (("default", room["runs"]["spotless"]), ("budget", room["runs"]["budget"]))]
@@ -302,8 +263,6 @@ def run_selection_benchmark(data_dirs: list[Path], out: Path, settings: Benchmar
     Returns the JSON's content: ``settings``, ``bounds``, ``rooms`` (room name -> :func:`measure_room`'s dict) and
     ``provenance``.
     """
-    from spotlessgs.training.budget_plot import plot_budget
-
     if not data_dirs:
         raise ValueError("run_selection_benchmark: no dataset folders given")
     names = [Path(d).name for d in data_dirs]
@@ -398,8 +357,6 @@ def seeds_markdown(summary: dict[str, dict[str, Any]], settings: BenchmarkSettin
 
 def seed_budget_points(summary: dict[str, dict[str, Any]]) -> list:
     """BudgetPoints of the mean default and budget SpotlessGS run of every room (PSNR range over the seeds)."""
-    from spotlessgs.training.budget_plot import BudgetPoint
-
     points = []
     for name, room in summary.items():
         for strategy, key in (("default", "spotless"), ("budget", "budget")):
@@ -418,8 +375,6 @@ def run_seeds(data_dirs: list[Path], out: Path, settings: BenchmarkSettings, see
     Returns the single seed's results, or ``settings``, ``seeds``, ``bounds``, ``rooms`` (the summary) and
     ``provenance``.
     """
-    from spotlessgs.training.budget_plot import plot_budget
-
     if not seeds:
         raise ValueError("run_seeds: no seeds given")
     if len(set(seeds)) != len(seeds):

@@ -46,6 +46,7 @@ import dataclasses
 import json
 import logging
 import shutil
+import time
 from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -329,7 +330,9 @@ def select_model(
 
     Returns:
         the decision: ``chosen`` (name), ``chosen_model`` (ModelConfig fields), ``best`` (name of the highest PSNR),
-        ``tolerance_db``, ``candidates`` (every scored CandidateResult as a dict, in the order trained), ``settings``.
+        ``tolerance_db``, ``candidates`` (every scored CandidateResult as a dict, in the order trained), ``settings``,
+        ``seconds`` (wall time of the session that made the decision: the shared base run, the proxy runs and their
+        held-out scoring; absent in decisions of earlier versions).
     Raises:
         FileExistsError: a decision exists and ``resume`` is False; ValueError: ``resume`` with other settings;
         InputError: the stored decision is damaged (not JSON, a missing entry; names the file).
@@ -353,6 +356,7 @@ def select_model(
         if not isinstance(decision["chosen_model"], dict):
             raise InputError(f"{path}: damaged model selection decision: 'chosen_model' is not a JSON object")
         return decision
+    start = time.perf_counter()
     proxy = proxy_config(config, selection)
     reflectance_proxy = proxy_config(config, selection, selection.reflectance_proxy_fraction)
     selection_dir = run_dir / "selection"
@@ -410,6 +414,7 @@ def select_model(
         "candidates": [dataclasses.asdict(r) for r in scored],
         "base": {"steps": base.steps, "validation_psnr": base.validation_psnr, "ms_per_step": base.ms_per_step},
         "settings": settings,
+        "seconds": time.perf_counter() - start,
     }
     write_json(path, decision)
     return decision
@@ -449,9 +454,10 @@ def format_selection_table(decision: dict) -> str:
 def train_auto(
     data_dir: str | Path, run_dir: str | Path, config: TrainConfig, seed: int = 0,
     selection: SelectionConfig = SelectionConfig(), light_prior: Sequence[float] | None = None,
-    resume: bool = False, progress: bool = True,
+    resume: bool = False, progress: bool = True, stop_after: int | None = None,
 ):
-    """Select the model (:func:`select_model`), then train it fully into ``run_dir``.
+    """Select the model (:func:`select_model`), then train it into ``run_dir`` (fully, or up to step ``stop_after``
+    as :func:`~spotlessgs.training.trainer.train` does).
 
     Returns:
         (decision dict, :class:`~spotlessgs.training.trainer.TrainResult` of the full run).
@@ -466,7 +472,7 @@ def train_auto(
             raise InputError(f"{Path(run_dir) / SELECTION_FILE}: the chosen model does not fit this version "
                              f"({exc})") from None
         result = trainer.train(data_dir, run_dir, model, config, seed=seed, resume=resume, light_prior=light_prior,
-                               progress=progress)
+                               progress=progress, stop_after=stop_after)
     return decision, result
 
 

@@ -23,6 +23,8 @@ VARIANTS: tuple[str, ...] = ("uneven", "saturated")
 # The copy of a room's ``uneven`` dataset with camera sensor noise (ReproduceConfig.sensor_noise): Table III's
 # robot-camera case.
 NOISY_VARIANT = "uneven-noisy"
+# The stage that scores a dataset's inputs once for every method (its folder: OUT/inputs/<dataset>).
+INPUTS_STAGE = "eval-inputs"
 # Room kinds shipped under scenes/<kind>/house.json.
 SHIPPED_ROOMS: tuple[str, ...] = ("bedroom", "living_room", "office", "storage_room", "corridor")
 # The default location of the shipped rooms (the repository's scenes/ folder).
@@ -207,6 +209,11 @@ PRESETS: dict[str, ReproduceConfig] = {
         cyclegan_preset="paper", cyclegan_steps=None,
     ),
 }
+
+
+def dataset_id(room: str, variant: str) -> str:
+    """Name of a test dataset: ``bedroom-uneven``."""
+    return f"{room}-{variant}"
 
 
 def preset(name: str, **overrides: Any) -> ReproduceConfig:

@@ -23,22 +23,14 @@ from pathlib import Path
 from spotlessgs.io.atomic import write_json
 from spotlessgs.io.folder_lock import folder_lock
 from spotlessgs.io.paths import refuse_overlap
-from spotlessgs.experiments.reproduce.config import NOISY_VARIANT, ReproduceConfig
+from spotlessgs.experiments.reproduce.config import INPUTS_STAGE, NOISY_VARIANT, ReproduceConfig, dataset_id
 from spotlessgs.experiments.reproduce.executor import RunReport, execute
 from spotlessgs.experiments.reproduce.stages import Stage, StageGraph
-from spotlessgs.experiments.reproduce.tasks import AUTO_METHOD
+from spotlessgs.run import AUTO
 
 CONFIG_FILE = "reproduce.json"
 TASKS = "spotlessgs.experiments.reproduce.tasks"
 # Stage family that evaluates a dataset's uneven inputs once (``eval-inputs/<dataset>``; the report reads its marker).
-INPUTS_STAGE = "eval-inputs"
-
-
-def dataset_id(room: str, variant: str) -> str:
-    """Name of a test dataset: ``bedroom-uneven``."""
-    return f"{room}-{variant}"
-
-
 def dataset_stage(variant: str, ds: str) -> str:
     """The stage that writes dataset ``ds``: ``noise/<ds>`` for a sensor-noise copy, ``render/<ds>`` otherwise."""
     return f"noise/{ds}" if variant == NOISY_VARIANT else f"render/{ds}"
@@ -90,7 +82,7 @@ def build_graph(config: ReproduceConfig, out: Path) -> StageGraph:
         for method in config.methods_for(variant):
             run_dir = out / "runs" / ds / method
             selection = ({"selection_min_proxy_iterations": config.selection_min_proxy_iterations}
-                         if method == AUTO_METHOD else {})
+                         if method == AUTO else {})
             stages.append(Stage(
                 f"train/{ds}/{method}", f"{TASKS}:train_method", deps=(dataset_stage(variant, ds),), output=run_dir,
                 kwargs={"data_dir": str(out / "datasets" / ds), "run_dir": str(run_dir), "variant": method,

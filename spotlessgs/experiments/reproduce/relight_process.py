@@ -12,6 +12,8 @@ import resource
 import sys
 from pathlib import Path
 
+from spotlessgs.io.atomic import write_json
+
 
 def _peak_rss_mb() -> float:
     """Peak resident set size of this process so far (ru_maxrss), MiB."""
@@ -36,8 +38,6 @@ def main(argv: list[str] | None = None) -> int:
                          "SUMMARY_JSON")
     run_dir, which, out_dir, summary_path = Path(args[0]), args[1], Path(args[2]), Path(args[3])
     import torch  # noqa: F401  (part of the baseline)
-
-    from spotlessgs.io.atomic import write_json
 
     baseline = _current_rss_mb()
     from spotlessgs.rendering import render_run  # after the baseline: the renderer's modules count as relighting's

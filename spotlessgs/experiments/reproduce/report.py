@@ -6,13 +6,15 @@ import json
 from pathlib import Path
 from typing import Any
 
+from evaluation.dataset import read_dataset
 from spotlessgs.io.atomic import write_json, write_text
 from spotlessgs.io.provenance import provenance
 from spotlessgs.experiments.reproduce import paper
-from spotlessgs.experiments.reproduce.config import NOISY_VARIANT, ReproduceConfig
+from spotlessgs.experiments.reproduce.config import INPUTS_STAGE, NOISY_VARIANT, ReproduceConfig, dataset_id
 from spotlessgs.experiments.reproduce.figures import qualitative_grid, speed_error_plot
 from spotlessgs.experiments.reproduce.stages import MARKER_DIR, read_marker
 from spotlessgs.experiments.reproduce.tables import Agreement, Table, agreement_notes, all_tables
+from spotlessgs.training.selection import run_decisions
 
 RESULTS_FILE = "results.json"
 REPORT_FILE = "REPORT.md"
@@ -36,9 +38,6 @@ def collect(out: Path, config: ReproduceConfig) -> dict[str, Any]:
     Raises:
         FileNotFoundError: a stage the report needs has not finished (named).
     """
-    from spotlessgs.experiments.reproduce.pipeline import INPUTS_STAGE, dataset_id
-    from spotlessgs.training.selection import run_decisions
-
     collected: dict[str, Any] = {"datasets": {}, "cyclegan": None}
     if "cyclegan" in config.baselines:
         collected["cyclegan"] = read_marker(out, "cyclegan/train")["result"] | {
@@ -113,9 +112,6 @@ def write_report(out: Path) -> dict[str, Any]:
     Returns:
         {"report": path, "results": path, "figures": [paths]}.
     """
-    from evaluation.dataset import read_dataset
-    from spotlessgs.experiments.reproduce.pipeline import dataset_id
-
     out = Path(out)
     config = load_config(out)
     collected = collect(out, config)

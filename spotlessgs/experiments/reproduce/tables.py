@@ -25,7 +25,9 @@ import re
 from dataclasses import dataclass, field
 from typing import Any, Sequence
 
+from evaluation.sfm import ring_cell
 from spotlessgs.experiments.reproduce import paper
+from spotlessgs.models.shading import MODEL_VARIANTS
 from spotlessgs.training.budget import BUDGET_MAX_LOSS_DB, EPS
 from spotlessgs.training.light_need import light_note
 
@@ -138,8 +140,6 @@ def model_summary(name: str) -> str | None:
     ``const+lambert`` (DarkGS constant ambient), ``no light`` (3DGS), ``+calibrated`` for a given light pose. Names
     are the trainer's variants (spotlessgs.models.shading.MODEL_VARIANTS) or auto candidates ``auto-sh<d>-<brdf>``;
     None for any other name."""
-    from spotlessgs.models.shading import MODEL_VARIANTS
-
     if name in MODEL_VARIANTS:
         cfg = MODEL_VARIANTS[name]
         if cfg.light_model == "none":
@@ -423,8 +423,6 @@ def check_sfm(claim: str, relit: dict[str, Any], original: dict[str, Any], relit
 def _sfm_rings_sentence(summaries: dict[str, dict[str, Any]]) -> str:
     """" Reprojection error by image radius ...": where in the image each sequence's observations lie and how well
     they re-project there (SfM summaries' ``reprojection_error_by_radius``); empty when a summary lacks it."""
-    from evaluation.sfm import ring_cell
-
     parts = []
     for label, summary in summaries.items():
         rings = summary.get("reprojection_error_by_radius")

@@ -2,7 +2,8 @@
 
 Every function takes keyword arguments (paths as strings, plain settings) plus ``threads`` (CPU threads granted by
 the executor), writes under its own output folder and returns a JSON-able summary (stored in the stage's marker).
-Heavy packages are imported inside the functions so that a worker imports only what its stage needs.
+Every stage's modules are imported at the top: importing those of the other stages costs a worker about 0.1 s and
+12 MiB (measured beside importing spotlessgs.run, which every stage needs).
 """
 
 from __future__ import annotations
@@ -14,11 +15,27 @@ import shutil
 import subprocess
 import sys
 import time
+from dataclasses import asdict
 from pathlib import Path
 from typing import Any, Sequence
 
-from spotlessgs.io.atomic import write_json
-from spotlessgs.run import AUTO, Run, RunSpec
+import spotlessgs
+from evaluation.dataset import read_dataset
+from evaluation.folders import ImagePair
+from evaluation.report import write_results_json
+from evaluation.runner import EvalConfig, evaluate_run, score_inputs, score_pairs, temporal_block
+from evaluation.sfm import SfmConfig, run_sfm
+from simulator.render_pipeline import ExecutionOptions, RenderConfig, render_dataset
+from simulator.sensor_noise import SensorNoise, add_sensor_noise_to_dataset
+from spotlessgs.baselines2d import enhance_folder
+from spotlessgs.baselines2d.cyclegan.config import preset as cyclegan_config
+from spotlessgs.baselines2d.cyclegan.train import train_cyclegan
+from spotlessgs.experiments.reproduce.report import write_report
+from spotlessgs.io.atomic import to_jsonable, write_json
+from spotlessgs.io.cameras import opengl_to_opencv_c2w
+from spotlessgs.io.provenance import provenance
+from spotlessgs.run import AUTO, Run, RunSpec, given_overrides, train
+from spotlessgs.training.selection import SelectionConfig
 
 # Keys of an evaluation result that hold per-image lists, configs or provenance (kept in the per-stage JSON only).
 _BULKY_KEYS = ("per_image", "config", "provenance", "test_views")
@@ -45,8 +62,6 @@ def peak_rss_mb() -> float:
 def relight_in_fresh_process(run_dir: Path, threads: int) -> dict[str, Any]:
     """Relight every view of ``run_dir`` into ``run_dir/relit`` in a fresh Python process (so that its peak memory
     is that of loading the run and rendering, not of training); returns its summary (see relight_process)."""
-    import spotlessgs
-
     summary_path = run_dir / "relit.summary.json"
     env = dict(os.environ)
     root = str(Path(spotlessgs.__file__).resolve().parents[1])
@@ -67,8 +82,6 @@ def relight_in_fresh_process(run_dir: Path, threads: int) -> dict[str, Any]:
 def render_room(scene_file: str, out_dir: str, variant: str, frames: int, width: int, height: int, samples: int,
                 seed: int, threads: int) -> dict[str, Any]:
     """Render (or resume) one paired dataset with the simulator; RuntimeError when it is not complete afterwards."""
-    from simulator.render_pipeline import ExecutionOptions, RenderConfig, render_dataset
-
     config = RenderConfig.from_preset(variant, frames=frames, width=width, height=height, samples=samples, seed=seed)
     execution = ExecutionOptions(threads=threads, progress=False, quiet=True)
     summary = render_dataset(scene_file, out_dir, config, execution=execution)
@@ -80,8 +93,6 @@ def render_room(scene_file: str, out_dir: str, variant: str, frames: int, width:
 def add_noise_copy(data_dir: str, out_dir: str, shot: float, read: float, seed: int, threads: int) -> dict[str, Any]:
     """Write (or resume) the copy of a finished dataset whose spotlight-only images carry camera sensor noise
     (simulator.sensor_noise.add_sensor_noise_to_dataset; the ground truth and poses are the source's)."""
-    from simulator.sensor_noise import SensorNoise, add_sensor_noise_to_dataset
-
     written = add_sensor_noise_to_dataset(data_dir, out_dir, SensorNoise(shot=shot, read=read), seed=seed)
     return {"source": data_dir, "shot": shot, "read": read, "written": written}
 
@@ -93,9 +104,6 @@ def add_noise_copy(data_dir: str, out_dir: str, shot: float, read: float, seed: 
 def _eval_config(sfm: bool, sfm_matcher: str, lpips: bool, seed: int, threads: int, inputs: bool = True):
     """The evaluation settings shared by every method (identical SfM settings for every sequence); ``inputs``
     False: evaluate_run leaves the dataset's inputs to the ``eval-inputs`` stage (:func:`evaluate_inputs`)."""
-    from evaluation.runner import EvalConfig
-    from evaluation.sfm import SfmConfig
-
     return EvalConfig(lpips=lpips, sfm=sfm, sfm_config=SfmConfig(matcher=sfm_matcher, num_threads=1, seed=seed),
                       num_threads=threads, progress=False, inputs=inputs)
 
@@ -118,14 +126,6 @@ def evaluate_inputs(data_dir: str, out_dir: str, sfm: bool, sfm_matcher: str, lp
         ValueError: no test view with ground truth, or input images spread over several folders (named).
         FileNotFoundError: an input or ground-truth image listed in transforms.json is missing (named).
     """
-    from dataclasses import asdict
-
-    from evaluation.dataset import read_dataset
-    from evaluation.report import write_results_json
-    from evaluation.runner import score_inputs
-    from spotlessgs.io.atomic import to_jsonable
-    from spotlessgs.io.provenance import provenance
-
     config = _eval_config(sfm, sfm_matcher, lpips, seed, threads)
     data, out = read_dataset(data_dir), Path(out_dir)
     scores, _ = score_inputs(data, config, out / "sfm")
@@ -150,43 +150,28 @@ AUTO_METHOD = AUTO
 
 
 def method_spec(data: Path, variant: str, train_preset: str, iterations: int | None, image_width: int | None,
-                threads: int, seed: int) -> RunSpec:
+                threads: int, seed: int, selection_min_proxy_iterations: int | None = None) -> RunSpec:
     """The run of one method: the trainer preset with the reproduction's overrides; for ``auto`` the ``budget``
-    densification strategy of ``spotless train --gaussian-budget``, so that the reproduction trains exactly what the
-    command line does."""
-    overrides: dict[str, Any] = {"num_threads": threads}
-    if iterations is not None:
-        overrides["iterations"] = iterations
-    if image_width is not None:
-        overrides["image_width"] = image_width
-    return RunSpec(data=data, model=variant, preset=train_preset,
-                   strategy="budget" if variant == AUTO_METHOD else "default", seed=seed,
-                   overrides=tuple(overrides.items()))
+    densification strategy of ``spotless train --gaussian-budget`` (and the selection's shortest proxy run), so that
+    the reproduction trains exactly what the command line does."""
+    auto = variant == AUTO_METHOD
+    selection = None
+    if auto and selection_min_proxy_iterations is not None:
+        selection = SelectionConfig(min_proxy_iterations=selection_min_proxy_iterations)
+    return RunSpec(data=data, model=variant, preset=train_preset, strategy="budget" if auto else "default",
+                   seed=seed, overrides=given_overrides(num_threads=threads, iterations=iterations,
+                                                        image_width=image_width), selection=selection)
 
 
-def select_auto_model(data: Path, run: Path, config, seed: int,
-                      min_proxy_iterations: int | None) -> tuple[Any, dict[str, Any]]:
-    """Model selection of ``spotless train --model auto`` (spotlessgs.training.selection.select_model) into ``run``.
-
-    Returns:
-        (the chosen ModelConfig, a summary: ``chosen``, ``best``, ``tolerance_db``, ``candidates`` (name, SH degree,
-        BRDF, validation PSNR of each scored candidate), ``low_frequency_light`` (the light rule's measurements) and
-        ``seconds``, the wall time of the whole selection: the
-        shared base run, every proxy run, their data loading and held-out scoring).
-    """
-    from spotlessgs.models.shading import ModelConfig
-    from spotlessgs.training.selection import SelectionConfig, select_model
-
-    selection = SelectionConfig() if min_proxy_iterations is None else SelectionConfig(
-        min_proxy_iterations=min_proxy_iterations)
-    start = time.perf_counter()
-    decision = select_model(data, run, config, seed=seed, selection=selection, resume=True, progress=False)
-    seconds = time.perf_counter() - start
-    summary = {"chosen": decision["chosen"], "best": decision["best"], "tolerance_db": decision["tolerance_db"],
-               "candidates": [{k: c[k] for k in ("name", "sh_degree", "brdf", "validation_psnr")}
-                              for c in decision["candidates"]],
-               "low_frequency_light": decision["low_frequency_light"], "seconds": seconds}
-    return ModelConfig(**decision["chosen_model"]), summary
+def selection_summary(decision: dict[str, Any]) -> dict[str, Any]:
+    """What the reproduction keeps of a model-selection decision: ``chosen``, ``best``, ``tolerance_db``,
+    ``candidates`` (name, SH degree, BRDF, validation PSNR of each scored candidate), ``low_frequency_light`` (the
+    light rule's measurements) and ``seconds`` (the wall time of the whole selection: the shared base run, every
+    proxy run, their data loading and held-out scoring)."""
+    return {"chosen": decision["chosen"], "best": decision["best"], "tolerance_db": decision["tolerance_db"],
+            "candidates": [{k: c[k] for k in ("name", "sh_degree", "brdf", "validation_psnr")}
+                           for c in decision["candidates"]],
+            "low_frequency_light": decision["low_frequency_light"], "seconds": decision["seconds"]}
 
 
 def train_method(data_dir: str, run_dir: str, variant: str, train_preset: str, iterations: int | None,
@@ -194,8 +179,8 @@ def train_method(data_dir: str, run_dir: str, variant: str, train_preset: str, i
                  seed: int, threads: int, selection_min_proxy_iterations: int | None = None) -> dict[str, Any]:
     """Train one model, scoring its relit test views at each curve milestone; relight every view; evaluate the run.
 
-    ``variant`` ``auto`` first selects the model (:func:`select_auto_model`, with ``selection_min_proxy_iterations``)
-    and then trains the chosen model with the Gaussian budget; its curve has the same milestones, each point's
+    ``variant`` ``auto`` first selects the model (with ``selection_min_proxy_iterations``) and then trains the chosen
+    model with the Gaussian budget; its curve has the same milestones, each point's
     training time counting the selection first (the curve starts at the selection's cost).
 
     Returns:
@@ -203,30 +188,28 @@ def train_method(data_dir: str, run_dir: str, variant: str, train_preset: str, i
         :func:`evaluate_inputs`), ``train`` (steps, seconds: the sum of the
         training loops' wall time plus, for ``auto``, the selection's wall time ``selection_seconds``; ms_per_step of
         the training loops alone, gaussians, peak_rss_mb of the process while training), ``selection`` (``auto``
-        only, see select_auto_model), ``relight`` (render_run's summary of all views + ``peak_rss_mb`` and
+        only, see :func:`selection_summary`), ``relight`` (render_run's summary of all views + ``peak_rss_mb`` and
         ``baseline_rss_mb`` of the fresh process that loaded the model and rendered them), ``curve`` (one point per
         milestone: step, train_seconds, psnr/ssim raw and aligned on the test views).
     """
-    from evaluation.runner import evaluate_run
-    from spotlessgs.training.trainer import train
-
     data, run = Path(data_dir), Path(run_dir)
-    config = method_spec(data, variant, train_preset, iterations, image_width, threads, seed).train_config()
-    model: Any = variant
-    selection = None
-    selection_seconds = 0.0
-    if variant == AUTO_METHOD:
-        model, selection = select_auto_model(data, run, config, seed, selection_min_proxy_iterations)
-        selection_seconds = selection["seconds"]
+    spec = method_spec(data, variant, train_preset, iterations, image_width, threads, seed,
+                       selection_min_proxy_iterations)
+    config = spec.train_config()
     milestones = curve_milestones(config.iterations, curve_fractions)
     curve: list[dict[str, Any]] = []
     loop_seconds = 0.0
+    selection, selection_seconds = None, 0.0
     result = None
     for step in milestones:
-        result = train(data, run, model, config, seed=seed, resume=True, progress=False, stop_after=step)
+        trained = train(spec, run, resume=True, progress=False, stop_after=step)
+        result = trained.result
         loop_seconds += result.seconds
+        if selection is None and trained.decision is not None:
+            selection = selection_summary(trained.decision)
+            selection_seconds = selection["seconds"]
         if step < config.iterations:
-            scores = Run.load(run).score_views(run / "curve" / f"step_{step:06d}", "test", threads)
+            scores = trained.score_views(run / "curve" / f"step_{step:06d}", "test", threads)
             curve.append({"step": step, "train_seconds": selection_seconds + loop_seconds,
                           **{k: scores[k] for k in ("psnr", "ssim", "psnr_aligned", "ssim_aligned")}})
     train_peak = peak_rss_mb()
@@ -265,9 +248,6 @@ def train_method(data_dir: str, run_dir: str, variant: str, train_preset: str, i
 def train_cyclegan_stage(uneven_dirs: Sequence[str], even_dirs: Sequence[str], out_dir: str, cyclegan_preset: str,
                          steps: int | None, seed: int, threads: int) -> dict[str, Any]:
     """Train the unpaired Cycle-GAN on other rooms' renders; returns the checkpoint path and the training time."""
-    from spotlessgs.baselines2d.cyclegan.config import preset as cyclegan_config
-    from spotlessgs.baselines2d.cyclegan.train import train_cyclegan
-
     overrides: dict[str, Any] = {"num_threads": threads}
     if steps is not None:
         overrides["steps"] = steps
@@ -282,12 +262,6 @@ def evaluate_enhanced(data_dir: Path, enhanced_dir: Path, work_dir: Path, sfm: b
                       seed: int, threads: int) -> dict[str, Any]:
     """Score a folder of per-frame enhanced images like a run: image metrics on the test views, temporal metrics on
     the whole sequence, SfM with the dataset's intrinsics and true poses."""
-    from evaluation.dataset import read_dataset
-    from evaluation.folders import ImagePair
-    from evaluation.runner import score_pairs, temporal_block
-    from evaluation.sfm import run_sfm
-    from spotlessgs.io.cameras import opengl_to_opencv_c2w
-
     config = _eval_config(sfm, sfm_matcher, lpips, seed, threads)
     data = read_dataset(data_dir)
     pairs = [ImagePair(f.name, enhanced_dir / f.name, f.gt_path) for f in data.test_frames if f.gt_path is not None]
@@ -306,8 +280,6 @@ def evaluate_enhanced(data_dir: Path, enhanced_dir: Path, work_dir: Path, sfm: b
 def run_baseline2d(method: str, data_dir: str, out_dir: str, checkpoint: str | None, sfm: bool, sfm_matcher: str,
                    lpips: bool, seed: int, threads: int) -> dict[str, Any]:
     """Enhance every input image of a test dataset on its own with a 2D method, then evaluate the sequence."""
-    from spotlessgs.baselines2d import enhance_folder
-
     data, out = Path(data_dir), Path(out_dir)
     enhanced = out / "enhanced"
     options: dict[str, Any] = {"checkpoint": checkpoint, "num_threads": threads} if method == "cyclegan" else {}
@@ -332,6 +304,4 @@ def run_baseline2d(method: str, data_dir: str, out_dir: str, checkpoint: str | N
 def write_report_stage(out_dir: str, threads: int) -> dict[str, Any]:
     """Collect every stage's summary into results.json, REPORT.md and the figures (see
     spotlessgs.experiments.reproduce.report)."""
-    from spotlessgs.experiments.reproduce.report import write_report
-
     return write_report(Path(out_dir))
