@@ -22,6 +22,8 @@ import sys
 import tempfile
 from pathlib import Path
 
+from evaluation.synthetic import render_room_sequence, write_dataset_folder
+
 ROOT = Path(__file__).resolve().parents[1]
 
 TRAIN_ONE = r"""
@@ -71,8 +73,6 @@ def main() -> None:
     work.mkdir(parents=True, exist_ok=True)
     data = work / "box"
     if not (data / "transforms.json").is_file():
-        from evaluation.synthetic import render_room_sequence, write_dataset_folder
-
         write_dataset_folder(render_room_sequence(num_frames=14, width=40, height=30, seed=0), data, with_depth=False)
     plain = {"CXX": str(_compiler_wrapper(work, "cxx-native", False, False)),
              "TORCH_EXTENSIONS_DIR": str(work / "ext-native")}
