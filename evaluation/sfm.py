@@ -25,6 +25,7 @@ import numpy as np
 
 from evaluation.trajectory import TrajectoryErrors, pool_trajectory_errors, trajectory_errors
 from spotlessgs.io.cameras import Intrinsics
+from spotlessgs.io.colmap_text import ColmapCamera
 
 
 @dataclass(frozen=True)
@@ -167,7 +168,7 @@ def run_sfm(
         image_names: file names (in time order, which sequential matching relies on).
         work_dir: scratch folder for the COLMAP database and models (emptied first).
         config: pipeline settings.
-        intrinsics: known pinhole intrinsics (one camera for all images; kept fixed unless
+        intrinsics: known intrinsics (lens included) (one camera for all images; kept fixed unless
             ``config.refine_intrinsics``); None lets COLMAP estimate a SIMPLE_RADIAL camera.
         progress: called with the name of each step as it starts.
 
@@ -208,8 +209,9 @@ def _pipeline(
     """The COLMAP steps of :func:`run_sfm` (arguments as there; ``step`` reports progress)."""
     reader = pycolmap.ImageReaderOptions()
     if intrinsics is not None:
-        reader.camera_model = "PINHOLE"
-        reader.camera_params = f"{intrinsics.fx},{intrinsics.fy},{intrinsics.cx},{intrinsics.cy}"
+        camera = ColmapCamera.from_intrinsics(1, intrinsics)  # the lens model too
+        reader.camera_model = camera.model
+        reader.camera_params = ",".join(repr(float(v)) for v in camera.params)
     else:
         reader.camera_model = "SIMPLE_RADIAL"
     extraction = pycolmap.FeatureExtractionOptions()

@@ -12,6 +12,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from spotlessgs.io.cameras import Intrinsics, opencv_to_opengl_c2w
+from spotlessgs.io.lens import undistort
 from spotlessgs.io.colorspace import linear_to_srgb
 from spotlessgs.io.exr import DEPTH_CHANNEL, write_exr
 from spotlessgs.io.images import write_png
@@ -80,7 +81,8 @@ def _look_at_opencv(eye: np.ndarray, target: np.ndarray) -> np.ndarray:
 
 
 def render_room_sequence(
-    num_frames: int = 16, width: int = 240, height: int = 180, seed: int = 0, spot_power: float = 2.5
+    num_frames: int = 16, width: int = 240, height: int = 180, seed: int = 0, spot_power: float = 2.5,
+    lens: str = "pinhole", distortion: tuple[float, ...] = (),
 ) -> SyntheticSequence:
     """Render a camera moving on a smooth arc inside the textured room.
 
@@ -89,15 +91,18 @@ def render_room_sequence(
         width, height: image size in pixels.
         seed: seed of the textures (same seed, same images).
         spot_power: radiant intensity of the spotlight image (arbitrary units).
+        lens, distortion: the camera's lens (:class:`~spotlessgs.io.cameras.Intrinsics`): each pixel's ray goes
+            through the lens (the ground truth too), as a real distorted camera sees the room.
     """
     if num_frames < 2 or width < 16 or height < 16:
         raise ValueError("need at least 2 frames of at least 16x16 pixels")
     textures = _face_textures(seed)
     f = 0.9 * width
-    intr = Intrinsics(f, f, width / 2.0, height / 2.0, width, height)
+    intr = Intrinsics(f, f, width / 2.0, height / 2.0, width, height, lens, distortion)
     lo, hi = np.array([-ROOM_X, -ROOM_Y, 0.0]), np.array([ROOM_X, ROOM_Y, ROOM_Z])
     jj, ii = np.meshgrid(np.arange(height) + 0.5, np.arange(width) + 0.5, indexing="ij")
-    rays_cam = np.stack([(ii - intr.cx) / f, (jj - intr.cy) / f, np.ones_like(ii)], -1).reshape(-1, 3)
+    xy = undistort(intr, np.stack([ii.ravel(), jj.ravel()], axis=1))  # (P, 2) normalised, through the lens
+    rays_cam = np.concatenate([xy, np.ones((len(xy), 1))], axis=1)
     even, spot, depth, poses = [], [], [], []
     for k in range(num_frames):
         s = k / (num_frames - 1)

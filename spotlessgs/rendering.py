@@ -31,6 +31,7 @@ from spotlessgs.io.errors import InputError, OutputOverlapError
 from spotlessgs.io.exr import write_exr
 from spotlessgs.io.folder_lock import folder_lock
 from spotlessgs.io.images import is_image_name, write_png
+from spotlessgs.io.lens import distort_maps, remap, working_camera
 from spotlessgs.io.paths import refuse_overlap
 from spotlessgs.manifest import (
     MANIFEST_NAME, checkpoint_identity, dataset_record, hash_frames, is_partial_name, manifest_path, partial_sibling,
@@ -314,8 +315,15 @@ def _render_into(run_dir: Path, data_dir: Path, mode: str, which: str, out: Path
     checkpoint = checkpoint_identity(run_dir)  # the file the model is loaded from (the lock keeps it unchanged)
     scene, views, config, _info = load_run(run_dir, device=device, data_dir=data_dir)
     dev = scene.gaussians.means.device
-    cameras = views.cameras.with_intrinsics(views.dataset.intrinsics).to(dev)  # rendered at the native size
+    native = views.dataset.intrinsics  # the input camera: outputs have its size and lens
+    cameras = views.cameras.with_intrinsics(working_camera(native)).to(dev)  # rendered in its pinhole working camera
     K, width, height = cameras.K, cameras.width, cameras.height
+    to_input = None if native.is_pinhole else distort_maps(native, cameras.intrinsics)[:2]
+
+    def in_input_camera(img: np.ndarray) -> np.ndarray:
+        """A working-camera image (Hw, Ww, 3) resampled into the input camera's geometry (H, W, 3)."""
+        return img if to_input is None else remap(img, *to_input)
+
     indices = select_views(views, which)
     g = scene.gaussians
     start = time.perf_counter()
@@ -356,6 +364,7 @@ def _render_into(run_dir: Path, data_dir: Path, mode: str, which: str, out: Path
         else:
             res = scene.render(cameras[k], backend=config.raster_backend, num_threads=config.num_threads)
             img = res.image.float().cpu().numpy()
+        img = in_input_camera(img)
         clipped += int((img.max(axis=2) > 1.0).sum())
         total += img.shape[0] * img.shape[1]
         write_png(tmp / views.names[k], linear_to_srgb(img))
@@ -369,7 +378,8 @@ def _render_into(run_dir: Path, data_dir: Path, mode: str, which: str, out: Path
         log.warning("%.2f%% of relit pixels exceed 1 and are clipped in the PNGs; lower --l0 (now %s) or use --exr",
                     100 * fraction, relight)
     summary = {"mode": mode, "views": which, "count": len(indices), "l0": relight, "low_frequency": low_frequency,
-               "l0_mode": "auto" if isinstance(l0, str) else "given", "width": width, "height": height,
+               "l0_mode": "auto" if isinstance(l0, str) else "given", "width": native.width,
+               "height": native.height,
                "seconds_per_view": seconds / max(len(indices), 1), "fps": len(indices) / max(seconds, 1e-9),
                "clipped_fraction": fraction, "num_gaussians": len(g), "device": str(dev), "out_dir": str(out)}
     options = {k: summary[k] for k in ("mode", "views", "l0", "l0_mode", "low_frequency", "width", "height")}

@@ -85,15 +85,23 @@ def _not_a_dataset(tmp, s):
     return "spotless", ["train", "--data", str(tmp / "photos"), "--out", str(tmp / "out"), *TRAIN]
 
 
-def _distorted_colmap(tmp, s):
+def _colmap_camera(tmp, s, camera: str):
     sparse = tmp / "colmap" / "sparse" / "0"
     sparse.mkdir(parents=True)
     (tmp / "colmap" / "images").mkdir()
-    (sparse / "cameras.txt").write_text("1 OPENCV 64 48 50 50 32 24 -0.18 0.03 0 0\n")
+    (sparse / "cameras.txt").write_text(camera + "\n")
     (sparse / "images.txt").write_text("1 1 0 0 0 0 0 0 1 frame.png\n\n")
     (sparse / "points3D.txt").write_text("")
     shutil.copy(sorted((s["data"] / "images").glob("*.png"))[0], tmp / "colmap" / "images" / "frame.png")
     return "spotless", ["train", "--data", str(tmp / "colmap"), "--out", str(tmp / "out"), *TRAIN]
+
+
+def _folding_lens(tmp, s):
+    return _colmap_camera(tmp, s, "1 OPENCV 64 48 50 50 32 24 -0.9 0 0 0")  # folds the image: no inverse
+
+
+def _unsupported_camera_model(tmp, s):
+    return _colmap_camera(tmp, s, "1 FOV 64 48 50 50 32 24 0.5")
 
 
 def _out_inside_data(tmp, s):
@@ -265,7 +273,8 @@ CASES = [
     Case("train: damaged transforms.json", _damaged_transforms, 2, ("{tmp}/box/transforms.json", "not valid JSON")),
     Case("train: a frame's image is missing", _missing_image, 2, ("frame_00003.png",)),
     Case("train: a folder that is no dataset", _not_a_dataset, 2, ("{tmp}/photos",)),
-    Case("train: distorted COLMAP camera", _distorted_colmap, 2, ("cameras.txt", "OPENCV")),
+    Case("train: a lens that cannot be inverted", _folding_lens, 2, ("cameras.txt", "cannot be inverted")),
+    Case("train: an unsupported COLMAP camera model", _unsupported_camera_model, 2, ("cameras.txt", "FOV")),
     Case("train: run folder inside the dataset", _out_inside_data, 2, ("inside the input --data",)),
     Case("train: existing run without --resume", _existing_run_without_resume, 2, ("--resume",)),
     Case("train: --resume with another model", _resume_other_settings, 2, ("{tmp}/run",)),

@@ -39,6 +39,7 @@ from spotlessgs.io.colmap_text import (
 )
 from spotlessgs.io.colorspace import linear_to_srgb, srgb_to_linear, to_uint8
 from spotlessgs.io.dataset import load_initial_points, read_colmap_dataset, read_dataset
+from spotlessgs.io.errors import InputError
 from spotlessgs.io.exr import FrameEXR, blender_depth_to_planar, read_exr, read_frame_exr, write_exr, write_frame_exr
 from spotlessgs.io.images import IMAGE_SUFFIXES, is_image_name, list_image_files, read_image, write_png
 from spotlessgs.io.ply import read_point_cloud, write_point_cloud
@@ -561,16 +562,18 @@ def test_readers_match_pycolmap_written_models(tmp_path, fmt):
         track = sorted((e.image_id, e.point2D_idx) for e in point.track.elements)
         assert sorted(map(tuple, model.points.tracks[k].tolist())) == track
     assert model.cameras[1].to_intrinsics() == Intrinsics(100.0, 101.0, 32.0, 24.5, 64, 48)
-    with pytest.raises(ValueError, match="COLMAP camera 2: model OPENCV has non-zero distortion"):
-        model.cameras[2].to_intrinsics()
+    assert model.cameras[2].to_intrinsics() == Intrinsics(90.0, 91.0, 40.0, 30.0, 80, 60, "opencv",
+                                                          (0.01, -0.02, 0.001, 0.002))
 
 
 def test_colmap_camera_models_to_intrinsics():
     assert ColmapCamera(1, "SIMPLE_PINHOLE", 10, 8, (5.0, 5.0, 4.0)).to_intrinsics() == Intrinsics(5, 5, 5, 4, 10, 8)
-    assert ColmapCamera(1, "OPENCV", 10, 8, (5.0, 6.0, 5.0, 4.0, 0, 0, 0, 0)).to_intrinsics().fy == 6.0
-    assert ColmapCamera(1, "SIMPLE_RADIAL", 10, 8, (5.0, 5.0, 4.0, 0.0)).to_intrinsics().fx == 5.0
-    with pytest.raises(ValueError, match="model OPENCV_FISHEYE is not a pinhole model"):
-        ColmapCamera(3, "OPENCV_FISHEYE", 10, 8, (5.0,) * 8).to_intrinsics()
+    assert ColmapCamera(1, "OPENCV", 10, 8, (5.0, 6.0, 5.0, 4.0, 0, 0, 0, 0)).to_intrinsics() == Intrinsics(
+        5, 6, 5, 4, 10, 8)  # no distortion: a pinhole
+    assert ColmapCamera(1, "SIMPLE_RADIAL", 10, 8, (5.0, 5.0, 4.0, 0.0)).to_intrinsics().is_pinhole
+    # (the projections are checked against pycolmap's in test_lens.py)
+    with pytest.raises(ValueError, match="model THIN_PRISM_FISHEYE is not supported"):
+        ColmapCamera(3, "THIN_PRISM_FISHEYE", 10, 8, (5.0,) * 12).to_intrinsics()
 
 
 def test_colmap_errors(tmp_path):
@@ -757,8 +760,11 @@ def test_transforms_error_paths(tmp_path):
         (dict(fl_x=None), "missing key 'fl_x'"),
         (dict(fl_x=-3.0), "focal lengths must be positive"),
         (dict(w=64.5), "w and h must be positive integers"),
-        (dict(k1=0.1), "non-zero distortion k1=0.1"),
-        (dict(camera_model="OPENCV_FISHEYE"), "camera_model 'OPENCV_FISHEYE' is not supported"),
+        (dict(camera_model="PINHOLE", k1=0.1), "camera_model PINHOLE has no distortion coefficient k1"),
+        (dict(camera_model="OPENCV", k4=0.1), "camera_model OPENCV has no distortion coefficient k4"),
+        (dict(k1="x"), "k1"),
+        (dict(k1=-5.0), "cannot be inverted"),
+        (dict(camera_model="EQUIRECTANGULAR"), "camera_model 'EQUIRECTANGULAR' is not supported"),
         (dict(spotless=[1]), "spotless: must be an object"),
         (dict(spotless={"schema_version": 2}), r"spotless.schema_version: unsupported version 2"),
         (dict(spotless={"schema_version": 1}),
@@ -766,7 +772,7 @@ def test_transforms_error_paths(tmp_path):
     ]
     for overrides, match in cases:
         path = _plain(tmp_path, **overrides)
-        with pytest.raises(DatasetError, match=match):
+        with pytest.raises(InputError, match=match):  # DatasetError, or the lens check's InputError
             read_transforms(path)
     frames = json.loads(_plain(tmp_path).read_text())["frames"]
     frames[2]["fl_x"] = 60.0
@@ -858,8 +864,8 @@ def test_read_dataset_dispatch_and_colmap_folder(tmp_path):
         read_dataset(tmp_path / "bad")
     distorted = tmp_path / "distorted" / "sparse" / "0"
     distorted.mkdir(parents=True)
-    _pycolmap_reconstruction().write_binary(str(distorted))
-    with pytest.raises(ValueError, match="model OPENCV has non-zero distortion"):
+    _pycolmap_reconstruction().write_binary(str(distorted))  # a pinhole and an OPENCV camera
+    with pytest.raises(DatasetError, match="images use 2 different cameras"):
         read_dataset(tmp_path / "distorted")
     second = ColmapCamera(2, "PINHOLE", 320, 240, (200.0, 200.0, 160.0, 120.0))
     images = dict(model.images)

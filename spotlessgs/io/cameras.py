@@ -1,4 +1,5 @@
-"""Pinhole intrinsics, camera-convention changes and small rotation helpers (numpy only).
+"""Camera intrinsics (pinhole projection, size, lens model), camera-convention changes and small rotation helpers
+(numpy only; the lens itself is computed by spotlessgs.io.lens through OpenCV).
 
 Conventions used across the project:
 
@@ -21,10 +22,14 @@ import numpy as np
 # Diagonal flipping y and z: converts camera axes between the OpenGL and OpenCV conventions (its own inverse).
 _GL_CV_FLIP = np.diag([1.0, -1.0, -1.0, 1.0])
 
+#: Lens models -> the numbers of distortion coefficients they accept, in OpenCV's order: ``opencv``
+#: (k1, k2, p1, p2[, k3[, k4, k5, k6]]: cv2.projectPoints), ``fisheye`` (k1, k2, k3, k4: cv2.fisheye).
+LENS_MODELS: dict[str, tuple[int, ...]] = {"pinhole": (0,), "opencv": (4, 5, 8), "fisheye": (4,)}
+
 
 @dataclass(frozen=True)
 class Intrinsics:
-    """A pinhole camera without distortion.
+    """A camera: pinhole projection, image size and lens distortion.
 
     Attributes:
         fx: focal length along x, pixels.
@@ -33,6 +38,9 @@ class Intrinsics:
         cy: principal point y, pixels.
         width: image width, pixels.
         height: image height, pixels.
+        lens: a key of :data:`LENS_MODELS`; an ``opencv`` lens whose coefficients are all 0 becomes ``pinhole``.
+        distortion: the lens's coefficients in OpenCV's order (empty for ``pinhole``); they act on normalised
+            image coordinates, so resizing the image keeps them.
     """
 
     fx: float
@@ -41,8 +49,11 @@ class Intrinsics:
     cy: float
     width: int
     height: int
+    lens: str = "pinhole"
+    distortion: tuple[float, ...] = ()
 
     def __post_init__(self) -> None:
+        self._check_lens()
         for name in ("fx", "fy", "cx", "cy"):
             value = getattr(self, name)
             if not math.isfinite(value):
@@ -57,6 +68,30 @@ class Intrinsics:
         object.__setattr__(self, "height", int(self.height))
         for name in ("fx", "fy", "cx", "cy"):
             object.__setattr__(self, name, float(getattr(self, name)))
+
+    def _check_lens(self) -> None:
+        if self.lens not in LENS_MODELS:
+            raise ValueError(f"Intrinsics: unknown lens model {self.lens!r}; choose one of {list(LENS_MODELS)}")
+        coeffs = tuple(float(v) for v in self.distortion)
+        if len(coeffs) not in LENS_MODELS[self.lens]:
+            raise ValueError(f"Intrinsics: a {self.lens} lens takes {' or '.join(map(str, LENS_MODELS[self.lens]))} "
+                             f"distortion coefficients, got {len(coeffs)}")
+        if not all(math.isfinite(v) for v in coeffs):
+            raise ValueError(f"Intrinsics: distortion coefficients must be finite, got {coeffs}")
+        if self.lens == "opencv":  # the shortest equivalent form: k4..k6 = 0 -> 5 coefficients, k3 = 0 -> 4, none -> 0
+            if len(coeffs) == 8 and not any(coeffs[5:]):
+                coeffs = coeffs[:5]
+            if len(coeffs) == 5 and coeffs[4] == 0.0:
+                coeffs = coeffs[:4]
+            if not any(coeffs):
+                object.__setattr__(self, "lens", "pinhole")
+                coeffs = ()
+        object.__setattr__(self, "distortion", coeffs)
+
+    @property
+    def is_pinhole(self) -> bool:
+        """True without lens distortion."""
+        return self.lens == "pinhole"
 
     @classmethod
     def from_fov(cls, h_fov_deg: float, width: int, height: int) -> "Intrinsics":
@@ -88,7 +123,8 @@ class Intrinsics:
         width = max(1, round(self.width * factor))
         height = max(1, round(self.height * factor))
         sx, sy = width / self.width, height / self.height
-        return Intrinsics(self.fx * sx, self.fy * sy, self.cx * sx, self.cy * sy, width, height)
+        return Intrinsics(self.fx * sx, self.fy * sy, self.cx * sx, self.cy * sy, width, height, self.lens,
+                          self.distortion)
 
 
 def _check_poses(c2w: np.ndarray, name: str) -> np.ndarray:

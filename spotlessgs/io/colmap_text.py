@@ -43,8 +43,9 @@ CAMERA_MODELS: dict[str, tuple[int, int]] = {
     "RAD_TAN_THIN_PRISM_FISHEYE": (11, 16),
 }
 _MODEL_BY_ID = {model_id: (name, n) for name, (model_id, n) in CAMERA_MODELS.items()}
-# Index where distortion parameters start, for the perspective models that reduce to a pinhole when they are zero.
-_DISTORTION_START = {"SIMPLE_RADIAL": 3, "RADIAL": 3, "OPENCV": 4, "FULL_OPENCV": 4}
+# The COLMAP models we read -> our lens model (spotlessgs.io.cameras.LENS_MODELS); see ColmapCamera.to_intrinsics.
+SUPPORTED_MODELS = {"SIMPLE_PINHOLE": "pinhole", "PINHOLE": "pinhole", "SIMPLE_RADIAL": "opencv", "RADIAL": "opencv",
+                    "OPENCV": "opencv", "FULL_OPENCV": "opencv", "OPENCV_FISHEYE": "fisheye"}
 
 
 @dataclass(frozen=True)
@@ -66,23 +67,36 @@ class ColmapCamera:
     params: tuple[float, ...]
 
     def to_intrinsics(self) -> Intrinsics:
-        """The pinhole :class:`Intrinsics` (SIMPLE_PINHOLE, PINHOLE, or a distortion model whose distortion is 0)."""
+        """The camera as :class:`Intrinsics` with OpenCV's lens model of the same projection (:data:`SUPPORTED_MODELS`:
+        SIMPLE_RADIAL f, cx, cy, k and RADIAL f, cx, cy, k1, k2 are OpenCV's k1[, k2]; OPENCV k1, k2, p1, p2;
+        FULL_OPENCV k1, k2, p1, p2, k3, k4, k5, k6; OPENCV_FISHEYE k1..k4, cv2.fisheye's)."""
         p = self.params
-        if self.model == "SIMPLE_PINHOLE":
-            return Intrinsics(p[0], p[0], p[1], p[2], self.width, self.height)
-        if self.model == "PINHOLE":
-            return Intrinsics(p[0], p[1], p[2], p[3], self.width, self.height)
-        if self.model in _DISTORTION_START:
-            start = _DISTORTION_START[self.model]
-            if any(v != 0.0 for v in p[start:]):
-                raise ValueError(
-                    f"COLMAP camera {self.camera_id}: model {self.model} has non-zero distortion {p[start:]}; "
-                    "undistort the images first (colmap image_undistorter)"
-                )
-            if start == 3:
-                return Intrinsics(p[0], p[0], p[1], p[2], self.width, self.height)
-            return Intrinsics(p[0], p[1], p[2], p[3], self.width, self.height)
-        raise ValueError(f"COLMAP camera {self.camera_id}: model {self.model} is not a pinhole model")
+        if self.model not in SUPPORTED_MODELS:
+            raise ValueError(f"COLMAP camera {self.camera_id}: model {self.model} is not supported (supported: "
+                             f"{', '.join(SUPPORTED_MODELS)})")
+        lens = SUPPORTED_MODELS[self.model]
+        if self.model in ("SIMPLE_PINHOLE", "SIMPLE_RADIAL", "RADIAL"):
+            fx = fy = p[0]
+            cx, cy, rest = p[1], p[2], tuple(p[3:])
+        else:
+            fx, fy, cx, cy, rest = p[0], p[1], p[2], p[3], tuple(p[4:])
+        if self.model in ("SIMPLE_RADIAL", "RADIAL"):
+            rest = (rest + (0.0,))[:2] + (0.0, 0.0)  # k1, k2, p1 = p2 = 0
+        return Intrinsics(fx, fy, cx, cy, self.width, self.height, lens, rest)
+
+    @classmethod
+    def from_intrinsics(cls, camera_id: int, intr: Intrinsics) -> "ColmapCamera":
+        """The COLMAP camera of ``intr``: PINHOLE, OPENCV (4 coefficients), FULL_OPENCV (5 or 8) or
+        OPENCV_FISHEYE."""
+        pinhole = (intr.fx, intr.fy, intr.cx, intr.cy)
+        if intr.is_pinhole:
+            return cls(camera_id, "PINHOLE", intr.width, intr.height, pinhole)
+        if intr.lens == "fisheye":
+            model = "OPENCV_FISHEYE"
+        else:
+            model = "OPENCV" if len(intr.distortion) == 4 else "FULL_OPENCV"
+        coeffs = intr.distortion + (0.0,) * (CAMERA_MODELS[model][1] - 4 - len(intr.distortion))
+        return cls(camera_id, model, intr.width, intr.height, pinhole + coeffs)
 
 
 @dataclass(frozen=True)
@@ -159,7 +173,8 @@ def model_from_poses(
     xyz: np.ndarray | None = None,
     rgb: np.ndarray | None = None,
 ) -> ColmapModel:
-    """A model with one PINHOLE camera (id 1), images 1..N and (optionally) 3D points without observations.
+    """A model with one camera (id 1; its COLMAP model from ``intrinsics``' lens), images 1..N and (optionally) 3D
+    points without observations.
 
     Args:
         intrinsics: the shared camera.
@@ -171,9 +186,7 @@ def model_from_poses(
     c2w_opengl = np.asarray(c2w_opengl, dtype=np.float64)
     if c2w_opengl.ndim != 3 or c2w_opengl.shape[1:] != (4, 4) or c2w_opengl.shape[0] != len(names):
         raise ValueError(f"model_from_poses: expected ({len(names)}, 4, 4) poses, got shape {c2w_opengl.shape}")
-    camera = ColmapCamera(
-        1, "PINHOLE", intrinsics.width, intrinsics.height, (intrinsics.fx, intrinsics.fy, intrinsics.cx, intrinsics.cy)
-    )
+    camera = ColmapCamera.from_intrinsics(1, intrinsics)
     w2c = world_to_camera(opengl_to_opencv_c2w(c2w_opengl))
     quats = matrix_to_quaternion_wxyz(w2c[:, :3, :3])
     images = {

@@ -16,6 +16,7 @@ import numpy as np
 
 from spotlessgs.io.cameras import opencv_to_opengl_c2w
 from spotlessgs.io.colmap_text import read_colmap_model
+from spotlessgs.io.lens import check_invertible
 from spotlessgs.io.ply import PointCloud, read_point_cloud
 from spotlessgs.io.transforms import DatasetDescription, DatasetError, Split, read_transforms
 
@@ -34,7 +35,8 @@ def _camera_file(sparse: Path) -> Path:
 
 
 def read_colmap_dataset(folder: str | os.PathLike, check_files: bool = False) -> DatasetDescription:
-    """Read a COLMAP folder (``images/`` + ``sparse/0``) with a single pinhole (or zero-distortion) camera."""
+    """Read a COLMAP folder (``images/`` + ``sparse/0``) with a single camera of a supported model
+    (:data:`spotlessgs.io.colmap_text.SUPPORTED_MODELS`) whose lens can be inverted over the image."""
     folder = Path(folder)
     sparse = _find_sparse_dir(folder)
     model = read_colmap_model(sparse)
@@ -47,6 +49,8 @@ def read_colmap_dataset(folder: str | os.PathLike, check_files: bool = False) ->
         raise DatasetError(f"{_camera_file(sparse)}: {exc}") from None
     if len(set(intrinsics.values())) > 1:
         raise DatasetError(f"{sparse}: images use {len(intrinsics)} different cameras; only one camera is supported")
+    camera = next(iter(intrinsics.values()))
+    check_invertible(camera, str(_camera_file(sparse)))
     c2w_opencv = np.stack([im.c2w_opencv() for im in images])
     image_paths = tuple(folder / "images" / im.name for im in images)
     if check_files:
@@ -57,7 +61,7 @@ def read_colmap_dataset(folder: str | os.PathLike, check_files: bool = False) ->
     return DatasetDescription(
         root=folder,
         source=sparse,
-        intrinsics=next(iter(intrinsics.values())),
+        intrinsics=camera,
         c2w_opengl=opencv_to_opengl_c2w(c2w_opencv),
         c2w_opencv=c2w_opencv,
         file_paths=tuple(f"images/{im.name}" for im in images),

@@ -25,17 +25,21 @@ import numpy as np
 
 from spotlessgs.io.atomic import write_json
 from spotlessgs.io.cameras import Intrinsics, opengl_to_opencv_c2w, world_to_camera
+from spotlessgs.io.errors import InputError
+from spotlessgs.io.lens import check_invertible
 
 SCHEMA_VERSION = 1
 DEFAULT_TEST_EVERY = 11
 _INTRINSIC_KEYS = ("fl_x", "fl_y", "cx", "cy", "w", "h")
 _DISTORTION_KEYS = ("k1", "k2", "k3", "k4", "p1", "p2")
-_PINHOLE_MODELS = ("OPENCV", "PINHOLE", "SIMPLE_PINHOLE")
+# nerfstudio camera models -> (our lens model, the keys of its distortion coefficients in OpenCV's order).
+_CAMERA_MODELS = {"OPENCV": ("opencv", ("k1", "k2", "p1", "p2", "k3")), "OPENCV_FISHEYE": ("fisheye", ("k1", "k2", "k3", "k4")),
+                  "PINHOLE": ("pinhole", ()), "SIMPLE_PINHOLE": ("pinhole", ())}
 _ROTATION_TOL = 1e-3  # max |R^T R - I| accepted in a transform_matrix
 _LIGHT_ROTATION_TOL = 1e-6  # max |R^T R - I| accepted in a light rotation
 
 
-class DatasetError(ValueError):
+class DatasetError(InputError):
     """A dataset file is malformed; the message names the file, the entry and the problem."""
 
 
@@ -256,19 +260,24 @@ def write_transforms(
     path = Path(path)
     if not frames:
         raise DatasetError(f"{path}: no frames to write")
+    model = {"pinhole": "OPENCV", "opencv": "OPENCV", "fisheye": "OPENCV_FISHEYE"}[intrinsics.lens]
+    keys = _CAMERA_MODELS[model][1]
+    if len(intrinsics.distortion) > len(keys):
+        raise DatasetError(f"{path}: nerfstudio's camera models cannot hold the {len(intrinsics.distortion)}-coefficient "
+                           f"(rational) {intrinsics.lens} lens {list(intrinsics.distortion)}; keep it as a COLMAP model")
+    coeffs = dict(zip(keys, intrinsics.distortion))
     out: dict[str, Any] = {
-        "camera_model": "OPENCV",
+        "camera_model": model,
         "fl_x": intrinsics.fx,
         "fl_y": intrinsics.fy,
         "cx": intrinsics.cx,
         "cy": intrinsics.cy,
         "w": intrinsics.width,
         "h": intrinsics.height,
-        "k1": 0.0,
-        "k2": 0.0,
-        "p1": 0.0,
-        "p2": 0.0,
+        **{k: coeffs.get(k, 0.0) for k in (keys if model == "OPENCV_FISHEYE" else ("k1", "k2", "p1", "p2"))},
     }
+    if "k3" in coeffs and model == "OPENCV":
+        out["k3"] = coeffs["k3"]
     if ply_file_path is not None:
         _check_relative(ply_file_path, f"{path}: ply_file_path")
         out["ply_file_path"] = ply_file_path
@@ -390,18 +399,20 @@ def _resolve_image(root: Path, rel: str) -> Path:
 
 
 def _frame_intrinsics(data: dict[str, Any], frame: dict[str, Any], where: str, root: Path, image: Path) -> tuple:
-    """The (fx, fy, cx, cy, w, h) of one frame: the frame's own keys override the top-level ones."""
+    """The (fx, fy, cx, cy, w, h, lens, distortion) of one frame: the frame's own keys override the top-level ones."""
 
     def get(key: str) -> Any:
         return frame.get(key, data.get(key))
 
     model = get("camera_model") or "OPENCV"
-    if model not in _PINHOLE_MODELS:
-        raise DatasetError(f"{where}: camera_model {model!r} is not supported (only {', '.join(_PINHOLE_MODELS)})")
+    if model not in _CAMERA_MODELS:
+        raise DatasetError(f"{where}: camera_model {model!r} is not supported (only {', '.join(_CAMERA_MODELS)})")
+    lens, keys = _CAMERA_MODELS[model]
     for key in _DISTORTION_KEYS:
         value = get(key)
-        if value is not None and _finite_number(value, f"{where}.{key}") != 0.0:
-            raise DatasetError(f"{where}: non-zero distortion {key}={value}; undistort the images first")
+        if key not in keys and value is not None and _finite_number(value, f"{where}.{key}") != 0.0:
+            raise DatasetError(f"{where}: camera_model {model} has no distortion coefficient {key}, got {key}={value}")
+    distortion = tuple(0.0 if get(k) is None else _finite_number(get(k), f"{where}.{k}") for k in keys)
     w, h = get("w"), get("h")
     if w is None or h is None:
         if not image.is_file():
@@ -433,6 +444,8 @@ def _frame_intrinsics(data: dict[str, Any], frame: dict[str, Any], where: str, r
         h / 2.0 if cy is None else _finite_number(cy, f"{where}.cy"),
         int(w),
         int(h),
+        lens,
+        distortion,
     )
     if values[0] <= 0 or values[1] <= 0:
         raise DatasetError(f"{where}: focal lengths must be positive, got fl_x={values[0]}, fl_y={values[1]}")
@@ -523,13 +536,14 @@ def read_transforms(path: str | os.PathLike, check_files: bool = False) -> Datas
         cameras.append(_frame_intrinsics(data, frame, where, root, images[-1]))
     for i, camera in enumerate(cameras):
         if camera != cameras[0]:
-            names = ("fl_x", "fl_y", "cx", "cy", "w", "h")
+            names = ("fl_x", "fl_y", "cx", "cy", "w", "h", "lens", "distortion")
             diff = {k: (a, b) for k, a, b in zip(names, cameras[0], camera) if a != b}
             raise DatasetError(
                 f"{path}: frames[{i}] has different intrinsics from frames[0] {diff}; "
                 "datasets with several cameras are not supported"
             )
     intrinsics = Intrinsics(*cameras[0])
+    check_invertible(intrinsics, str(path))
 
     ply_path = None
     if data.get("ply_file_path") is not None:

@@ -1,6 +1,8 @@
 """Training views as tensors: linear images at the training resolution, clipped-pixel masks, cameras, split.
 
-Reads any dataset folder that :func:`spotlessgs.io.dataset.read_dataset` reads (ours, nerfstudio, COLMAP).
+Reads any dataset folder that :func:`spotlessgs.io.dataset.read_dataset` reads (ours, nerfstudio, COLMAP). Images of
+a camera with lens distortion are resampled into its pinhole working camera (:func:`spotlessgs.io.lens.working_camera`);
+the working pixels without an input sample are marked ``unseen`` and take no part in the loss or the scores.
 """
 
 from __future__ import annotations
@@ -18,6 +20,7 @@ from spotlessgs.io.colorspace import srgb_to_linear
 from spotlessgs.io.dataset import load_initial_points, read_dataset
 from spotlessgs.io.frame_quality import FrameStats, frame_stats, usable_frames
 from spotlessgs.io.images import read_image
+from spotlessgs.io.lens import remap, undistort_maps, working_camera
 from spotlessgs.io.ply import PointCloud
 from spotlessgs.io.transforms import DatasetDescription, LightTruth
 
@@ -33,7 +36,10 @@ class TrainingViews:
         names: N image file names (``frame_00000.png``), used to name rendered outputs.
         images: (N, H, W, 3) float32 linear RGB inputs.
         saturated: (N, H, W) bool, True where an input pixel was clipped (any channel >= the threshold).
-        cameras: the N views' poses (float32, OpenCV axes) and the camera at the training resolution.
+        cameras: the N views' poses (float32, OpenCV axes) and the (pinhole) camera at the training resolution: the
+            dataset's own, or for a distorted lens its working camera.
+        unseen: (H, W) bool, True where a working-camera pixel has no sample of the input image (outside the
+            distorted image's edges); None for a pinhole camera.
         train: indices of training views; test: indices of held-out views.
         light: the true spotlight (simulated data) or None.
     """
@@ -46,6 +52,7 @@ class TrainingViews:
     train: list[int]
     test: list[int]
     light: LightTruth | None
+    unseen: torch.Tensor | None = None
 
     def scene_extent(self) -> float:
         """Radius of the camera centres around their mean × 1.1 (3DGS's 'cameras extent'); at least 0.1 m."""
@@ -89,18 +96,26 @@ def load_training_views(
         saturation_threshold: value (in the file's encoding, [0, 1]) at or above which a pixel counts as clipped.
     """
     dataset = read_dataset(data_dir, check_files=True)
-    intr = dataset.intrinsics
-    if image_width is not None and image_width < intr.width:
-        intr = intr.scaled(image_width / intr.width)
+    native = dataset.intrinsics
+    working = working_camera(native)  # the camera itself when it is a pinhole
+    intr = working
+    if image_width is not None and image_width < native.width:
+        intr = working.scaled(image_width / native.width)
+    size = (int(intr.height), int(intr.width))
+    unseen = None
+    if not native.is_pinhole:
+        map_x, map_y, valid = undistort_maps(native, working)
+        unseen = F.adaptive_max_pool2d(torch.from_numpy(~valid)[None, None].float(), size)[0, 0] > 0
     imgs, masks, stats = [], [], []
     for path in dataset.image_paths:
         img, sat, quality = _load_linear(path, linear_input, saturation_threshold)
         stats.append(quality)
-        if img.shape[:2] != (dataset.intrinsics.height, dataset.intrinsics.width):
+        if img.shape[:2] != (native.height, native.width):
             raise ValueError(f"{path}: image is {img.shape[1]}x{img.shape[0]}, the camera says "
-                             f"{dataset.intrinsics.width}x{dataset.intrinsics.height}")
-        t_img, t_sat = _downscale(torch.from_numpy(img)[None], torch.from_numpy(sat)[None],
-                                  (int(intr.height), int(intr.width)))
+                             f"{native.width}x{native.height}")
+        if not native.is_pinhole:  # a working pixel is clipped when any input pixel it samples is
+            img, sat = remap(img, map_x, map_y), remap(sat.astype(np.float32), map_x, map_y) > 0
+        t_img, t_sat = _downscale(torch.from_numpy(img)[None], torch.from_numpy(sat)[None], size)
         imgs.append(t_img[0])
         masks.append(t_sat[0])
     names = [p.name for p in dataset.image_paths]
@@ -114,6 +129,7 @@ def load_training_views(
         train=train,
         test=list(dataset.split.test),
         light=dataset.light,
+        unseen=unseen,
     )
 
 

@@ -44,8 +44,8 @@ from spotlessgs.training.strategy import DensifyConfig, DensifyStrategy
 from spotlessgs.training.warm_start import warm_start_scene
 from spotlessgs.training.budget import BudgetConfig, BudgetStrategy, budget_report
 from spotlessgs.training.validation import (
-    ViewSplit, block_size, evenly_spaced, gaussian_contributions, held_out_score, holdout_blocks,
-    split_training_views, validation_psnr,
+    ViewSplit, block_size, evenly_spaced, fitted_and_scored_pixels, gaussian_contributions, held_out_score,
+    holdout_blocks, split_training_views, validation_psnr,
 )
 
 log = logging.getLogger(__name__)
@@ -193,9 +193,11 @@ def make_strategy(
     cameras = views.cameras.to(device)
     images = views.images.to(device)
     contribution_views = evenly_spaced(split.fit, config.budget_contribution_views)
+    _ignored, scored = fitted_and_scored_pixels(None, _unseen(views, device), len(views.names))
 
     def validate(_gaussians: GaussianParams) -> float:
-        return validation_psnr(scene, cameras, images, split.validation, config.raster_backend, config.num_threads)
+        return validation_psnr(scene, cameras, images, split.validation, config.raster_backend, config.num_threads,
+                               scored)
 
     def contributions(g: GaussianParams) -> torch.Tensor:
         return gaussian_contributions(g.means, g.quats, g.scales, g.opacities, cameras, contribution_views,
@@ -246,9 +248,16 @@ def restore_scene(ckpt: dict[str, Any], run_info: dict[str, Any], config: TrainC
 # ---- the loop ------------------------------------------------------------------------------------------------------
 
 
-def _psnr(pred: torch.Tensor, target: torch.Tensor) -> float:
-    """PSNR (dB) of a render (H, W, 3), clamped to [0, 1], against its linear target image."""
-    return psnr_from_mse(float(torch.mean((pred.detach().clamp(0, 1) - target) ** 2)))
+def _psnr(pred: torch.Tensor, target: torch.Tensor, unseen: torch.Tensor | None = None) -> float:
+    """PSNR (dB) of a render (H, W, 3), clamped to [0, 1], against its linear target image; without the ``unseen``
+    (H, W) pixels when given."""
+    squared = (pred.detach().clamp(0, 1) - target) ** 2
+    return psnr_from_mse(float(torch.mean(squared if unseen is None else squared[~unseen])))
+
+
+def _unseen(views: TrainingViews, device: torch.device | str) -> torch.Tensor | None:
+    """``views.unseen`` on ``device`` (None for a pinhole camera)."""
+    return None if views.unseen is None else views.unseen.to(device)
 
 
 def _check_finite(scene: RelightableScene, step: int, ckpt: Path) -> None:
@@ -341,6 +350,8 @@ def _train_locked(data_dir: Path, run_dir: Path, variant: str | ModelConfig, con
         held_out = holdout_blocks(len(views.names), views.cameras.height, views.cameras.width,
                                   config.validation_blocks, block, seed).to(device)
     cameras = views.cameras.to(device)
+    # pixels the loss leaves alone (held out, or with no input sample) and the pixels the held-out scores use
+    ignored, scored = fitted_and_scored_pixels(held_out, _unseen(views, device), len(views.names))
 
     start = 0
     if resume and has_checkpoint:
@@ -380,7 +391,7 @@ def _train_locked(data_dir: Path, run_dir: Path, variant: str | ModelConfig, con
     def score_held_out() -> dict:
         scene.eval()
         score = held_out_score(scene, cameras, images, score_views, config.raster_backend, config.num_threads,
-                               pixel_masks=held_out)
+                               pixel_masks=scored)
         scene.train()
         return {"validation_psnr": score.psnr, "validation_psnr_dark": score.psnr_dark}
 
@@ -404,11 +415,11 @@ def _train_locked(data_dir: Path, run_dir: Path, variant: str | ModelConfig, con
                 raise TrainingDivergedError(f"step {step}: the render of view {views.names[k]} has NaN/Inf; "
                                             f"the last good checkpoint {ckpt_file} is intact")
             target, clipped = images[k], saturated[k]
-            # Held-out pixels show the render itself, clamped to [0, 1], and count as clipped: no error and no
-            # gradient there (a render above 1 meets a clipped target of 1, which the clipped L1 does not penalise).
-            if held_out is not None:
-                target = torch.where(held_out[k][..., None], out.image.detach().clamp(0.0, 1.0), target)
-                clipped = clipped | held_out[k]
+            # Held-out and unseen pixels show the render itself, clamped to [0, 1], and count as clipped: no error and
+            # no gradient there (a render above 1 meets a clipped target of 1, which the clipped L1 does not penalise).
+            if ignored is not None:
+                target = torch.where(ignored[k][..., None], out.image.detach().clamp(0.0, 1.0), target)
+                clipped = clipped | ignored[k]
             loss, parts = photometric_loss(out.image, target, clipped, config.ssim_lambda)
             if prior is not None and scene.appearance.light is not None:
                 loss = loss + scene.appearance.light.light_prior_loss(prior, config.light_prior_weight)
@@ -549,10 +560,11 @@ def evaluate_reconstruction(scene: RelightableScene, views: TrainingViews, confi
     if not views.test:
         return None
     cameras = views.cameras.to(views.images.device)
+    unseen = _unseen(views, views.images.device)
     values = []
     for k in views.test:
         out = scene.render(cameras[k], backend=config.raster_backend, num_threads=config.num_threads)
-        values.append(_psnr(out.image, views.images[k]))
+        values.append(_psnr(out.image, views.images[k], unseen))
     return float(np.mean(values))
 
 

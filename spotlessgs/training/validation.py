@@ -79,6 +79,27 @@ def holdout_blocks(views: int, height: int, width: int, fraction: float, block: 
     return grid.repeat_interleave(block, 1).repeat_interleave(block, 2)[:, :height, :width].contiguous()
 
 
+def fitted_and_scored_pixels(
+    held_out: torch.Tensor | None, unseen: torch.Tensor | None, views: int,
+) -> tuple[torch.Tensor | None, torch.Tensor | None]:
+    """Which pixels the loss leaves alone and which the held-out scores use.
+
+    Args:
+        held_out: (V, H, W) bool held-out pixel blocks, or None; unseen: (H, W) bool working-camera pixels without an
+        input sample (``TrainingViews.unseen``), or None; views: V.
+    Returns:
+        ``ignored`` (V, H, W): held-out or unseen, never fitted; ``scored`` (V, H, W): what the held-out scores use,
+        the held-out blocks (or, without blocks, every pixel) that are not unseen. Each is None where it would select
+        nothing (``ignored``) or everything (``scored``).
+    """
+    if unseen is None:
+        return held_out, held_out
+    unseen = unseen.expand(views, *unseen.shape)
+    if held_out is None:
+        return unseen, ~unseen
+    return held_out | unseen, held_out & ~unseen
+
+
 @dataclass(frozen=True)
 class HeldOutScore:
     """Spotlight-lit PSNR of held-out pixels: all of them, and the darkest of them."""
