@@ -119,15 +119,26 @@ def generate(kind, out_dir, seed):
 @click.option("--read", default=0.012, show_default=True, type=click.FloatRange(0),
               help="Read-noise standard deviation in linear intensity.")
 @click.option("--seed", default=0, show_default=True, type=int)
-def add_noise(data_dir, out_dir, shot, read, seed):
-    """Copy a dataset with camera sensor noise (shot + read) added to its spotlight-only images.
+@click.option("--robot-camera", is_flag=True,
+              help="Also a robot camera's auto-exposure and vignetting (the truth in OUT/camera_effects.json).")
+@click.option("--sensitivity", default=0.25, show_default=True, type=click.FloatRange(0, min_open=True),
+              help="--robot-camera: what the sensor records of the render at gain 1 (a dark scene: < 1).")
+@click.option("--max-gain", default=4.0, show_default=True, type=click.FloatRange(1),
+              help="--robot-camera: the largest auto-exposure gain.")
+@click.option("--vignetting", default=0.35, show_default=True, type=click.FloatRange(0, 1, max_open=True),
+              help="--robot-camera: darkening at the farthest image corner.")
+def add_noise(data_dir, out_dir, shot, read, seed, robot_camera, sensitivity, max_gain, vignetting):
+    """Copy a dataset with camera sensor noise (shot + read) added to its spotlight-only images, and with
+    --robot-camera a robot camera's auto-exposure and vignetting.
 
     OUT must not be DATA, lie inside it, or contain it.
     """
-    from simulator.sensor_noise import SensorNoise, add_sensor_noise_to_dataset
+    from simulator.sensor_noise import CameraEffects, SensorNoise, add_sensor_noise_to_dataset
 
-    written = add_sensor_noise_to_dataset(data_dir, out_dir, SensorNoise(shot, read), seed)
-    click.echo(f"{out_dir}: wrote {written} noisy image(s)")
+    effects = CameraEffects(sensitivity=sensitivity, max_gain=max_gain, vignetting=vignetting) if robot_camera \
+        else None
+    written = add_sensor_noise_to_dataset(data_dir, out_dir, SensorNoise(shot, read), seed, effects)
+    click.echo(f"{out_dir}: wrote {written} image(s)")
 
 
 @main.command()

@@ -1,4 +1,5 @@
-"""Camera sensor noise for a rendered dataset: what a robot's camera adds at the high gain of a dark scene.
+"""What a robot's camera does to a rendered dataset: sensor noise at the high gain of a dark scene, auto-exposure and
+vignetting.
 
 Cycles renders are clean (denoised), while a real camera in a dark tunnel runs at high gain: its images are noisy,
 most of all in the dark corners the spotlight does not reach. This module adds the standard heteroscedastic model of
@@ -13,6 +14,13 @@ are noisy, everything else (ground truth, EXRs, poses, point cloud, transforms.j
 ``sensor_noise.json`` records the parameters. Noise of frame k comes from its own generator (seed, frame index), so a
 rerun writes the same bytes and an interrupted run resumes frame by frame; the temporary files a killed run left
 (``.<name>.partial-*``) are removed when the next run starts.
+
+With :class:`CameraEffects` the copy also gets a robot camera's photometric effects, applied to the linear render
+before the noise: a sensitivity (the scene is darker than the render) and an auto-exposure gain per frame (the camera scales each frame so that its mean linear brightness
+approaches ``target_level``, within [1, ``max_gain``], converging over frames like a real controller) and vignetting
+``V(r) = 1 - vignetting · r²`` (r = 1 at the image corner farthest from the principal point). The truth (every
+frame's gain, the vignetting) goes to ``camera_effects.json`` and the dataset's ``"spotless"`` block gets
+``camera_effects``, so that the trainer's photometric camera turns on by itself (``TrainConfig.photometric``).
 """
 
 from __future__ import annotations
@@ -35,6 +43,7 @@ from spotlessgs.io.seeding import numpy_rng
 from spotlessgs.io.transforms import read_transforms
 
 NOISE_RECORD = "sensor_noise.json"
+EFFECTS_RECORD = "camera_effects.json"
 # Everything of a dataset folder that the noisy copy takes over unchanged (images/ is written anew).
 COPIED = ("gt", "exr", "sparse", "points3d.ply", "plan.json", "transforms.json")
 
@@ -63,6 +72,53 @@ class SensorNoise:
         return np.sqrt(self.shot * np.clip(linear, 0.0, None) + self.read ** 2)
 
 
+@dataclass(frozen=True)
+class CameraEffects:
+    """A robot camera's auto-exposure and vignetting.
+
+    Attributes:
+        sensitivity: what the sensor records of the rendered radiance at gain 1 (0.25: a dark scene that needs a
+            gain of about 4 to reach the target).
+        auto_exposure: scale each frame towards ``target_level`` (False: gain 1 for every frame).
+        target_level: the mean linear brightness auto-exposure aims at.
+        max_gain: the largest gain (the smallest is 1: the render's own exposure).
+        adaptation: share of the way (in log gain) to its target the gain moves each frame (1: at once).
+        vignetting: darkening at the farthest image corner, ``V(1) = 1 - vignetting``, in [0, 1).
+    """
+
+    sensitivity: float = 1.0
+    auto_exposure: bool = True
+    target_level: float = 0.18
+    max_gain: float = 4.0
+    adaptation: float = 0.5
+    vignetting: float = 0.35
+
+    def __post_init__(self) -> None:
+        checks = {"sensitivity": self.sensitivity > 0, "target_level": self.target_level > 0, "max_gain": self.max_gain >= 1,
+                  "adaptation": 0 < self.adaptation <= 1, "vignetting": 0 <= self.vignetting < 1}
+        for name, ok in checks.items():
+            value = getattr(self, name)
+            if not (math.isfinite(value) and ok):
+                raise ValueError(f"CameraEffects: {name} out of range: {value}")
+
+    def gains(self, brightness: np.ndarray) -> np.ndarray:
+        """(N,) exposure gains of N frames in order, from their rendered mean linear brightness (N,) (recorded at
+        gain 1 as ``sensitivity`` times that)."""
+        gains, log_gain = [], 0.0
+        for level in np.asarray(brightness, dtype=np.float64):
+            wanted = self.target_level / max(self.sensitivity * level, 1e-6) if self.auto_exposure else 1.0
+            target = math.log(min(max(wanted, 1.0), self.max_gain))
+            log_gain = target if not gains else log_gain + self.adaptation * (target - log_gain)
+            gains.append(math.exp(log_gain))
+        return np.asarray(gains)
+
+    def falloff(self, height: int, width: int, cx: float, cy: float) -> np.ndarray:
+        """(H, W) vignetting of each pixel centre, principal point (cx, cy) in pixels (corner at 0)."""
+        u, v = np.meshgrid(np.arange(width) + 0.5, np.arange(height) + 0.5)
+        corner = max(math.hypot(x - cx, y - cy) for x in (0, width) for y in (0, height))
+        return 1.0 - self.vignetting * (np.hypot(u - cx, v - cy) / corner) ** 2
+
+
 def add_sensor_noise(linear: np.ndarray, noise: SensorNoise, rng: np.random.Generator) -> np.ndarray:
     """A noisy copy of a linear image.
 
@@ -81,8 +137,10 @@ def add_sensor_noise(linear: np.ndarray, noise: SensorNoise, rng: np.random.Gene
     return np.clip(noisy, 0.0, 1.0).astype(np.float32)
 
 
-def add_sensor_noise_to_dataset(data: str | Path, out: str | Path, noise: SensorNoise, seed: int = 0) -> int:
-    """Write a copy of the finished dataset ``data`` to ``out`` whose spotlight-only images carry sensor noise.
+def add_sensor_noise_to_dataset(data: str | Path, out: str | Path, noise: SensorNoise | None, seed: int = 0,
+                                effects: CameraEffects | None = None) -> int:
+    """Write a copy of the finished dataset ``data`` to ``out`` whose spotlight-only images carry sensor noise
+    (``noise``; None: none) and, with ``effects``, a robot camera's auto-exposure and vignetting.
 
     Returns the number of images written now (frames already written by an earlier run with the same settings are
     kept; temporary files of a killed run are removed first). Raises ValueError naming the folder when ``data`` is not
@@ -95,8 +153,11 @@ def add_sensor_noise_to_dataset(data: str | Path, out: str | Path, noise: Sensor
     if not (data / "transforms.json").is_file():
         raise ValueError(f"{data}: not a finished dataset (no transforms.json)")
     meta = read_transforms(data / "transforms.json")
-    record = {"source": str(data.resolve()), "seed": int(seed), **asdict(noise),
-              "model": "y = x + N(0, shot*x + read^2) in linear intensity, clipped to [0, 1], 8-bit sRGB"}
+    record: dict = {"source": str(data.resolve()), "seed": int(seed),
+                    **(asdict(noise) if noise is not None else {"shot": 0.0, "read": 0.0}),
+                    "model": "y = x + N(0, shot*x + read^2) in linear intensity, clipped to [0, 1], 8-bit sRGB"}
+    if effects is not None:
+        record["camera_effects"] = asdict(effects)
     record_path = out / NOISE_RECORD
     if record_path.is_file():
         old = json.loads(record_path.read_text())
@@ -110,8 +171,21 @@ def add_sensor_noise_to_dataset(data: str | Path, out: str | Path, noise: Sensor
     with folder_lock(out, "spotless-sim add-noise"):  # one writer: a second run would remove its partial files
         remove_partial_files(out)
         write_json(record_path, record)
+        gains = None
+        if effects is not None:  # the exposure of each frame follows the brightness of the frames before it
+            gains = effects.gains(np.array([float(np.mean(read_frame_exr(data / frame.exr_file_path).uneven))
+                                            for _, frame in frames]))
+            intr = meta.intrinsics
+            falloff = effects.falloff(intr.height, intr.width, intr.cx, intr.cy)[..., None]
+            write_json(out / EFFECTS_RECORD, {
+                "gains": {Path(frame.file_path).name: float(g) for (_, frame), g in zip(frames, gains)},
+                **asdict(effects)})
         for name in COPIED:
             src, dst = data / name, out / name
+            if name == "transforms.json" and effects is not None:
+                if not dst.exists():
+                    _write_transforms_with_effects(src, dst, effects)
+                continue
             if not src.exists() or dst.exists():
                 continue
             if src.is_dir():  # copied into a hidden folder that a killed run's successor completes, then renamed
@@ -127,7 +201,21 @@ def add_sensor_noise_to_dataset(data: str | Path, out: str | Path, noise: Sensor
             if target.is_file():
                 continue
             linear = read_frame_exr(data / frame.exr_file_path).uneven
-            noisy = add_sensor_noise(linear, noise, numpy_rng(seed, f"sensor-noise/{index}"))
-            write_png(target, linear_to_srgb(noisy))
+            if gains is not None:
+                linear = linear * (effects.sensitivity * gains[index] * falloff)
+            recorded = np.clip(linear, 0.0, 1.0) if noise is None else add_sensor_noise(
+                linear, noise, numpy_rng(seed, f"sensor-noise/{index}"))
+            write_png(target, linear_to_srgb(recorded))
             written += 1
         return written
+
+
+def _write_transforms_with_effects(src: Path, dst: Path, effects: CameraEffects) -> None:
+    """``src``'s transforms.json with ``camera_effects`` in its "spotless" block (a plain nerfstudio file, which
+    has no block, is copied as it is: the trainer treats it as a real camera's anyway), written atomically to
+    ``dst``."""
+    data = json.loads(src.read_text(encoding="utf-8"))
+    if isinstance(data.get("spotless"), dict):
+        data["spotless"]["camera_effects"] = {"exposure": "auto" if effects.auto_exposure else "fixed",
+                                              "vignetting": effects.vignetting, "record": EFFECTS_RECORD}
+    write_json(dst, data)

@@ -132,8 +132,13 @@ def test_command_line(tmp_path):
     result = CliRunner().invoke(main, ["add-noise", "--data", str(src), "--out", str(tmp_path / "noisy"),
                                        "--shot", "0.005", "--read", "0.01", "--seed", "3"])
     assert result.exit_code == 0, result.output + repr(result.exception)
-    assert "2 noisy image(s)" in result.output
+    assert "wrote 2 image(s)" in result.output
     assert json.loads((tmp_path / "noisy" / NOISE_RECORD).read_text())["shot"] == 0.005
+    result = CliRunner().invoke(main, ["add-noise", "--data", str(src), "--out", str(tmp_path / "robot"),
+                                       "--robot-camera", "--vignetting", "0.2", "--max-gain", "3"])
+    assert result.exit_code == 0, result.output + repr(result.exception)
+    record = json.loads((tmp_path / "robot" / "camera_effects.json").read_text())
+    assert record["vignetting"] == 0.2 and record["max_gain"] == 3.0 and len(record["gains"]) == 2
 
 
 def _tree(root) -> dict:

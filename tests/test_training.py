@@ -263,9 +263,9 @@ def test_a_nan_parameter_never_reaches_a_checkpoint(bedroom, tmp_path, monkeypat
     scenes = []
     real_build, real_loss = trainer_mod.build_optimizers, trainer_mod.photometric_loss
 
-    def capture(scene, config, extent):
+    def capture(scene, config, extent, photometric=None):
         scenes.append(scene)
-        return real_build(scene, config, extent)
+        return real_build(scene, config, extent, photometric)
 
     calls = {"n": 0}
 

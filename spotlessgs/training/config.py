@@ -74,6 +74,17 @@ class TrainConfig:
     # Weight of the light-translation prior ‖t - t_prior‖ (used only when a prior is given).
     light_prior_weight: float = 1.0
 
+    # Photometric camera (spotlessgs.models.photometric): learn a per-frame exposure and the lens's vignetting.
+    # "auto": on for datasets from real cameras (no "spotless" block), off for our simulator's renders (one fixed
+    # exposure, no vignetting) unless their block lists camera effects; "on"; "off".
+    photometric: str = "auto"
+    # What the photometric camera learns when on: the frames' exposures, the vignetting.
+    learn_exposure: bool = True
+    learn_vignetting: bool = True
+    # Adam learning rates of the frames' log-gains and of the vignetting coefficients.
+    lr_exposure: float = 2e-2
+    lr_vignetting: float = 2e-3
+
     # ---- held-out validation views and the Gaussian budget (spotlessgs.training.validation / .budget) ----------------
     # Hold out every k-th training view (by position in the training split, never a test view) as a validation view
     # that is not fitted; 0 = fit every training view.
@@ -117,6 +128,8 @@ class TrainConfig:
     device: str = "auto"
 
     def __post_init__(self) -> None:
+        if self.photometric not in ("auto", "on", "off"):
+            raise ValueError(f"TrainConfig: photometric must be 'auto', 'on' or 'off', got {self.photometric!r}")
         if self.validation_every < 0 or self.validation_every == 1:
             raise ValueError(f"TrainConfig: validation_every must be 0 (off) or >= 2, got {self.validation_every}")
         if self.validation_average < 1:

@@ -8,6 +8,7 @@ the working pixels without an input sample are marked ``unseen`` and take no par
 from __future__ import annotations
 
 import logging
+import math
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -19,6 +20,7 @@ from spotlessgs.io.camera_batch import Cameras
 from spotlessgs.io.colorspace import srgb_to_linear
 from spotlessgs.io.dataset import load_initial_points, read_dataset
 from spotlessgs.io.frame_quality import FrameStats, frame_stats, usable_frames
+from spotlessgs.io.exposure import frame_exposures
 from spotlessgs.io.images import read_image
 from spotlessgs.io.lens import remap, undistort_maps, working_camera
 from spotlessgs.io.ply import PointCloud
@@ -40,6 +42,9 @@ class TrainingViews:
             dataset's own, or for a distorted lens its working camera.
         unseen: (H, W) bool, True where a working-camera pixel has no sample of the input image (outside the
             distorted image's edges); None for a pinhole camera.
+        radius: (H, W) float32 distance of each pixel's sample from the principal point in the input image, 1 at the
+            farthest corner (what vignetting depends on).
+        exposures: the frames' known exposures (shutter time × gain, ``spotlessgs.io.exposure``), or None.
         train: indices of training views; test: indices of held-out views.
         light: the true spotlight (simulated data) or None.
     """
@@ -53,6 +58,8 @@ class TrainingViews:
     test: list[int]
     light: LightTruth | None
     unseen: torch.Tensor | None = None
+    radius: torch.Tensor | None = None
+    exposures: list[float] | None = None
 
     def scene_extent(self) -> float:
         """Radius of the camera centres around their mean × 1.1 (3DGS's 'cameras extent'); at least 0.1 m."""
@@ -103,9 +110,15 @@ def load_training_views(
         intr = working.scaled(image_width / native.width)
     size = (int(intr.height), int(intr.width))
     unseen = None
-    if not native.is_pinhole:
+    if native.is_pinhole:
+        u, v = np.meshgrid(np.arange(native.width) + 0.5, np.arange(native.height) + 0.5)
+    else:
         map_x, map_y, valid = undistort_maps(native, working)
         unseen = F.adaptive_max_pool2d(torch.from_numpy(~valid)[None, None].float(), size)[0, 0] > 0
+        u, v = map_x + 0.5, map_y + 0.5  # where each working pixel samples the input image
+    corner = max(math.hypot(x - native.cx, y - native.cy) for x in (0, native.width) for y in (0, native.height))
+    radius = np.hypot(u - native.cx, v - native.cy).astype(np.float32) / corner
+    radius = F.interpolate(torch.from_numpy(radius)[None, None], size=size, mode="area")[0, 0]
     imgs, masks, stats = [], [], []
     for path in dataset.image_paths:
         img, sat, quality = _load_linear(path, linear_input, saturation_threshold)
@@ -130,6 +143,8 @@ def load_training_views(
         test=list(dataset.split.test),
         light=dataset.light,
         unseen=unseen,
+        radius=radius,
+        exposures=frame_exposures(dataset.image_paths),
     )
 
 

@@ -29,6 +29,7 @@ from spotlessgs.io.provenance import provenance
 from spotlessgs.io.seeding import numpy_rng, torch_generator
 from spotlessgs.metrics import psnr_from_mse
 from spotlessgs.models.gaussians import GaussianParams
+from spotlessgs.models.photometric import PhotometricCamera
 from spotlessgs.models.relightable import RelightableScene
 from spotlessgs.models.shading import MODEL_VARIANTS, ModelConfig
 from spotlessgs.rasterizer.cpp_kernel import numerics_record
@@ -123,8 +124,10 @@ def build_scene(
     return RelightableScene.create(cfg, gaussians, seed=seed, **light_init)
 
 
-def build_optimizers(scene: RelightableScene, config: TrainConfig, extent: float) -> dict[str, torch.optim.Optimizer]:
-    """One Adam per per-Gaussian parameter (so densification can edit its state) plus the appearance modules."""
+def build_optimizers(scene: RelightableScene, config: TrainConfig, extent: float,
+                     photometric: PhotometricCamera | None = None) -> dict[str, torch.optim.Optimizer]:
+    """One Adam per per-Gaussian parameter (so densification can edit its state) plus the appearance modules and the
+    photometric camera."""
     lrs = {
         "means": config.lr_means_init * extent, "quats": config.lr_quats, "log_scales": config.lr_scales,
         "opacity_logits": config.lr_opacity, "albedo_raw": config.lr_albedo, "normals_raw": config.lr_normals,
@@ -150,6 +153,11 @@ def build_optimizers(scene: RelightableScene, config: TrainConfig, extent: float
         groups.append({"params": brdf_params, "lr": config.lr_brdf})
     if groups:
         opts["appearance"] = torch.optim.Adam(groups, eps=1e-15, fused=True)
+    if photometric is not None:
+        camera = [{"params": [p], "lr": lr} for p, lr in ((photometric.log_gain, config.lr_exposure),
+                                                           (photometric.coefficients, config.lr_vignetting))
+                  if p is not None]
+        opts["photometric"] = torch.optim.Adam(camera, eps=1e-15)
     return opts
 
 
@@ -184,7 +192,7 @@ def fitted_view(seed: int, step: int, train: Sequence[int], split: ViewSplit, co
 
 def make_strategy(
     config: TrainConfig, extent: float, seed: int, device: torch.device, scene: RelightableScene,
-    views: TrainingViews, split: ViewSplit,
+    views: TrainingViews, split: ViewSplit, photometric: PhotometricCamera | None = None,
 ) -> DensifyStrategy:
     """The default densification strategy, or the Gaussian budget's when ``config.gaussian_budget``."""
     generator = torch_generator(seed, "densify", device=str(device))
@@ -197,7 +205,7 @@ def make_strategy(
 
     def validate(_gaussians: GaussianParams) -> float:
         return validation_psnr(scene, cameras, images, split.validation, config.raster_backend, config.num_threads,
-                               scored)
+                               scored, photometric)
 
     def contributions(g: GaussianParams) -> torch.Tensor:
         return gaussian_contributions(g.means, g.quats, g.scales, g.opacities, cameras, contribution_views,
@@ -219,14 +227,38 @@ def densify_config(config: TrainConfig) -> DensifyConfig:
 # ---- checkpoints ---------------------------------------------------------------------------------------------------
 
 
-def _payload(step: int, scene: RelightableScene, opts, strategy: DensifyStrategy) -> dict[str, Any]:
-    return {
+def _payload(step: int, scene: RelightableScene, opts, strategy: DensifyStrategy,
+             photometric: PhotometricCamera | None) -> dict[str, Any]:
+    payload = {
         "step": step,
         "gaussians": {k: v.detach().clone() for k, v in scene.gaussians.params.items()},
         "appearance": scene.modules_.state_dict(),
         "optimizers": {k: o.state_dict() for k, o in opts.items()},
         "strategy": strategy.state_dict(),
     }
+    if photometric is not None:
+        payload["photometric"] = photometric.state_dict()
+    return payload
+
+
+def photometric_enabled(config: TrainConfig, views: TrainingViews) -> bool:
+    """``config.photometric``, with ``auto`` on for a dataset from a real camera (no "spotless" block) or one whose
+    block lists ``camera_effects``, off for our simulator's renders (one fixed exposure, no vignetting)."""
+    if config.photometric != "auto":
+        return config.photometric == "on"
+    meta = views.dataset.meta
+    return "scene_id" not in meta or bool(meta.get("camera_effects"))
+
+
+def build_photometric(config: TrainConfig, views: TrainingViews, split: ViewSplit,
+                      device: torch.device) -> PhotometricCamera | None:
+    """The photometric camera of a run (None when off): exposures start from the frames' known ones when every
+    frame has one."""
+    if not photometric_enabled(config, views):
+        return None
+    prior = None if views.exposures is None else torch.log(torch.tensor(views.exposures, dtype=torch.float64))
+    return PhotometricCamera(len(views.names), split.fit, views.radius, config.learn_exposure, config.learn_vignetting,
+                             log_gain_prior=prior).to(device)
 
 
 def restore_scene(ckpt: dict[str, Any], run_info: dict[str, Any], config: TrainConfig) -> RelightableScene:
@@ -332,7 +364,10 @@ def _train_locked(data_dir: Path, run_dir: Path, variant: str | ModelConfig, con
             raise InputError(f"{run_dir / 'config.json'}: damaged run settings: 'run' is not a JSON object")
         # the dataset may have moved (--data DIR), an older version wrote the file: not another setting
         moved = ("data_dir", "data_dir_relative", "schema_version")
-        if old["train"] != resolved["train"] or ({k: v for k, v in old["run"].items() if k not in moved}
+        # settings added since the run began take their defaults (what the run trained with)
+        defaults = {f.name: f.default for f in dataclasses.fields(TrainConfig)}
+        old_train = {**defaults, **old["train"]} if isinstance(old["train"], dict) else old["train"]
+        if json.loads(json.dumps(old_train)) != resolved["train"] or ({k: v for k, v in old["run"].items() if k not in moved}
                                                  != {k: v for k, v in run_info.items() if k not in moved}):
             raise ValueError(f"{run_dir}: --resume with other settings than the run was started with")
         write_json(run_dir / "run.json", run_info)  # where the dataset is now
@@ -352,13 +387,19 @@ def _train_locked(data_dir: Path, run_dir: Path, variant: str | ModelConfig, con
     cameras = views.cameras.to(device)
     # pixels the loss leaves alone (held out, or with no input sample) and the pixels the held-out scores use
     ignored, scored = fitted_and_scored_pixels(held_out, _unseen(views, device), len(views.names))
+    photometric = build_photometric(config, views, split, device)  # exposure and vignetting, or None
 
     start = 0
     if resume and has_checkpoint:
         ckpt = load_checkpoint(run_dir)
         scene = restore_scene(ckpt, run_info, config).to(device)
-        strategy = make_strategy(config, extent, seed, device, scene, views, split)
-        opts = build_optimizers(scene, config, extent)
+        if photometric is not None:
+            if "photometric" not in ckpt:
+                raise InputError(f"{ckpt_file}: the run was trained without a photometric camera; resume it with "
+                                 "photometric 'off'")
+            photometric.load_state_dict(ckpt["photometric"])
+        strategy = make_strategy(config, extent, seed, device, scene, views, split, photometric)
+        opts = build_optimizers(scene, config, extent, photometric)
         for k, o in opts.items():
             o.load_state_dict(ckpt["optimizers"][k])
         strategy.load_state_dict(ckpt["strategy"])
@@ -371,8 +412,8 @@ def _train_locked(data_dir: Path, run_dir: Path, variant: str | ModelConfig, con
         if init_from is not None:
             scene = warm_start_scene(scene, load_checkpoint(Path(init_from)), str(init_from))
         scene = scene.to(device)
-        strategy = make_strategy(config, extent, seed, device, scene, views, split)
-        opts = build_optimizers(scene, config, extent)
+        strategy = make_strategy(config, extent, seed, device, scene, views, split, photometric)
+        opts = build_optimizers(scene, config, extent, photometric)
         write_json(run_dir / "run.json", run_info)
         numerics = numerics_record(config.num_threads, device.type)
         write_json(run_dir / "config.json", {"schema_version": RUN_SCHEMA_VERSION, **resolved,
@@ -391,7 +432,7 @@ def _train_locked(data_dir: Path, run_dir: Path, variant: str | ModelConfig, con
     def score_held_out() -> dict:
         scene.eval()
         score = held_out_score(scene, cameras, images, score_views, config.raster_backend, config.num_threads,
-                               pixel_masks=scored)
+                               pixel_masks=scored, photometric=photometric)
         scene.train()
         return {"validation_psnr": score.psnr, "validation_psnr_dark": score.psnr_dark}
 
@@ -414,13 +455,15 @@ def _train_locked(data_dir: Path, run_dir: Path, variant: str | ModelConfig, con
             if not torch.isfinite(out.image).all():
                 raise TrainingDivergedError(f"step {step}: the render of view {views.names[k]} has NaN/Inf; "
                                             f"the last good checkpoint {ckpt_file} is intact")
+            # what the camera records of the rendered radiance: the frame's exposure and the lens's vignetting
+            recorded = out.image if photometric is None else photometric(out.image, k)
             target, clipped = images[k], saturated[k]
             # Held-out and unseen pixels show the render itself, clamped to [0, 1], and count as clipped: no error and
             # no gradient there (a render above 1 meets a clipped target of 1, which the clipped L1 does not penalise).
             if ignored is not None:
-                target = torch.where(ignored[k][..., None], out.image.detach().clamp(0.0, 1.0), target)
+                target = torch.where(ignored[k][..., None], recorded.detach().clamp(0.0, 1.0), target)
                 clipped = clipped | ignored[k]
-            loss, parts = photometric_loss(out.image, target, clipped, config.ssim_lambda)
+            loss, parts = photometric_loss(recorded, target, clipped, config.ssim_lambda)
             if prior is not None and scene.appearance.light is not None:
                 loss = loss + scene.appearance.light.light_prior_loss(prior, config.light_prior_weight)
             loss_value = float(loss.detach())
@@ -438,7 +481,7 @@ def _train_locked(data_dir: Path, run_dir: Path, variant: str | ModelConfig, con
             if s % config.log_every == 0 or s == end or held:
                 elapsed = time.perf_counter() - t0
                 rec = {"step": s, "loss": loss_value, "l1": parts["l1"], "ssim": parts["ssim"],
-                       "psnr": _psnr(out.image, images[k]), "gaussians": len(scene.gaussians),
+                       "psnr": _psnr(recorded, images[k]), "gaussians": len(scene.gaussians),
                        "ms_per_step": 1000.0 * elapsed / (s - start), **{k2: v for k2, v in changes.items() if v},
                        **held}
                 _append_line(metrics_file, metrics_path, json.dumps(rec))
@@ -448,7 +491,7 @@ def _train_locked(data_dir: Path, run_dir: Path, variant: str | ModelConfig, con
                 # A NaN parameter of a visible Gaussian already shows in the next render (checked every step);
                 # this check, before every save, keeps any other one out of the checkpoint.
                 _check_finite(scene, step, ckpt_file)
-                save_checkpoint(run_dir, _payload(s, scene, opts, strategy))
+                save_checkpoint(run_dir, _payload(s, scene, opts, strategy, photometric))
             if stop.requested:  # Ctrl-C / SIGTERM: the step is finished and saved; `--resume` continues from it
                 log.warning("stopped at step %d; the checkpoint %s holds it (resume with --resume)", s, ckpt_file)
                 stop.raise_if_requested()
@@ -462,7 +505,7 @@ def _train_locked(data_dir: Path, run_dir: Path, variant: str | ModelConfig, con
     # Ctrl-C after the last step's check: its checkpoint is saved (every run saves its last step), so stop before the
     # final evaluation instead of waiting for it; `--resume` evaluates
     _stop_after_training(stop, end, ckpt_file)
-    test_psnr = evaluate_reconstruction(scene, views, config) if end == config.iterations else None
+    test_psnr = evaluate_reconstruction(scene, views, config, photometric) if end == config.iterations else None
     _stop_after_training(stop, end, ckpt_file)
     val_psnr = val_dark = None
     if end == config.iterations and score_views:
@@ -478,12 +521,16 @@ def _train_locked(data_dir: Path, run_dir: Path, variant: str | ModelConfig, con
                          loss_value, test_psnr, val_psnr, val_dark)
     if end == config.iterations:
         write_light_report(scene, views, run_dir)
+        if photometric is not None:
+            write_json(run_dir / "photometric.json", {"schema_version": RUN_SCHEMA_VERSION,
+                                                      **photometric.report(views.names)})
         write_json(run_dir / "train_summary.json", {"schema_version": RUN_SCHEMA_VERSION,
             "steps": result.steps, "seconds_this_session": seconds, "ms_per_step": result.ms_per_step,
             "num_gaussians": result.num_gaussians,
             "final_loss": loss_value if math.isfinite(loss_value) else None,  # None: resumed a finished run
             "test_psnr_reconstruction": test_psnr, "device": str(device),
             "validation_views": split.validation, "validation_psnr": val_psnr, "validation_psnr_dark": val_dark,
+            "photometric": photometric is not None,
         })
         if isinstance(strategy, BudgetStrategy):
             write_json(run_dir / "gaussian_budget.json", {"schema_version": RUN_SCHEMA_VERSION,
@@ -555,8 +602,11 @@ def saved_train_config(path: Path) -> TrainConfig:
 
 
 @torch.no_grad()
-def evaluate_reconstruction(scene: RelightableScene, views: TrainingViews, config: TrainConfig) -> float | None:
-    """Mean PSNR (linear, clamped to [0, 1]) of the spotlight-lit renders of the test views against the inputs."""
+def evaluate_reconstruction(scene: RelightableScene, views: TrainingViews, config: TrainConfig,
+                            photometric: PhotometricCamera | None = None) -> float | None:
+    """Mean PSNR (linear, clamped to [0, 1]) of the spotlight-lit renders of the test views against the inputs
+    (through the photometric camera when given: its vignetting, and the test views' exposures, which no loss fits:
+    their known ones, else the reference)."""
     if not views.test:
         return None
     cameras = views.cameras.to(views.images.device)
@@ -564,7 +614,8 @@ def evaluate_reconstruction(scene: RelightableScene, views: TrainingViews, confi
     values = []
     for k in views.test:
         out = scene.render(cameras[k], backend=config.raster_backend, num_threads=config.num_threads)
-        values.append(_psnr(out.image, views.images[k], unseen))
+        image = out.image if photometric is None else photometric(out.image, k)
+        values.append(_psnr(image, views.images[k], unseen))
     return float(np.mean(values))
 
 

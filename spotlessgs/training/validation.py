@@ -22,6 +22,7 @@ import torch
 from spotlessgs.io.camera_batch import Cameras
 from spotlessgs.io.seeding import torch_generator
 from spotlessgs.metrics import psnr_from_mse
+from spotlessgs.models.photometric import PhotometricCamera
 from spotlessgs.models.relightable import RelightableScene
 from spotlessgs.rasterizer import rasterize
 
@@ -114,6 +115,7 @@ class HeldOutScore:
 def held_out_score(
     scene: RelightableScene, cameras: Cameras, images: torch.Tensor, indices: Sequence[int], backend: str = "auto",
     num_threads: int | None = None, pixel_masks: torch.Tensor | None = None, dark_quantile: float = 0.5,
+    photometric: PhotometricCamera | None = None,
 ) -> HeldOutScore:
     """PSNR (dB) of the spotlight-lit renders against the input images over ``indices``, on all scored pixels and on
     the darkest ``dark_quantile`` of them.
@@ -123,6 +125,7 @@ def held_out_score(
         indices: the views to render (non-empty).
         pixel_masks: optional (V, H, W) bool: score only these pixels of each view (held-out blocks).
         dark_quantile: in (0, 1]: the share of scored pixels, darkest first by observed brightness, in ``psnr_dark``.
+        photometric: the run's photometric camera: renders are compared as the camera records them.
 
     The squared error is averaged over all scored pixels of all views before the log, so one easy view cannot hide a
     bad one. Relighting removes the spotlight but keeps the low-frequency light, so an error of that light matters in
@@ -135,7 +138,8 @@ def held_out_score(
     errors, brightness = [], []
     for k in indices:
         out = scene.render(cameras[k], backend=backend, num_threads=num_threads)
-        sq = ((out.image.clamp(0, 1) - images[k]) ** 2).mean(-1)  # (H, W), mean over the colour channels
+        recorded = out.image if photometric is None else photometric(out.image, k)
+        sq = ((recorded.clamp(0, 1) - images[k]) ** 2).mean(-1)  # (H, W), mean over the colour channels
         seen = images[k].mean(-1)
         if pixel_masks is not None:
             mask = pixel_masks[k].to(sq.device)
@@ -152,9 +156,11 @@ def held_out_score(
 def validation_psnr(
     scene: RelightableScene, cameras: Cameras, images: torch.Tensor, indices: Sequence[int], backend: str = "auto",
     num_threads: int | None = None, pixel_masks: torch.Tensor | None = None,
+    photometric: PhotometricCamera | None = None,
 ) -> float:
     """PSNR (dB) over all scored pixels (:func:`held_out_score` ``.psnr``; arguments as there)."""
-    return held_out_score(scene, cameras, images, indices, backend, num_threads, pixel_masks).psnr
+    return held_out_score(scene, cameras, images, indices, backend, num_threads, pixel_masks,
+                          photometric=photometric).psnr
 
 
 def evenly_spaced(indices: Sequence[int], count: int) -> list[int]:
