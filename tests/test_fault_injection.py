@@ -50,7 +50,10 @@ def interrupt_cycles(command: list[str], cycles: int, seed: int, delay: tuple[fl
         wait = float(rng.uniform(*delay))
         signum = STOP_SIGNALS[int(rng.integers(len(STOP_SIGNALS)))]
         args = command if cycle == 0 else [*command, *resume_args]
-        proc = subprocess.Popen(args, env=ENV, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
+        # SIGINT restored to its default: a suite started in the background by a shell without job control would
+        # leave it ignored in the command, which would then run on instead of stopping
+        proc = subprocess.Popen(args, env=ENV, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True,
+                                preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
         try:
             proc.wait(timeout=wait)  # finished before the signal: nothing to interrupt
         except subprocess.TimeoutExpired:

@@ -701,14 +701,17 @@ def test_every_preset_camera_loop_is_admissible(name):
 def _start_pipeline(script: str, tmp_path: Path, **popen_kwargs):
     """Run ``script`` (a pipeline whose one stage is :func:`sleep_forever`) in a new Python process; return the
     process and the stage worker's pid once the stage runs. The script gets sys.argv = [tests dir, repository root,
-    pid file, pipeline root]."""
+    pid file, pipeline root]. SIGINT is restored to its default in the new process (a shell without job control
+    that started the test suite in the background ignores SIGINT in it, and Python would then never raise
+    KeyboardInterrupt)."""
+    import signal
     import subprocess
     import sys
 
     pid_file = tmp_path / "pid"
     here, root = str(Path(__file__).parent), str(Path(__file__).parents[1])
     parent = subprocess.Popen([sys.executable, "-c", script, here, root, str(pid_file), str(tmp_path / "root")],
-                              **popen_kwargs)
+                              preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL), **popen_kwargs)
     deadline = time.time() + 60
     while not pid_file.exists() or not pid_file.read_text():
         assert time.time() < deadline and parent.poll() is None, "the stage never started"
