@@ -119,6 +119,17 @@ def _pixel_centres(width: int, height: int) -> np.ndarray:
     return np.stack([u, v], -1).reshape(-1, 2)
 
 
+def _sampling_maps(rays: np.ndarray, source: Intrinsics, height: int, width: int,
+                   ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Where the normalised ``rays`` (H * W, 2) of an H × W image land in an image of camera ``source``: map_x,
+    map_y (H, W) float32 in OpenCV's convention and valid (H, W) bool (inside that image)."""
+    px = distort(source, rays) - 0.5
+    map_x = px[:, 0].reshape(height, width).astype(np.float32)
+    map_y = px[:, 1].reshape(height, width).astype(np.float32)
+    valid = (map_x >= -0.5) & (map_x <= source.width - 0.5) & (map_y >= -0.5) & (map_y <= source.height - 0.5)
+    return map_x, map_y, valid
+
+
 def undistort_maps(intr: Intrinsics, working: Intrinsics) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """For each pixel of the ``working`` (pinhole) image, where to sample the input image of camera ``intr``.
 
@@ -126,12 +137,8 @@ def undistort_maps(intr: Intrinsics, working: Intrinsics) -> tuple[np.ndarray, n
         map_x, map_y: (Hw, Ww) float32 positions in the input image in OpenCV's convention (for ``cv2.remap``);
         valid: (Hw, Ww) bool, True where that position lies inside the input image.
     """
-    xy = undistort(working, _pixel_centres(working.width, working.height))
-    px = distort(intr, xy) - 0.5
-    map_x = px[:, 0].reshape(working.height, working.width).astype(np.float32)
-    map_y = px[:, 1].reshape(working.height, working.width).astype(np.float32)
-    valid = (map_x >= -0.5) & (map_x <= intr.width - 0.5) & (map_y >= -0.5) & (map_y <= intr.height - 0.5)
-    return map_x, map_y, valid
+    rays = undistort(working, _pixel_centres(working.width, working.height))
+    return _sampling_maps(rays, intr, working.height, working.width)
 
 
 def distort_maps(intr: Intrinsics, working: Intrinsics) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -140,12 +147,8 @@ def distort_maps(intr: Intrinsics, working: Intrinsics) -> tuple[np.ndarray, np.
     Returns ``map_x``, ``map_y`` (H, W) float32 (OpenCV's convention) and ``valid`` (H, W) bool as
     :func:`undistort_maps`.
     """
-    xy = undistort(intr, _pixel_centres(intr.width, intr.height))
-    px = distort(working, xy) - 0.5
-    map_x = px[:, 0].reshape(intr.height, intr.width).astype(np.float32)
-    map_y = px[:, 1].reshape(intr.height, intr.width).astype(np.float32)
-    valid = (map_x >= -0.5) & (map_x <= working.width - 0.5) & (map_y >= -0.5) & (map_y <= working.height - 0.5)
-    return map_x, map_y, valid
+    rays = undistort(intr, _pixel_centres(intr.width, intr.height))
+    return _sampling_maps(rays, working, intr.height, intr.width)
 
 
 def remap(image: np.ndarray, map_x: np.ndarray, map_y: np.ndarray) -> np.ndarray:
