@@ -25,7 +25,7 @@ import numpy as np
 
 from evaluation.trajectory import TrajectoryErrors, pool_trajectory_errors, trajectory_errors
 from spotlessgs.io.cameras import Intrinsics
-from spotlessgs.io.colmap_text import ColmapCamera
+from spotlessgs.io.colmap_text import SUPPORTED_MODELS, ColmapCamera
 
 
 @dataclass(frozen=True)
@@ -41,10 +41,14 @@ class SfmConfig:
     refine_intrinsics: bool = False  # let bundle adjustment refine known intrinsics (False keeps them fixed)
     all_models: bool = True  # pool the statistics of every sub-model the mapper builds (False: the largest only)
     verbose: bool = False  # let COLMAP log its INFO messages to stderr (False: warnings and errors only)
+    camera_model: str = "SIMPLE_RADIAL"  # the COLMAP camera model estimated when the intrinsics are not given
 
     def __post_init__(self) -> None:
         if self.matcher not in ("sequential", "exhaustive"):
             raise ValueError(f"matcher must be 'sequential' or 'exhaustive', got {self.matcher!r}")
+        if self.camera_model not in SUPPORTED_MODELS:
+            raise ValueError(f"SfmConfig.camera_model must be one of {list(SUPPORTED_MODELS)}, got "
+                             f"{self.camera_model!r}")
         for name in ("sequential_overlap", "max_num_features", "min_num_matches", "num_threads"):
             if getattr(self, name) < 1:
                 raise ValueError(f"SfmConfig.{name} must be at least 1, got {getattr(self, name)}")
@@ -213,7 +217,7 @@ def _pipeline(
         reader.camera_model = camera.model
         reader.camera_params = ",".join(repr(float(v)) for v in camera.params)
     else:
-        reader.camera_model = "SIMPLE_RADIAL"
+        reader.camera_model = config.camera_model
     extraction = pycolmap.FeatureExtractionOptions()
     extraction.num_threads = config.num_threads
     extraction.use_gpu = False

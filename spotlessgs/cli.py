@@ -133,6 +133,36 @@ def render(run_dir, which, out_dir, exr, data_dir, device, quiet):
 
 
 @main.command()
+@click.option("--images", "images_dir", required=True,
+              type=click.Path(exists=True, file_okay=False, path_type=Path),
+              help="The spotlit frames (PNG/JPEG), in time order by file name.")
+@click.option("--out", "out_dir", required=True, type=click.Path(file_okay=False, path_type=Path),
+              help="The dataset folder to write: images/, sparse/0 (COLMAP), prepare.json.")
+@click.option("--camera-model", default="SIMPLE_RADIAL", show_default=True,
+              type=click.Choice(["SIMPLE_PINHOLE", "PINHOLE", "SIMPLE_RADIAL", "RADIAL", "OPENCV", "FULL_OPENCV",
+                                 "OPENCV_FISHEYE"]),
+              help="The COLMAP camera model that structure from motion estimates.")
+@click.option("--matcher", default="sequential", show_default=True, type=click.Choice(["sequential", "exhaustive"]),
+              help="Image pairs to match: each frame with its successors (video), or every pair.")
+@click.option("--truth", "truth_dir", type=click.Path(exists=True, file_okay=False, path_type=Path), default=None,
+              help="A dataset with the true poses of these frames (by file name): the summary gets the pose error.")
+@click.option("--threads", type=click.IntRange(1), default=1, show_default=True)
+@click.option("--seed", default=0, show_default=True, type=int)
+@click.option("-q", "--quiet", is_flag=True)
+def prepare(images_dir, out_dir, camera_model, matcher, truth_dir, threads, seed, quiet):
+    """Turn a folder of spotlit frames into a dataset: structure from motion on brightened copies, the originals
+    kept for training; frames that do not register are named."""
+    from spotlessgs.prepare import prepare_images
+
+    summary = prepare_images(images_dir, out_dir, camera_model, matcher, truth=truth_dir, threads=threads, seed=seed,
+                             progress=None if quiet else (lambda name: click.echo(f"prepare: {name}", err=True)))
+    error = summary.get("pose_error")
+    click.echo(f"{out_dir}: {summary['registered']} of {summary['frames']} frames registered"
+               + (f", pose error {error['ate_rmse_m']:.3f} m RMSE after similarity alignment" if error else "")
+               + (f"; not registered: {', '.join(summary['not_registered'])}" if summary["not_registered"] else ""))
+
+
+@main.command()
 @click.argument("run_dir", type=click.Path(exists=True, file_okay=False, path_type=Path))
 @click.option("--out", "out_path", required=True, type=click.Path(dir_okay=False, path_type=Path))
 @click.option("--l0", nargs=3, type=click.FloatRange(0), default=(1.0, 1.0, 1.0), show_default=True, metavar="R G B")

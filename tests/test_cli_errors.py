@@ -104,6 +104,14 @@ def _unsupported_camera_model(tmp, s):
     return _colmap_camera(tmp, s, "1 FOV 64 48 50 50 32 24 0.5")
 
 
+def _undecodable_frame(tmp, s):
+    frames = tmp / "frames"
+    frames.mkdir()
+    shutil.copy(sorted((s["data"] / "images").glob("*.png"))[0], frames / "a.png")
+    (frames / "b.png").write_bytes(b"not a png")
+    return "spotless", ["prepare", "--images", str(frames), "--out", str(tmp / "prepared"), "-q"]
+
+
 def _out_inside_data(tmp, s):
     data = _data_copy(tmp, s)
     return "spotless", ["train", "--data", str(data), "--out", str(data / "run"), *TRAIN]
@@ -275,6 +283,7 @@ CASES = [
     Case("train: a folder that is no dataset", _not_a_dataset, 2, ("{tmp}/photos",)),
     Case("train: a lens that cannot be inverted", _folding_lens, 2, ("cameras.txt", "cannot be inverted")),
     Case("train: an unsupported COLMAP camera model", _unsupported_camera_model, 2, ("cameras.txt", "FOV")),
+    Case("prepare: a frame that cannot be decoded", _undecodable_frame, 2, ("{tmp}/frames/b.png", "cannot be decoded")),
     Case("train: run folder inside the dataset", _out_inside_data, 2, ("inside the input --data",)),
     Case("train: existing run without --resume", _existing_run_without_resume, 2, ("--resume",)),
     Case("train: --resume with another model", _resume_other_settings, 2, ("{tmp}/run",)),

@@ -1,0 +1,177 @@
+"""``spotless prepare --images DIR --out DATA``: a folder of spotlit frames becomes a dataset (COLMAP model + images).
+
+Dark spotlit frames starve feature detectors, so structure from motion runs on brightened copies (CLAHE on the
+lightness, ``spotlessgs.baselines2d.clahe``, as DarkGS brightens its frames for COLMAP) while the dataset keeps the
+original frames for training. The camera (model given, intrinsics estimated by bundle adjustment unless given) and
+the poses come from pycolmap's incremental mapper (``evaluation.sfm.run_sfm``, sequential matching for video order).
+The largest model becomes ``DATA/sparse/0``; every frame it does not register is named in the summary and in a
+warning, never dropped silently.
+
+    DATA/images/          the original frames (copied)
+    DATA/sparse/0/        the COLMAP model of the registered frames (binary)
+    DATA/sfm/             the brightened copies and COLMAP's work folder
+    DATA/prepare.json     what registered, the camera, and (with --truth) the pose error after similarity alignment
+"""
+
+from __future__ import annotations
+
+import logging
+import shutil
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from evaluation.sfm import SfmConfig, run_sfm
+from evaluation.trajectory import trajectory_errors
+from spotlessgs.baselines2d.clahe import clahe
+from spotlessgs.io.atomic import atomic_path, write_json
+from spotlessgs.io.cameras import Intrinsics
+from spotlessgs.io.colmap_text import read_colmap_model
+from spotlessgs.io.dataset import read_dataset
+from spotlessgs.io.errors import InputError
+from spotlessgs.io.images import list_image_files, read_image, write_png
+from spotlessgs.io.paths import refuse_overlap
+from spotlessgs.io.provenance import provenance
+
+log = logging.getLogger(__name__)
+
+SUMMARY_FILE = "prepare.json"
+# Registration below this share of the frames is reported as a warning (the dataset is still written).
+MIN_REGISTERED_SHARE = 0.9
+
+
+def brighten(image: np.ndarray) -> np.ndarray:
+    """(H, W, 3) sRGB in [0, 1] -> the copy SfM sees: CLAHE of its lightness (dark corners get features too)."""
+    return clahe(image)
+
+
+def _read_frames(names: list[Path]) -> tuple[int, int]:
+    """(width, height) shared by every frame; InputError naming a frame that cannot be decoded or has another size."""
+    size = None
+    for path in names:
+        try:
+            image = read_image(path)
+        except (OSError, ValueError) as exc:
+            raise InputError(f"{path}: cannot be decoded as an image ({exc})") from None
+        if size is None:
+            size = (image.shape[1], image.shape[0])
+        elif (image.shape[1], image.shape[0]) != size:
+            raise InputError(f"{path}: image is {image.shape[1]}x{image.shape[0]}, the first frame {names[0].name} is "
+                             f"{size[0]}x{size[1]}; one camera needs one image size")
+    return size
+
+
+def prepare_images(
+    images_dir: str | Path, out: str | Path, camera_model: str = "SIMPLE_RADIAL", matcher: str = "sequential",
+    intrinsics: Intrinsics | None = None, truth: str | Path | None = None, threads: int = 1, seed: int = 0,
+    progress: Callable[[str], None] | None = None,
+) -> dict[str, Any]:
+    """Turn the frames in ``images_dir`` into a COLMAP dataset in ``out`` (see the module docstring).
+
+    Args:
+        images_dir: the spotlit frames, in time order by file name.
+        out: the dataset folder to write (must not overlap ``images_dir``).
+        camera_model: the COLMAP model estimated (``OPENCV``, ``SIMPLE_RADIAL``, ``OPENCV_FISHEYE``, ...) when
+            ``intrinsics`` is not given.
+        matcher: ``sequential`` (video order) or ``exhaustive``.
+        intrinsics: the known camera (kept fixed), or None.
+        truth: a dataset whose poses are the truth for these frames (by file name): the summary then has the pose
+            error after similarity alignment.
+        threads, seed: COLMAP's threads and random seed.
+        progress: called with each step's name.
+    Returns:
+        the summary written to ``out/prepare.json``.
+    Raises:
+        InputError: a frame cannot be decoded or has another size, ``out`` overlaps the input, or SfM registered
+            fewer than two frames (the summary is written first).
+    """
+    images_dir, out = Path(images_dir), Path(out)
+    refuse_overlap(out, {"--images": images_dir}, "--out")
+    frames = list_image_files(images_dir)
+    width, height = _read_frames(frames)
+    names = [p.name for p in frames]
+    step = progress or (lambda _name: None)
+    step("brightened copies")
+    brightened = out / "sfm" / "input"
+    for path in frames:
+        target = brightened / f"{path.stem}.png"
+        if not target.is_file():
+            write_png(target, brighten(read_image(path)))
+    sfm_names = [f"{p.stem}.png" for p in frames]
+    config = SfmConfig(matcher=matcher, num_threads=threads, seed=seed, camera_model=camera_model, all_models=False)
+    result = run_sfm(brightened, sfm_names, out / "sfm" / "work", config, intrinsics, progress=step)
+    model_dir = _largest_model(out / "sfm" / "work" / "sparse")
+    registered = set() if model_dir is None else {im.name for im in read_colmap_model(model_dir).images.values()}
+    missing = [n for n, s in zip(names, sfm_names) if s not in registered]
+    summary: dict[str, Any] = {
+        "images": str(images_dir.resolve()), "frames": len(names), "registered": len(names) - len(missing),
+        "not_registered": missing, "camera_model": camera_model if intrinsics is None else "given",
+        "matcher": matcher, "sfm": result.summary(), "provenance": provenance(seed=seed, extra_packages=("pycolmap",)),
+    }
+    if model_dir is not None:
+        _write_dataset(frames, sfm_names, model_dir, out)
+        try:
+            summary["camera"] = _camera_summary(read_dataset(out).intrinsics)
+        except InputError as exc:  # e.g. a many-parameter lens fitted to too few features folds the image
+            summary["error"] = str(exc)
+            write_json(out / SUMMARY_FILE, summary)
+            raise InputError(f"{images_dir}: structure from motion estimated a {camera_model} camera that cannot be "
+                             f"used ({exc}); try a simpler --camera-model such as SIMPLE_RADIAL") from None
+        if truth is not None:
+            summary["pose_error"] = _pose_error(out, Path(truth))
+    write_json(out / SUMMARY_FILE, summary)
+    if summary["registered"] < 2:
+        raise InputError(f"{images_dir}: structure from motion registered {summary['registered']} of {len(names)} "
+                         f"frames; no dataset written (see {out / SUMMARY_FILE})")
+    if missing:
+        log.warning("%s: %d of %d frames did not register and are not in the dataset: %s", images_dir, len(missing),
+                    len(names), ", ".join(missing))
+    if summary["registered"] < MIN_REGISTERED_SHARE * len(names):
+        log.warning("%s: only %.0f%% of the frames registered", images_dir, 100 * summary["registered"] / len(names))
+    return summary
+
+
+def _largest_model(sparse: Path) -> Path | None:
+    """The sub-model folder of ``sparse`` with the most registered images, or None."""
+    best, count = None, 0
+    for folder in sorted(p for p in sparse.iterdir() if p.is_dir()) if sparse.is_dir() else []:
+        images = len(read_colmap_model(folder).images)
+        if images > count:
+            best, count = folder, images
+    return best
+
+
+def _write_dataset(frames: list[Path], sfm_names: list[str], model_dir: Path, out: Path) -> None:
+    """``out/images`` (the originals, under their names as registered) and ``out/sparse/0`` (the model)."""
+    for path, name in zip(frames, sfm_names):
+        target = out / "images" / name
+        if path.suffix.lower() == ".png":
+            with atomic_path(target) as tmp:
+                shutil.copy2(path, tmp)
+        else:  # the model names the frames by their PNG copies: store the original pixels as PNG too
+            write_png(target, read_image(path))
+    sparse = out / "sparse" / "0"
+    if sparse.exists():
+        shutil.rmtree(sparse)
+    shutil.copytree(model_dir, sparse)
+
+
+def _camera_summary(intr: Intrinsics) -> dict[str, Any]:
+    return {"fx": intr.fx, "fy": intr.fy, "cx": intr.cx, "cy": intr.cy, "width": intr.width, "height": intr.height,
+            "lens": intr.lens, "distortion": list(intr.distortion)}
+
+
+def _pose_error(out: Path, truth: Path) -> dict[str, Any] | None:
+    """ATE (m, after similarity alignment) and mean relative rotation error of the dataset's poses against the
+    poses of the same file names in ``truth``."""
+    mine, true = read_dataset(out), read_dataset(truth)
+    true_by_name = {p.name: c for p, c in zip(true.image_paths, true.c2w_opencv)}
+    common = [i for i, p in enumerate(mine.image_paths) if p.name in true_by_name]
+    if len(common) < 3:
+        return None
+    errors = trajectory_errors(mine.c2w_opencv[common], np.stack([true_by_name[mine.image_paths[i].name]
+                                                                  for i in common]))
+    return {"poses": len(common), "ate_rmse_m": errors.ate_rmse, "ate_mean_m": errors.ate_mean,
+            "rre_mean_deg": errors.rre_mean_deg, "sim3_scale": errors.alignment.scale}

@@ -1,0 +1,71 @@
+"""``spotless prepare --images``: spotlit frames -> a COLMAP dataset the trainer reads, with a summary."""
+
+from __future__ import annotations
+
+import json
+import shutil
+
+import numpy as np
+import pytest
+from click.testing import CliRunner
+
+from evaluation.synthetic import render_room_sequence, write_dataset_folder
+from spotlessgs.cli import main
+from spotlessgs.io.dataset import read_dataset
+from spotlessgs.io.errors import InputError
+from spotlessgs.io.images import read_image, write_png
+from spotlessgs.prepare import SUMMARY_FILE, prepare_images
+
+
+@pytest.fixture(scope="module")
+def room(tmp_path_factory):
+    """16 spotlit frames of the ray-cast room (240 x 180) with their true poses."""
+    root = tmp_path_factory.mktemp("prepare") / "room"
+    write_dataset_folder(render_room_sequence(num_frames=16, width=240, height=180, seed=0), root, with_depth=False)
+    return root
+
+
+def test_frames_become_a_dataset_with_poses_close_to_the_truth(room, tmp_path):
+    out = tmp_path / "data"
+    result = CliRunner().invoke(main, ["prepare", "--images", str(room / "images"), "--out", str(out), "--camera-model",
+                                       "PINHOLE", "--matcher", "exhaustive", "--truth", str(room), "-q"])
+    assert result.exit_code == 0, result.output + repr(result.exception)
+    assert "16 of 16 frames registered" in result.output
+    summary = json.loads((out / SUMMARY_FILE).read_text())
+    assert summary["registered"] == 16 and summary["not_registered"] == []
+    truth = read_dataset(room).intrinsics
+    assert summary["camera"]["fx"] == pytest.approx(truth.fx, rel=0.05)  # estimated by bundle adjustment
+    assert summary["pose_error"]["poses"] == 16 and summary["pose_error"]["ate_rmse_m"] < 0.02
+    data = read_dataset(out)  # the trainer's reader: images/ + sparse/0
+    assert data.n_frames == 16 and data.intrinsics.is_pinhole
+    for path in data.image_paths[:3]:  # the originals, not the brightened copies SfM saw
+        np.testing.assert_array_equal(read_image(path), read_image(room / "images" / path.name))
+        assert not np.array_equal(read_image(path), read_image(out / "sfm" / "input" / path.name))
+
+
+def test_a_frame_that_does_not_register_is_named(room, tmp_path):
+    frames = tmp_path / "frames"
+    shutil.copytree(room / "images", frames)
+    rng = np.random.default_rng(0)
+    write_png(frames / "frame_00016.png", rng.uniform(0, 1, (180, 240, 3)))  # noise: matches nothing
+    summary = prepare_images(frames, tmp_path / "data", camera_model="PINHOLE", matcher="exhaustive",
+                             intrinsics=read_dataset(room).intrinsics)
+    assert summary["not_registered"] == ["frame_00016.png"] and summary["registered"] == 16
+    assert "frame_00016.png" not in {p.name for p in read_dataset(tmp_path / "data").image_paths}
+
+
+def test_bad_frames_are_refused_naming_the_file(room, tmp_path):
+    frames = tmp_path / "frames"
+    frames.mkdir()
+    for name in ("frame_00000.png", "frame_00001.png"):
+        shutil.copy(room / "images" / name, frames / name)
+    (frames / "frame_00002.png").write_bytes(b"not a png")
+    with pytest.raises(InputError, match=r"frame_00002\.png: cannot be decoded"):
+        prepare_images(frames, tmp_path / "a")
+    write_png(frames / "frame_00002.png", np.zeros((90, 120, 3)))
+    with pytest.raises(InputError, match=r"frame_00002\.png: image is 120x90, the first frame frame_00000\.png is "
+                                         r"240x180"):
+        prepare_images(frames, tmp_path / "b")
+    with pytest.raises(InputError, match="--out"):
+        prepare_images(frames, frames / "inside")
+    assert not (tmp_path / "a").exists() and not (tmp_path / "b").exists()  # nothing written before the checks
