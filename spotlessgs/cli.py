@@ -133,9 +133,18 @@ def render(run_dir, which, out_dir, exr, data_dir, device, quiet):
 
 
 @main.command()
-@click.option("--images", "images_dir", required=True,
-              type=click.Path(exists=True, file_okay=False, path_type=Path),
+@click.option("--images", "images_dir", default=None, type=click.Path(exists=True, file_okay=False, path_type=Path),
               help="The spotlit frames (PNG/JPEG), in time order by file name.")
+@click.option("--bag", "bag", default=None, type=click.Path(exists=True, path_type=Path),
+              help="Or a ROS 1 (.bag) or ROS 2 (folder or .db3/.mcap) bag; needs --image-topic.")
+@click.option("--image-topic", default=None, help="--bag: the camera's Image or CompressedImage topic.")
+@click.option("--camera-info-topic", default=None, help="--bag: its CameraInfo topic (the camera, kept fixed).")
+@click.option("--odometry-topic", default=None,
+              help="--bag: Odometry or PoseStamped of the camera's optical frame: poses without SfM.")
+@click.option("--every", "min_interval_s", default=0.0, show_default=True, type=click.FloatRange(0),
+              help="--bag: keep frames at least this many seconds apart.")
+@click.option("--min-motion", "min_motion_m", default=0.0, show_default=True, type=click.FloatRange(0),
+              help="--bag with --odometry-topic: keep frames at least this many metres apart.")
 @click.option("--out", "out_dir", required=True, type=click.Path(file_okay=False, path_type=Path),
               help="The dataset folder to write: images/, sparse/0 (COLMAP), prepare.json.")
 @click.option("--camera-model", default="SIMPLE_RADIAL", show_default=True,
@@ -149,13 +158,24 @@ def render(run_dir, which, out_dir, exr, data_dir, device, quiet):
 @click.option("--threads", type=click.IntRange(1), default=1, show_default=True)
 @click.option("--seed", default=0, show_default=True, type=int)
 @click.option("-q", "--quiet", is_flag=True)
-def prepare(images_dir, out_dir, camera_model, matcher, truth_dir, threads, seed, quiet):
-    """Turn a folder of spotlit frames into a dataset: structure from motion on brightened copies, the originals
-    kept for training; frames that do not register are named."""
-    from spotlessgs.prepare import prepare_images
+def prepare(images_dir, bag, image_topic, camera_info_topic, odometry_topic, min_interval_s, min_motion_m, out_dir,
+            camera_model, matcher, truth_dir, threads, seed, quiet):
+    """Turn a folder of spotlit frames, or a camera of a ROS bag, into a dataset: structure from motion on
+    brightened copies (or the bag's odometry), the originals kept for training; frames that do not register are
+    named."""
+    from spotlessgs.prepare import prepare_bag, prepare_images
 
-    summary = prepare_images(images_dir, out_dir, camera_model, matcher, truth=truth_dir, threads=threads, seed=seed,
-                             progress=None if quiet else (lambda name: click.echo(f"prepare: {name}", err=True)))
+    if (images_dir is None) == (bag is None):
+        raise click.UsageError("give one of --images and --bag")
+    if bag is not None and image_topic is None:
+        raise click.UsageError("--bag needs --image-topic")
+    progress = None if quiet else (lambda name: click.echo(f"prepare: {name}", err=True))
+    if bag is not None:
+        summary = prepare_bag(bag, out_dir, image_topic, camera_info_topic, odometry_topic, min_interval_s,
+                              min_motion_m, camera_model, matcher, truth_dir, threads, seed, progress)
+    else:
+        summary = prepare_images(images_dir, out_dir, camera_model, matcher, truth=truth_dir, threads=threads,
+                                 seed=seed, progress=progress)
     error = summary.get("pose_error")
     click.echo(f"{out_dir}: {summary['registered']} of {summary['frames']} frames registered"
                + (f", pose error {error['ate_rmse_m']:.3f} m RMSE after similarity alignment" if error else "")

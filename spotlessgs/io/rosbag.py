@@ -1,0 +1,212 @@
+"""Frames, camera and poses from a ROS 1 or ROS 2 bag, without a ROS install (the ``rosbags`` package).
+
+* images: ``sensor_msgs/Image`` (rgb8, bgr8, rgba8, bgra8, mono8, mono16, rgb16, bgr16, and Bayer patterns, which
+  OpenCV demosaics) or ``sensor_msgs/CompressedImage`` (JPEG, PNG: OpenCV decodes);
+* camera: ``sensor_msgs/CameraInfo`` (K, and the distortion models ``plumb_bob`` / ``rational_polynomial`` as our
+  ``opencv`` lens, ``equidistant`` as ``fisheye``; ROS's K puts pixel centres at integers, ours at +0.5);
+* poses: ``nav_msgs/Odometry`` or ``geometry_msgs/PoseStamped`` of the camera's optical frame (x right, y down, z
+  forward: OpenCV's axes), interpolated to each frame's time stamp (linear position, spherical rotation).
+
+Frames are kept at least ``min_interval_s`` apart in time and, with poses, ``min_motion_m`` apart in space.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from pathlib import Path
+
+import cv2
+import numpy as np
+from rosbags.highlevel import AnyReader
+from rosbags.typesys import Stores, get_typestore
+from scipy.spatial.transform import Rotation, Slerp
+
+from spotlessgs.io.cameras import Intrinsics
+from spotlessgs.io.errors import InputError
+
+IMAGE_TYPES = ("sensor_msgs/msg/Image", "sensor_msgs/msg/CompressedImage")
+POSE_TYPES = ("nav_msgs/msg/Odometry", "geometry_msgs/msg/PoseStamped")
+_CHANNELS = {"rgb8": (3, np.uint8, None), "bgr8": (3, np.uint8, cv2.COLOR_BGR2RGB), "rgba8": (4, np.uint8, None),
+             "bgra8": (4, np.uint8, cv2.COLOR_BGRA2RGBA), "mono8": (1, np.uint8, None), "mono16": (1, np.uint16, None),
+             "rgb16": (3, np.uint16, None), "bgr16": (3, np.uint16, cv2.COLOR_BGR2RGB)}
+_BAYER = {"bayer_rggb8": cv2.COLOR_BayerRG2RGB, "bayer_bggr8": cv2.COLOR_BayerBG2RGB,
+          "bayer_gbrg8": cv2.COLOR_BayerGB2RGB, "bayer_grbg8": cv2.COLOR_BayerGR2RGB}
+
+
+@dataclass(frozen=True)
+class BagFrames:
+    """What a bag holds for one camera.
+
+    Attributes:
+        stamps_ns: (N,) the kept frames' header time stamps (ns).
+        images: N (H, W, 3) float32 sRGB images in [0, 1].
+        intrinsics: from the CameraInfo topic, or None.
+        c2w: (N, 4, 4) camera-to-world (OpenCV axes) at the frames' stamps from the pose topic, or None.
+        skipped: frames read but not kept (subsampling), and frames outside the pose topic's time span.
+    """
+
+    stamps_ns: np.ndarray
+    images: list[np.ndarray]
+    intrinsics: Intrinsics | None
+    c2w: np.ndarray | None
+    skipped: int
+
+
+def decode_image(msg, msgtype: str, where: str) -> np.ndarray:
+    """(H, W, 3) float32 sRGB in [0, 1] of an Image or CompressedImage message; InputError naming ``where``."""
+    if msgtype.endswith("CompressedImage"):
+        data = cv2.imdecode(np.frombuffer(bytes(msg.data), np.uint8), cv2.IMREAD_UNCHANGED)
+        if data is None:
+            raise InputError(f"{where}: the compressed image ({msg.format}) cannot be decoded")
+        if data.ndim == 3:
+            data = cv2.cvtColor(data, cv2.COLOR_BGRA2RGBA if data.shape[2] == 4 else cv2.COLOR_BGR2RGB)
+    else:
+        encoding = msg.encoding.lower()
+        raw = np.frombuffer(bytes(msg.data), np.uint8)
+        if encoding in _BAYER:
+            data = cv2.cvtColor(_rows(raw, msg, 1, np.uint8, where)[..., 0], _BAYER[encoding])
+        elif encoding in _CHANNELS:
+            channels, dtype, conversion = _CHANNELS[encoding]
+            data = _rows(raw, msg, channels, dtype, where)
+            if conversion is not None:
+                data = cv2.cvtColor(data, conversion)
+        else:
+            raise InputError(f"{where}: image encoding {msg.encoding!r} is not supported (supported: "
+                             f"{', '.join([*_CHANNELS, *_BAYER])})")
+    scale = 65535.0 if data.dtype == np.uint16 else 255.0
+    image = data.astype(np.float32) / scale
+    if image.ndim == 2:
+        image = image[..., None]
+    if image.shape[2] == 1:
+        image = np.repeat(image, 3, axis=2)
+    return np.ascontiguousarray(image[..., :3])
+
+
+def _rows(raw: np.ndarray, msg, channels: int, dtype, where: str) -> np.ndarray:
+    """The (H, W, C) pixels of a raw Image message (row stride ``step``, byte order ``is_bigendian``)."""
+    itemsize = np.dtype(dtype).itemsize
+    if msg.step < msg.width * channels * itemsize or raw.size < msg.step * msg.height:
+        raise InputError(f"{where}: {raw.size} bytes do not hold a {msg.width}x{msg.height} {msg.encoding} image "
+                         f"with row stride {msg.step}")
+    rows = raw[: msg.step * msg.height].reshape(msg.height, msg.step)[:, : msg.width * channels * itemsize]
+    order = ">" if msg.is_bigendian else "<"
+    return np.ascontiguousarray(rows).view(np.dtype(dtype).newbyteorder(order)).reshape(
+        msg.height, msg.width, channels).astype(dtype)
+
+
+def camera_info_intrinsics(msg, where: str) -> Intrinsics:
+    """Our Intrinsics of a CameraInfo message (pixel centres move from integers to +0.5; ROS 1 names the fields K and
+    D, ROS 2 k and d)."""
+    k = np.asarray(msg.k if hasattr(msg, "k") else msg.K, dtype=np.float64)
+    model = (msg.distortion_model or "").lower()
+    d = tuple(float(v) for v in (msg.d if hasattr(msg, "d") else msg.D))
+    if model in ("plumb_bob", "rational_polynomial", ""):
+        lens = "opencv" if any(d) else "pinhole"
+        if not any(d):
+            d = ()
+        else:  # OpenCV's order: k1, k2, p1, p2, k3[, k4, k5, k6]
+            d = d[:8] if len(d) >= 8 else (d + (0.0,) * 5)[:5]
+    elif model == "equidistant":
+        lens, d = "fisheye", (d + (0.0,) * 4)[:4]
+    else:
+        raise InputError(f"{where}: distortion model {msg.distortion_model!r} is not supported (plumb_bob, "
+                         "rational_polynomial, equidistant)")
+    return Intrinsics(k[0], k[4], k[2] + 0.5, k[5] + 0.5, int(msg.width), int(msg.height), lens, d)
+
+
+def _pose(msg, msgtype: str) -> tuple[np.ndarray, np.ndarray]:
+    pose = msg.pose.pose if msgtype.endswith("Odometry") else msg.pose
+    p, q = pose.position, pose.orientation
+    return np.array([p.x, p.y, p.z]), np.array([q.x, q.y, q.z, q.w])
+
+
+def _stamp_ns(msg, fallback: int) -> int:
+    stamp = getattr(getattr(msg, "header", None), "stamp", None)
+    return fallback if stamp is None else int(stamp.sec) * 1_000_000_000 + int(stamp.nanosec)
+
+
+def read_bag(bag: str | Path, image_topic: str, camera_info_topic: str | None = None, pose_topic: str | None = None,
+             min_interval_s: float = 0.0, min_motion_m: float = 0.0) -> BagFrames:
+    """Read one camera's frames (and optionally its CameraInfo and poses) from a ROS 1 or ROS 2 bag.
+
+    Raises:
+        InputError: the bag cannot be read, a topic is missing or of the wrong type (the bag's topics are listed), a
+            frame cannot be decoded, or no frame is kept.
+    """
+    bag = Path(bag)
+    try:
+        reader = AnyReader([bag], default_typestore=get_typestore(Stores.ROS2_HUMBLE))
+        reader.open()
+    except Exception as exc:  # rosbags raises its own error types for every kind of damage
+        raise InputError(f"{bag}: not a readable ROS 1 or ROS 2 bag ({exc})") from None
+    try:
+        topics = {c.topic: c.msgtype for c in reader.connections}
+
+        def connections(topic: str, types: tuple[str, ...]):
+            if topic not in topics:
+                raise InputError(f"{bag}: no topic {topic!r}; the bag has: "
+                                 + ", ".join(f"{t} ({m})" for t, m in sorted(topics.items())))
+            if topics[topic] not in types:
+                raise InputError(f"{bag}: topic {topic!r} is {topics[topic]}, expected {' or '.join(types)}")
+            return [c for c in reader.connections if c.topic == topic]
+
+        image_conns = connections(image_topic, IMAGE_TYPES)
+        intrinsics = None
+        if camera_info_topic is not None:
+            conns = connections(camera_info_topic, ("sensor_msgs/msg/CameraInfo",))
+            for conn, _t, raw in reader.messages(connections=conns):
+                intrinsics = camera_info_intrinsics(reader.deserialize(raw, conn.msgtype), f"{bag}: {camera_info_topic}")
+                break
+        poses = None
+        if pose_topic is not None:
+            conns = connections(pose_topic, POSE_TYPES)
+            records = [(_stamp_ns(m, t), *_pose(m, c.msgtype)) for c, t, raw in reader.messages(connections=conns)
+                       for m in [reader.deserialize(raw, c.msgtype)]]
+            records.sort(key=lambda r: r[0])
+            if len(records) < 2:
+                raise InputError(f"{bag}: topic {pose_topic!r} has {len(records)} pose(s); at least 2 are needed")
+            poses = records
+        stamps, images, c2w, skipped = [], [], [], 0
+        last_stamp, last_centre = None, None
+        for conn, t, raw in reader.messages(connections=image_conns):
+            msg = reader.deserialize(raw, conn.msgtype)
+            stamp = _stamp_ns(msg, t)
+            if last_stamp is not None and (stamp - last_stamp) < min_interval_s * 1e9:
+                skipped += 1
+                continue
+            pose = None
+            if poses is not None:
+                pose = _interpolate(poses, stamp)
+                if pose is None or (last_centre is not None
+                                    and np.linalg.norm(pose[:3, 3] - last_centre) < min_motion_m):
+                    skipped += 1
+                    continue
+            images.append(decode_image(msg, conn.msgtype, f"{bag}: {image_topic} at {stamp} ns"))
+            stamps.append(stamp)
+            last_stamp = stamp
+            if pose is not None:
+                c2w.append(pose)
+                last_centre = pose[:3, 3]
+    finally:
+        reader.close()
+    if not images:
+        raise InputError(f"{bag}: no frame of {image_topic!r} was kept ({skipped} skipped)")
+    return BagFrames(np.array(stamps, dtype=np.int64), images, intrinsics, np.stack(c2w) if poses else None, skipped)
+
+
+def _interpolate(records, stamp: int) -> np.ndarray | None:
+    """Camera-to-world at ``stamp`` from time-sorted (stamp, position, quaternion xyzw) records; None outside."""
+    times = np.array([r[0] for r in records], dtype=np.int64)
+    if stamp < times[0] or stamp > times[-1]:
+        return None
+    i = int(np.clip(np.searchsorted(times, stamp, side="right") - 1, 0, len(times) - 2))
+    span = times[i + 1] - times[i]
+    w = 0.0 if span == 0 else (stamp - times[i]) / span
+    rotation = Slerp([0.0, 1.0], Rotation.from_quat([records[i][2], records[i + 1][2]]))([w])[0]
+    c2w = np.eye(4)
+    c2w[:3, :3] = rotation.as_matrix()
+    c2w[:3, 3] = (1 - w) * records[i][1] + w * records[i + 1][1]
+    if not math.isfinite(float(c2w.sum())):
+        return None
+    return c2w

@@ -1,0 +1,170 @@
+"""``spotless prepare --bag``: ROS 1 and ROS 2 bags that the tests write themselves with ``rosbags``."""
+
+from __future__ import annotations
+
+import json
+
+import cv2
+import numpy as np
+import pytest
+from click.testing import CliRunner
+from rosbags.typesys import Stores, get_typestore
+from scipy.spatial.transform import Rotation
+
+from evaluation.synthetic import render_room_sequence
+from evaluation.trajectory import trajectory_errors
+from spotlessgs.cli import main
+from spotlessgs.io.cameras import Intrinsics, opengl_to_opencv_c2w
+from spotlessgs.io.dataset import read_dataset
+from spotlessgs.io.errors import InputError
+from spotlessgs.io.images import read_image
+from spotlessgs.io.rosbag import camera_info_intrinsics, decode_image, read_bag
+from spotlessgs.prepare import prepare_bag
+
+FRAMES, WIDTH, HEIGHT = 6, 64, 48
+
+
+@pytest.fixture(scope="module")
+def sequence():
+    return render_room_sequence(num_frames=FRAMES, width=WIDTH, height=HEIGHT, seed=1)
+
+
+def _write_bag(path, sequence, ros: int, compressed: bool = False, encoding: str = "rgb8"):
+    """A bag with the sequence's frames (raw or JPEG), its CameraInfo and the camera's odometry."""
+    if ros == 1:
+        from rosbags.rosbag1 import Writer
+        store = get_typestore(Stores.ROS1_NOETIC)
+        serialize = store.serialize_ros1
+    else:
+        from rosbags.rosbag2 import Writer
+        store = get_typestore(Stores.ROS2_HUMBLE)
+        serialize = store.serialize_cdr
+    t = store.types
+    intr = sequence.intrinsics
+    frames, (height, width) = len(sequence.spot), sequence.spot.shape[1:3]
+    c2w = opengl_to_opencv_c2w(sequence.c2w_opengl)
+    writer = Writer(path) if ros == 1 else Writer(path, version=9)
+    with writer:
+        image_type = "sensor_msgs/msg/CompressedImage" if compressed else "sensor_msgs/msg/Image"
+        images = writer.add_connection("/cam/image", image_type, typestore=store)
+        info = writer.add_connection("/cam/info", "sensor_msgs/msg/CameraInfo", typestore=store)
+        odom = writer.add_connection("/cam/odom", "nav_msgs/msg/Odometry", typestore=store)
+
+        def header(ns):
+            stamp = t["builtin_interfaces/msg/Time"](sec=ns // 10**9, nanosec=ns % 10**9)
+            kwargs = {"seq": 0} if ros == 1 else {}
+            return t["std_msgs/msg/Header"](stamp=stamp, frame_id="cam_optical", **kwargs)
+
+        k = [intr.fx, 0, intr.cx - 0.5, 0, intr.fy, intr.cy - 0.5, 0, 0, 1]
+        roi = t["sensor_msgs/msg/RegionOfInterest"](x_offset=0, y_offset=0, height=0, width=0, do_rectify=False)
+        matrices = {"d": np.zeros(5), "k": np.array(k, float), "r": np.eye(3).ravel(), "p": np.zeros(12)}
+        if ros == 1:  # ROS 1 names them D, K, R, P
+            matrices = {name.upper(): value for name, value in matrices.items()}
+        msg = t["sensor_msgs/msg/CameraInfo"](header=header(0), height=height, width=width, distortion_model="plumb_bob",
+                                              binning_x=0, binning_y=0, roi=roi, **matrices)
+        writer.write(info, 0, serialize(msg, "sensor_msgs/msg/CameraInfo"))
+        for i in range(frames + 1):  # odometry every 0.5 s; frame i at 0.5 i s
+            ns = i * 500_000_000
+            j = min(i, frames - 1)
+            q = Rotation.from_matrix(c2w[j, :3, :3]).as_quat()
+            pose = t["geometry_msgs/msg/Pose"](position=t["geometry_msgs/msg/Point"](x=c2w[j, 0, 3], y=c2w[j, 1, 3],
+                                                                                      z=c2w[j, 2, 3]),
+                                               orientation=t["geometry_msgs/msg/Quaternion"](x=q[0], y=q[1], z=q[2],
+                                                                                            w=q[3]))
+            cov = np.zeros(36)
+            twist = t["geometry_msgs/msg/Twist"](linear=t["geometry_msgs/msg/Vector3"](x=0, y=0, z=0),
+                                                 angular=t["geometry_msgs/msg/Vector3"](x=0, y=0, z=0))
+            msg = t["nav_msgs/msg/Odometry"](header=header(ns), child_frame_id="cam_optical",
+                                             pose=t["geometry_msgs/msg/PoseWithCovariance"](pose=pose, covariance=cov),
+                                             twist=t["geometry_msgs/msg/TwistWithCovariance"](twist=twist,
+                                                                                              covariance=cov))
+            writer.write(odom, ns, serialize(msg, "nav_msgs/msg/Odometry"))
+        for i in range(frames):
+            ns = 500_000_000 * i
+            rgb = np.round(sequence.spot[i] * 255).astype(np.uint8)
+            if compressed:
+                ok, data = cv2.imencode(".jpg", cv2.cvtColor(rgb, cv2.COLOR_RGB2BGR), [cv2.IMWRITE_JPEG_QUALITY, 95])
+                msg = t["sensor_msgs/msg/CompressedImage"](header=header(ns), format="jpeg", data=data.ravel())
+            else:
+                data = cv2.cvtColor(rgb, cv2.COLOR_RGB2BGR) if encoding == "bgr8" else rgb
+                msg = t["sensor_msgs/msg/Image"](header=header(ns), height=height, width=width, encoding=encoding,
+                                                 is_bigendian=0, step=3 * width, data=data.ravel())
+            writer.write(images, ns, serialize(msg, image_type))
+    return c2w
+
+
+@pytest.mark.parametrize("ros, compressed, encoding", [(2, False, "rgb8"), (1, False, "bgr8"), (2, True, "rgb8")])
+def test_a_bag_with_odometry_becomes_a_posed_dataset(sequence, tmp_path, ros, compressed, encoding):
+    bag = tmp_path / ("cam.bag" if ros == 1 else "cam")
+    c2w = _write_bag(bag, sequence, ros, compressed, encoding)
+    result = CliRunner().invoke(main, ["prepare", "--bag", str(bag), "--image-topic", "/cam/image",
+                                       "--camera-info-topic", "/cam/info", "--odometry-topic", "/cam/odom",
+                                       "--out", str(tmp_path / "data"), "-q"])
+    assert result.exit_code == 0, result.output + repr(result.exception)
+    data = read_dataset(tmp_path / "data")
+    assert data.n_frames == FRAMES and data.intrinsics == sequence.intrinsics  # the CameraInfo, +0.5 px back
+    np.testing.assert_allclose(data.c2w_opencv, c2w, atol=1e-6)  # frames fall on odometry stamps
+    for k, path in enumerate(data.image_paths):
+        error = np.abs(read_image(path) - np.round(sequence.spot[k] * 255) / 255)
+        assert (error.mean() < 0.01) if compressed else (error.max() < 1e-6)  # JPEG at quality 95, or exact
+    summary = json.loads((tmp_path / "data" / "prepare.json").read_text())
+    assert summary["source"]["frames_kept"] == FRAMES and summary["poses"] == "from the pose topic"
+
+
+def test_poses_are_interpolated_and_frames_subsampled(sequence, tmp_path):
+    bag = tmp_path / "cam"
+    c2w = _write_bag(bag, sequence, 2)
+    frames = read_bag(bag, "/cam/image", "/cam/info", "/cam/odom", min_interval_s=0.9)
+    assert len(frames.images) == 3 and frames.skipped == 3  # 0, 1 and 2 s of 0, 0.5, ..., 2.5 s
+    np.testing.assert_allclose(frames.c2w, c2w[[0, 2, 4]], atol=1e-6)
+    far = read_bag(bag, "/cam/image", None, "/cam/odom", min_motion_m=10.0)
+    assert len(far.images) == 1 and far.intrinsics is None
+
+
+def test_bag_errors_name_the_bag_and_the_problem(sequence, tmp_path):
+    bag = tmp_path / "cam"
+    _write_bag(bag, sequence, 2)
+    with pytest.raises(InputError, match=r"cam: no topic '/camera/rgb'; the bag has: /cam/image \(sensor_msgs"):
+        read_bag(bag, "/camera/rgb")
+    with pytest.raises(InputError, match=r"topic '/cam/odom' is nav_msgs/msg/Odometry, expected sensor_msgs"):
+        read_bag(bag, "/cam/odom")
+    (tmp_path / "broken.bag").write_bytes(b"#ROSBAG V2.0\ngarbage")
+    with pytest.raises(InputError, match=r"broken\.bag: not a readable ROS 1 or ROS 2 bag"):
+        read_bag(tmp_path / "broken.bag", "/cam/image")
+    result = CliRunner().invoke(main, ["prepare", "--bag", str(bag), "--image-topic", "/cam/image", "--odometry-topic",
+                                       "/cam/odom", "--out", str(tmp_path / "data")])
+    assert result.exit_code == 2 and "need the camera too" in result.output
+
+
+def test_image_encodings_and_camera_models():
+    from types import SimpleNamespace
+
+    rgb = np.arange(2 * 3 * 3, dtype=np.uint8).reshape(2, 3, 3)
+    raw = SimpleNamespace(encoding="bgr8", height=2, width=3, step=10, is_bigendian=0,
+                          data=np.pad(rgb[..., ::-1].reshape(2, 9), ((0, 0), (0, 1))).ravel())  # padded rows
+    np.testing.assert_allclose(decode_image(raw, "sensor_msgs/msg/Image", "x"), rgb / 255.0, atol=1e-7)
+    mono16 = SimpleNamespace(encoding="mono16", height=1, width=2, step=4, is_bigendian=1,
+                             data=np.array([0x12, 0x34, 0xFF, 0xFF], np.uint8))
+    np.testing.assert_allclose(decode_image(mono16, "sensor_msgs/msg/Image", "x")[0, :, 0], [0x1234 / 65535, 1.0])
+    with pytest.raises(InputError, match="image encoding '32FC1' is not supported"):
+        decode_image(SimpleNamespace(encoding="32FC1", data=b""), "sensor_msgs/msg/Image", "x")
+    info = SimpleNamespace(k=[500, 0, 319.5, 0, 510, 239.5, 0, 0, 1], width=640, height=480,
+                           distortion_model="equidistant", d=[0.1, 0.01, 0.0, 0.0])
+    assert camera_info_intrinsics(info, "x") == Intrinsics(500, 510, 320, 240, 640, 480, "fisheye",
+                                                           (0.1, 0.01, 0.0, 0.0))
+    info.distortion_model, info.d = "plumb_bob", [-0.2, 0.05, 0.001, 0.0, 0.0]
+    assert camera_info_intrinsics(info, "x").distortion == (-0.2, 0.05, 0.001, 0.0)
+    info.distortion_model = "fov"
+    with pytest.raises(InputError, match="distortion model 'fov' is not supported"):
+        camera_info_intrinsics(info, "x")
+
+
+def test_a_bag_without_odometry_goes_through_structure_from_motion(tmp_path):
+    room = render_room_sequence(num_frames=16, width=240, height=180, seed=0)
+    bag = tmp_path / "cam"
+    c2w = _write_bag(bag, room, 2)
+    summary = prepare_bag(bag, tmp_path / "data", "/cam/image", "/cam/info", matcher="exhaustive")
+    assert summary["registered"] == 16 and summary["camera_model"] == "given"  # the CameraInfo camera, kept
+    assert summary["source"]["frames_kept"] == 16 and summary["source"]["pose_topic"] is None
+    errors = trajectory_errors(read_dataset(tmp_path / "data").c2w_opencv, c2w)
+    assert errors.ate_rmse < 0.02  # SfM's poses against the odometry the bag also holds, after similarity alignment
