@@ -5,6 +5,7 @@ from __future__ import annotations
 import json
 import shutil
 
+import cv2
 import numpy as np
 import pytest
 from click.testing import CliRunner
@@ -69,3 +70,29 @@ def test_bad_frames_are_refused_naming_the_file(room, tmp_path):
     with pytest.raises(InputError, match="--out"):
         prepare_images(frames, frames / "inside")
     assert not (tmp_path / "a").exists() and not (tmp_path / "b").exists()  # nothing written before the checks
+
+
+def test_the_darkgs_layout_trains_on_its_linear_raw_frames(room, tmp_path):
+    """DarkGS keeps COLMAP's brightened frames in input/ (or images/) and the linear frames it trains on in raw/."""
+    from spotlessgs.io.colmap_text import model_from_poses, write_colmap_text
+    from spotlessgs.io.colorspace import srgb_to_linear
+    from spotlessgs.training.data import load_training_views
+
+    source = read_dataset(room)
+    folder = tmp_path / "darkgs"
+    names = [p.name for p in source.image_paths]
+    write_colmap_text(folder / "sparse" / "0", model_from_poses(source.intrinsics, names, source.c2w_opengl))
+    linear = []
+    for path in source.image_paths:
+        image = srgb_to_linear(read_image(path))
+        linear.append(np.round(image * 65535) / 65535)
+        (folder / "raw").mkdir(parents=True, exist_ok=True)  # 16-bit linear RGB, as a RAW converter writes it
+        cv2.imwrite(str(folder / "raw" / path.name), np.round(image * 65535).astype(np.uint16)[..., ::-1])
+        write_png(folder / "input" / path.name, np.clip(4 * image, 0, 1))  # what COLMAP saw
+    data = read_dataset(folder)
+    assert data.meta["source_format"] == "darkgs" and data.image_paths[0] == folder / "raw" / names[0]
+    views = load_training_views(folder)  # linear already: not linearised a second time
+    np.testing.assert_allclose(views.images[3].numpy(), linear[3], atol=1e-6)
+    (folder / "raw" / names[5]).unlink()
+    with pytest.raises(InputError, match=rf"raw: no linear frame\(s\) for the registered image {names[5]}"):
+        read_dataset(folder)

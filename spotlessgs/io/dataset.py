@@ -9,6 +9,7 @@ Supported layouts:
 
 from __future__ import annotations
 
+import glob
 import os
 from pathlib import Path
 
@@ -16,6 +17,7 @@ import numpy as np
 
 from spotlessgs.io.cameras import opencv_to_opengl_c2w
 from spotlessgs.io.colmap_text import read_colmap_model
+from spotlessgs.io.images import is_image_name
 from spotlessgs.io.lens import check_invertible
 from spotlessgs.io.ply import PointCloud, read_point_cloud
 from spotlessgs.io.transforms import DatasetDescription, DatasetError, Split, read_transforms
@@ -36,7 +38,8 @@ def _camera_file(sparse: Path) -> Path:
 
 def read_colmap_dataset(folder: str | os.PathLike, check_files: bool = False) -> DatasetDescription:
     """Read a COLMAP folder (``images/`` + ``sparse/0``) with a single camera of a supported model
-    (:data:`spotlessgs.io.colmap_text.SUPPORTED_MODELS`) whose lens can be inverted over the image."""
+    (:data:`spotlessgs.io.colmap_text.SUPPORTED_MODELS`) whose lens can be inverted over the image. With a ``raw/``
+    folder (DarkGS's layout) the frames are ``raw/``'s, linear (``meta["linear_images"]``), matched by file stem."""
     folder = Path(folder)
     sparse = _find_sparse_dir(folder)
     model = read_colmap_model(sparse)
@@ -53,6 +56,10 @@ def read_colmap_dataset(folder: str | os.PathLike, check_files: bool = False) ->
     check_invertible(camera, str(_camera_file(sparse)))
     c2w_opencv = np.stack([im.c2w_opencv() for im in images])
     image_paths = tuple(folder / "images" / im.name for im in images)
+    meta: dict = {"source_format": "colmap", "sparse_dir": str(sparse)}
+    if (folder / "raw").is_dir():  # DarkGS's layout: COLMAP ran on brightened copies, training uses raw/
+        image_paths = tuple(_raw_frame(folder / "raw", im.name) for im in images)
+        meta = {**meta, "source_format": "darkgs", "linear_images": True}
     if check_files:
         for im, p in zip(images, image_paths):
             if not p.is_file():
@@ -71,8 +78,20 @@ def read_colmap_dataset(folder: str | os.PathLike, check_files: bool = False) ->
         split=Split.every_nth(n),
         light=None,
         ply_path=None,
-        meta={"source_format": "colmap", "sparse_dir": str(sparse)},
+        meta=meta,
     )
+
+
+def _raw_frame(raw: Path, name: str) -> Path:
+    """The frame of ``raw/`` with the stem of the registered image ``name`` (any image suffix): DarkGS keeps the
+    linear (RAW-like) frames there and their brightened copies in ``input/`` or ``images/``; DatasetError when
+    there is none or more than one."""
+    stem = Path(name).stem
+    found = sorted(p for p in raw.glob(f"{glob.escape(stem)}.*") if is_image_name(p.name))
+    if len(found) != 1:
+        raise DatasetError(f"{raw}: {'no' if not found else len(found)} linear frame(s) for the registered image "
+                           f"{name} (DarkGS layout: raw/<name> beside sparse/0)")
+    return found[0]
 
 
 def read_dataset(folder: str | os.PathLike, check_files: bool = False) -> DatasetDescription:

@@ -103,6 +103,7 @@ def load_training_views(
         saturation_threshold: value (in the file's encoding, [0, 1]) at or above which a pixel counts as clipped.
     """
     dataset = read_dataset(data_dir, check_files=True)
+    linear_input = linear_input or bool(dataset.meta.get("linear_images"))  # e.g. DarkGS's raw/ frames
     native = dataset.intrinsics
     working = working_camera(native)  # the camera itself when it is a pinhole
     intr = working
