@@ -420,3 +420,21 @@ def test_the_densification_strategy_is_a_named_config_choice():
     assert preset("tiny", strategy="budget", validation_every=4).validation_every == 4  # overrides win
     with pytest.raises(ValueError, match="unknown densification strategy 'greedy'"):
         preset("tiny", strategy="greedy")
+
+
+def test_sfm_points_get_normals_facing_the_cameras():
+    from spotlessgs.training.data import estimate_normals
+
+    rng = np.random.default_rng(0)
+    # a tilted plane seen from above, and a sphere seen from its centre (normals point inwards, at the camera)
+    xy = rng.uniform(-1, 1, (400, 2))
+    plane = np.c_[xy, 0.3 * xy[:, 0] + rng.normal(0, 0.002, 400)]
+    truth = np.array([-0.3, 0.0, 1.0]) / np.linalg.norm([-0.3, 0.0, 1.0])
+    normals = estimate_normals(plane, np.array([[0.0, 0.0, 3.0], [1.0, 0.5, 2.5]]))
+    assert np.abs(np.linalg.norm(normals, axis=1) - 1).max() < 1e-9
+    assert np.median(normals @ truth) > 0.99 and (normals @ truth > 0.9).mean() > 0.95
+    sphere = rng.normal(size=(500, 3))
+    sphere /= np.linalg.norm(sphere, axis=1, keepdims=True)
+    inwards = estimate_normals(sphere, np.zeros((1, 3)))
+    assert np.median(np.einsum("ni,ni->n", inwards, -sphere)) > 0.99
+    assert estimate_normals(plane[:2], np.zeros((1, 3))).shape == (2, 3)  # too few points: zero normals

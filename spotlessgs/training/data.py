@@ -149,13 +149,36 @@ def load_training_views(
     )
 
 
+def estimate_normals(xyz: np.ndarray, viewpoints: np.ndarray, neighbours: int = 12) -> np.ndarray:
+    """(N, 3) unit normals of a point cloud without them (an SfM cloud): the direction of least spread of each point's
+    ``neighbours`` nearest points (the smallest eigenvector of their covariance), turned towards the nearest of the
+    ``viewpoints`` (V, 3) (the cameras that saw the surface). Fewer than 3 points: zero normals (facing the camera)."""
+    from scipy.spatial import cKDTree
+
+    n = len(xyz)
+    if n < 3:
+        return np.zeros((n, 3))
+    _, idx = cKDTree(xyz).query(xyz, k=min(neighbours, n))
+    patches = xyz[idx] - xyz[idx].mean(axis=1, keepdims=True)  # (N, k, 3)
+    _, vectors = np.linalg.eigh(np.einsum("nki,nkj->nij", patches, patches))
+    normals = vectors[:, :, 0]  # eigenvalues ascending: the first vector is the normal
+    _, nearest = cKDTree(viewpoints).query(xyz)
+    facing = np.einsum("ni,ni->n", normals, viewpoints[nearest] - xyz)
+    return normals * np.where(facing < 0, -1.0, 1.0)[:, None]
+
+
 def initial_point_cloud(views: TrainingViews, rng: np.random.Generator, n_random: int = 20_000) -> PointCloud:
     """The dataset's point cloud (PLY or COLMAP points3D), else random points in the camera frusta (with a warning).
 
-    Random points are drawn per training view at uniform pixels and depths in [0.3, 2 × scene extent] m, grey.
+    A dataset cloud without normals (SfM points) gets :func:`estimate_normals` facing the training cameras. Random
+    points are drawn per training view at uniform pixels and depths in [0.3, 2 × scene extent] m, grey, without
+    normals.
     """
     cloud = load_initial_points(views.dataset)
     if cloud is not None and len(cloud.xyz) > 0:
+        if cloud.normals is None or not np.any(cloud.normals):  # none in the file, or written as zeros
+            centres = views.cameras.centres[views.train].double().numpy()
+            return PointCloud(cloud.xyz, cloud.rgb, estimate_normals(np.asarray(cloud.xyz, np.float64), centres))
         return cloud
     log.warning("%s has no point cloud: initialising %d Gaussians at random in the camera frusta",
                 views.dataset.root, n_random)
