@@ -146,15 +146,12 @@ def curve_milestones(iterations: int, fractions: Sequence[float]) -> list[int]:
     return sorted(s for s in steps if s <= iterations)
 
 
-AUTO_METHOD = AUTO
-
-
 def method_spec(data: Path, variant: str, train_preset: str, iterations: int | None, image_width: int | None,
                 threads: int, seed: int, selection_min_proxy_iterations: int | None = None) -> RunSpec:
     """The run of one method: the trainer preset with the reproduction's overrides; for ``auto`` the ``budget``
     densification strategy of ``spotless train --gaussian-budget`` (and the selection's shortest proxy run), so that
     the reproduction trains exactly what the command line does."""
-    auto = variant == AUTO_METHOD
+    auto = variant == AUTO
     selection = None
     if auto and selection_min_proxy_iterations is not None:
         selection = SelectionConfig(min_proxy_iterations=selection_min_proxy_iterations)
