@@ -186,7 +186,8 @@ def temporal_block(
         frames = (_chw(_load(p)) for p in _bar(paths, config, f"temporal {label}", total=len(paths)))
         plain = temporal_scores(frames)
         out = {"tmp_psnr": plain.mean_psnr, "tmp_ssim": plain.mean_ssim}
-        if posed is not None and all(f.depth_path is not None for f in posed.frames):
+        # the warp is a pinhole one: a distorted camera's frames are not warped (their depth maps would need the lens)
+        if posed is not None and posed.intrinsics.is_pinhole and all(f.depth_path is not None for f in posed.frames):
             K = torch.from_numpy(posed.intrinsics.K())
 
             def gen():

@@ -233,6 +233,10 @@ def test_dark_level_is_the_dark_end_of_each_view_over_its_bright_end():
     assert dark_level(torch.stack([noisy_half, black]), 2) == 0.0 and dark_level(black[None], 2) == 0.0
     # a block that does not divide the image: edge blocks are cut to the image (the 20 x 20 view in 3-px blocks)
     assert 0.0 < dark_level(view[None], 3) < 1.0
+    # pixels without a sample (NaN: a distorted camera's working image outside the lens's view) are skipped: a
+    # bright NaN-free block grid padded by two NaN block rows gives the same level
+    padded = torch.cat([view, torch.full((4, 20, 3), float("nan"))])
+    assert dark_level(padded[None], 2) == pytest.approx(level, rel=1e-5)
     with pytest.raises(ValueError, match="block"):
         dark_level(view[None], 0)
     with pytest.raises(ValueError, match="V, H, W, 3"):

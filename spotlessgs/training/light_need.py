@@ -42,8 +42,8 @@ def dark_level(images: torch.Tensor, block: int, dark_quantile: float = DARK_QUA
     with no view left the level is 0. One view at a time, so memory stays at one image.
 
     Args:
-        images: (V, H, W, 3) linear input images in [0, 1]; block: block side in pixels (>= 1; blocks at the
-            right/bottom edge are cut to the image).
+        images: (V, H, W, 3) linear input images in [0, 1], NaN where a pixel has no sample (skipped); block: block
+            side in pixels (>= 1; blocks at the right/bottom edge are cut to the image).
     Returns:
         the level in [0, 1]: 0 when a fifth of every view is black.
     """

@@ -261,7 +261,10 @@ def measure_light_need(run_dir: Path, selection: SelectionConfig, device: str = 
     """
     scene, views, config, _info = trainer.load_run(run_dir, device=device)
     dev = scene.gaussians.means.device
-    level = dark_level(views.images[views.train], block_size(views.cameras.width, selection.holdout_block))
+    images = views.images[views.train]
+    if views.unseen is not None:  # a distorted camera's working pixels without a sample say nothing (NaN is skipped)
+        images = images.masked_fill(views.unseen[None, :, :, None], float("nan"))
+    level = dark_level(images, block_size(views.cameras.width, selection.holdout_block))
     share = low_frequency_share(scene, views.cameras.to(dev), evenly_spaced(views.train, selection.share_views),
                                 config.raster_backend, config.num_threads)
     return {"dark_level": level, "low_frequency_share": share, "measured_on": Path(run_dir).name,
