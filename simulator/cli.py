@@ -127,7 +127,11 @@ def generate(kind, out_dir, seed):
               help="--robot-camera: the largest auto-exposure gain.")
 @click.option("--vignetting", default=0.35, show_default=True, type=click.FloatRange(0, 1, max_open=True),
               help="--robot-camera: darkening at the farthest image corner.")
-def add_noise(data_dir, out_dir, shot, read, seed, robot_camera, sensitivity, max_gain, vignetting):
+@click.option("--lens", default="pinhole", show_default=True, type=click.Choice(["pinhole", "opencv", "fisheye"]),
+              help="--robot-camera: resample the renders through this lens (the ground truth too).")
+@click.option("--distortion", default="", metavar="K1,K2,...",
+              help="--robot-camera --lens: OpenCV's coefficients (opencv: k1,k2,p1,p2[,k3]; fisheye: k1,k2,k3,k4).")
+def add_noise(data_dir, out_dir, shot, read, seed, robot_camera, sensitivity, max_gain, vignetting, lens, distortion):
     """Copy a dataset with camera sensor noise (shot + read) added to its spotlight-only images, and with
     --robot-camera a robot camera's auto-exposure and vignetting.
 
@@ -135,8 +139,12 @@ def add_noise(data_dir, out_dir, shot, read, seed, robot_camera, sensitivity, ma
     """
     from simulator.sensor_noise import CameraEffects, SensorNoise, add_sensor_noise_to_dataset
 
-    effects = CameraEffects(sensitivity=sensitivity, max_gain=max_gain, vignetting=vignetting) if robot_camera \
-        else None
+    try:
+        coefficients = tuple(float(v) for v in distortion.split(",") if v.strip())
+    except ValueError:
+        raise click.BadParameter(f"not a comma-separated list of numbers: {distortion!r}", param_hint="--distortion")
+    effects = CameraEffects(sensitivity=sensitivity, max_gain=max_gain, vignetting=vignetting, lens=lens,
+                            distortion=coefficients) if robot_camera else None
     written = add_sensor_noise_to_dataset(data_dir, out_dir, SensorNoise(shot, read), seed, effects)
     click.echo(f"{out_dir}: wrote {written} image(s)")
 

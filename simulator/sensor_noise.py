@@ -34,10 +34,12 @@ from pathlib import Path
 import numpy as np
 
 from spotlessgs.io.atomic import atomic_path, remove_partial_files, write_json
+from spotlessgs.io.cameras import Intrinsics
 from spotlessgs.io.colorspace import linear_to_srgb
 from spotlessgs.io.exr import read_frame_exr
 from spotlessgs.io.folder_lock import folder_lock
 from spotlessgs.io.images import write_png
+from spotlessgs.io.lens import check_invertible, distort_maps, remap, undistort
 from spotlessgs.io.paths import refuse_overlap
 from spotlessgs.io.seeding import numpy_rng
 from spotlessgs.io.transforms import read_transforms
@@ -84,6 +86,10 @@ class CameraEffects:
         max_gain: the largest gain (the smallest is 1: the render's own exposure).
         adaptation: share of the way (in log gain) to its target the gain moves each frame (1: at once).
         vignetting: darkening at the farthest image corner, ``V(1) = 1 - vignetting``, in [0, 1).
+        lens, distortion: a lens model of :data:`spotlessgs.io.cameras.LENS_MODELS` and its coefficients: the copy's
+            images (and ground truth) are the renders resampled through this lens, into a camera of the same size
+            whose focal length is raised just enough that every pixel's ray lies inside the render
+            (:meth:`camera`); "pinhole": the render's own geometry.
     """
 
     sensitivity: float = 1.0
@@ -92,8 +98,15 @@ class CameraEffects:
     max_gain: float = 4.0
     adaptation: float = 0.5
     vignetting: float = 0.35
+    lens: str = "pinhole"
+    distortion: tuple[float, ...] = ()
 
     def __post_init__(self) -> None:
+        object.__setattr__(self, "distortion", tuple(float(v) for v in self.distortion))
+        Intrinsics(1.0, 1.0, 1.0, 1.0, 2, 2, self.lens, self.distortion)  # checks the lens
+        if self.lens == "opencv" and len(self.distortion) > 5:
+            raise ValueError("CameraEffects: the dataset's transforms.json holds at most 5 opencv coefficients "
+                             "(k1, k2, p1, p2, k3)")
         checks = {"sensitivity": self.sensitivity > 0, "target_level": self.target_level > 0, "max_gain": self.max_gain >= 1,
                   "adaptation": 0 < self.adaptation <= 1, "vignetting": 0 <= self.vignetting < 1}
         for name, ok in checks.items():
@@ -111,6 +124,37 @@ class CameraEffects:
             log_gain = target if not gains else log_gain + self.adaptation * (target - log_gain)
             gains.append(math.exp(log_gain))
         return np.asarray(gains)
+
+    def camera(self, render: Intrinsics) -> Intrinsics:
+        """The copy's camera: ``render``'s size and principal point with this lens, its focal lengths scaled up (the
+        least scale, found by bisection) so that every pixel's ray, the image edges' included, falls inside the
+        pinhole ``render``."""
+        base = Intrinsics(render.fx, render.fy, render.cx, render.cy, render.width, render.height, self.lens,
+                          self.distortion)
+        if base.is_pinhole:
+            return base
+        check_invertible(base, "CameraEffects")
+        edges = np.concatenate([np.stack([np.linspace(0, render.width, 65), np.full(65, y)], 1)
+                                for y in (0.0, render.height)]
+                               + [np.stack([np.full(49, x), np.linspace(0, render.height, 49)], 1)
+                                  for x in (0.0, render.width)])
+
+        def with_scale(scale: float) -> Intrinsics:
+            return Intrinsics(render.fx * scale, render.fy * scale, render.cx, render.cy, render.width,
+                              render.height, self.lens, self.distortion)
+
+        def inside(scale: float) -> bool:  # every edge ray lands inside the pinhole render
+            xy = undistort(with_scale(scale), edges)
+            u, v = render.fx * xy[:, 0] + render.cx, render.fy * xy[:, 1] + render.cy
+            return bool((u >= 0).all() and (u <= render.width).all() and (v >= 0).all() and (v <= render.height).all())
+
+        low, high = 1.0, 1.0
+        while not inside(high):  # a longer focal length narrows the view: find one that fits, then bisect
+            low, high = high, 2.0 * high
+        for _ in range(40):
+            middle = 0.5 * (low + high)
+            low, high = (low, middle) if inside(middle) else (middle, high)
+        return with_scale(high)
 
     def falloff(self, height: int, width: int, cx: float, cy: float) -> np.ndarray:
         """(H, W) vignetting of each pixel centre, principal point (cx, cy) in pixels (corner at 0)."""
@@ -171,20 +215,28 @@ def add_sensor_noise_to_dataset(data: str | Path, out: str | Path, noise: Sensor
     with folder_lock(out, "spotless-sim add-noise"):  # one writer: a second run would remove its partial files
         remove_partial_files(out)
         write_json(record_path, record)
-        gains = None
+        gains, lens_maps = None, None
+        camera = meta.intrinsics
         if effects is not None:  # the exposure of each frame follows the brightness of the frames before it
             gains = effects.gains(np.array([float(np.mean(read_frame_exr(data / frame.exr_file_path).uneven))
                                             for _, frame in frames]))
-            intr = meta.intrinsics
-            falloff = effects.falloff(intr.height, intr.width, intr.cx, intr.cy)[..., None]
+            camera = effects.camera(meta.intrinsics)
+            if not camera.is_pinhole:
+                map_x, map_y, valid = distort_maps(camera, meta.intrinsics)
+                if not valid.all():  # CameraEffects.camera keeps every ray inside the render: a bug if not
+                    raise RuntimeError(f"{out}: {int((~valid).sum())} pixels of the lens camera fall outside the render")
+                lens_maps = (map_x, map_y)
+            falloff = effects.falloff(camera.height, camera.width, camera.cx, camera.cy)[..., None]
             write_json(out / EFFECTS_RECORD, {
                 "gains": {Path(frame.file_path).name: float(g) for (_, frame), g in zip(frames, gains)},
-                **asdict(effects)})
+                **asdict(effects), "camera": asdict(camera)})
         for name in COPIED:
             src, dst = data / name, out / name
             if name == "transforms.json" and effects is not None:
                 if not dst.exists():
-                    _write_transforms_with_effects(src, dst, effects)
+                    _write_transforms_with_effects(src, dst, effects, camera)
+                continue
+            if lens_maps is not None and name in ("gt", "exr", "sparse"):  # resampled below; no pinhole EXRs/model
                 continue
             if not src.exists() or dst.exists():
                 continue
@@ -200,7 +252,12 @@ def add_sensor_noise_to_dataset(data: str | Path, out: str | Path, noise: Sensor
             target = out / frame.file_path
             if target.is_file():
                 continue
-            linear = read_frame_exr(data / frame.exr_file_path).uneven
+            rendered = read_frame_exr(data / frame.exr_file_path)
+            linear = rendered.uneven
+            if lens_maps is not None:  # the render seen through the lens; the ground truth too
+                linear = remap(linear, *lens_maps)
+                if frame.gt_file_path is not None:
+                    write_png(out / frame.gt_file_path, linear_to_srgb(np.clip(remap(rendered.gt, *lens_maps), 0, 1)))
             if gains is not None:
                 linear = linear * (effects.sensitivity * gains[index] * falloff)
             recorded = np.clip(linear, 0.0, 1.0) if noise is None else add_sensor_noise(
@@ -210,12 +267,21 @@ def add_sensor_noise_to_dataset(data: str | Path, out: str | Path, noise: Sensor
         return written
 
 
-def _write_transforms_with_effects(src: Path, dst: Path, effects: CameraEffects) -> None:
+def _write_transforms_with_effects(src: Path, dst: Path, effects: CameraEffects, camera: Intrinsics) -> None:
     """``src``'s transforms.json with ``camera_effects`` in its "spotless" block (a plain nerfstudio file, which
-    has no block, is copied as it is: the trainer treats it as a real camera's anyway), written atomically to
-    ``dst``."""
+    has no block, is copied as it is: the trainer treats it as a real camera's anyway) and, for a lens, its camera
+    and no EXRs (they hold the pinhole renders), written atomically to ``dst``."""
     data = json.loads(src.read_text(encoding="utf-8"))
     if isinstance(data.get("spotless"), dict):
         data["spotless"]["camera_effects"] = {"exposure": "auto" if effects.auto_exposure else "fixed",
-                                              "vignetting": effects.vignetting, "record": EFFECTS_RECORD}
+                                              "vignetting": effects.vignetting, "lens": effects.lens,
+                                              "record": EFFECTS_RECORD}
+    if not camera.is_pinhole:
+        keys = {"opencv": ("k1", "k2", "p1", "p2", "k3"), "fisheye": ("k1", "k2", "k3", "k4")}[camera.lens]
+        for key in ("k1", "k2", "k3", "k4", "p1", "p2"):
+            data.pop(key, None)
+        data.update({"camera_model": "OPENCV" if camera.lens == "opencv" else "OPENCV_FISHEYE",
+                     "fl_x": camera.fx, "fl_y": camera.fy, **dict(zip(keys, camera.distortion))})
+        for frame in data["frames"]:
+            frame.pop("exr_file_path", None)
     write_json(dst, data)

@@ -127,3 +127,50 @@ def test_the_trainer_turns_the_camera_on_for_real_cameras_resumes_and_reports_it
     gains = np.array(list(first["exposure"]["gains"].values()))
     fitted = [i for i in range(len(gains)) if i not in (0, 11)]  # test views 0 and 11 are never fitted
     assert math.exp(np.log(gains[fitted]).mean()) == pytest.approx(1.0, abs=1e-6)  # the reference exposure
+
+
+def test_a_robot_camera_copy_through_a_lens_resamples_the_renders_and_records_the_camera(tmp_path):
+    """Independent check of one pixel: its ray through the lens (OpenCV's, checked against pycolmap in test_lens.py)
+    lands at a render position whose value the horizontal ramp gives exactly (bilinear sampling is exact on it)."""
+    from spotlessgs.io.cameras import Intrinsics
+    from spotlessgs.io.dataset import read_dataset
+    from spotlessgs.io.exr import FrameEXR, write_frame_exr
+    from spotlessgs.io.lens import undistort
+    from spotlessgs.io.colorspace import linear_to_srgb
+    from spotlessgs.io.images import write_png
+    from spotlessgs.io.transforms import DatasetMeta, FrameRecord, write_transforms
+
+    width, height = 40, 30
+    render = Intrinsics.from_fov(70.0, width, height)
+    ramp = np.repeat(((np.arange(width) + 0.5) / width)[None, :, None], height, 0).repeat(3, 2).astype(np.float32)
+    src, records = tmp_path / "clean", []
+    for k in range(2):
+        name = f"frame_{k:05d}"
+        write_frame_exr(src / "exr" / f"{name}.exr", FrameEXR(uneven=0.5 * ramp, gt=ramp, depth=np.ones((height, width),
+                        np.float32), normal=np.zeros((height, width, 3), np.float32)))
+        write_png(src / "images" / f"{name}.png", linear_to_srgb(0.5 * ramp))
+        write_png(src / "gt" / f"{name}.png", linear_to_srgb(ramp))
+        records.append(FrameRecord(f"images/{name}.png", np.eye(4), gt_file_path=f"gt/{name}.png",
+                                   exr_file_path=f"exr/{name}.exr"))
+    write_transforms(src / "transforms.json", render, records, DatasetMeta(scene_id="ramp"))
+    effects = CameraEffects(auto_exposure=False, vignetting=0.0, lens="opencv", distortion=(-0.2, 0.05, 0.0, 0.0))
+    add_sensor_noise_to_dataset(src, tmp_path / "robot", None, effects=effects)
+    data = read_dataset(tmp_path / "robot", check_files=True)
+    camera = data.intrinsics
+    assert camera == effects.camera(render) and camera.lens == "opencv" and camera.fx > render.fx
+    assert data.exr_paths == (None, None) and data.meta["camera_effects"]["lens"] == "opencv"
+    # every pixel's ray falls inside the render, the outermost just so (the image edge, finely sampled)
+    t = np.linspace(0.0, 1.0, 401)
+    edges = np.concatenate([np.c_[t * width, 0 * t], np.c_[t * width, 0 * t + height], np.c_[0 * t, t * height],
+                            np.c_[0 * t + width, t * height]])
+    rays = undistort(camera, edges)
+    u, v = render.fx * rays[:, 0] + render.cx, render.fy * rays[:, 1] + render.cy
+    margins = [u.min(), width - u.max(), v.min(), height - v.max()]
+    assert min(margins) > -1e-3 and min(margins) < 0.05
+    pixels = np.array([[5.5, 4.5], [20.5, 15.5], [37.5, 27.5]])
+    expected_u = render.fx * undistort(camera, pixels)[:, 0] + render.cx
+    for image, scale in ((read_image(tmp_path / "robot" / "images" / "frame_00001.png"), 0.5),
+                         (read_image(tmp_path / "robot" / "gt" / "frame_00001.png"), 1.0)):
+        linear = srgb_to_linear(image)
+        values = [linear[int(v), int(x), 0] for x, v in pixels]
+        np.testing.assert_allclose(values, scale * np.clip(expected_u, 0.5, width - 0.5) / width, atol=0.006)

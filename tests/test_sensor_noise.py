@@ -135,10 +135,16 @@ def test_command_line(tmp_path):
     assert "wrote 2 image(s)" in result.output
     assert json.loads((tmp_path / "noisy" / NOISE_RECORD).read_text())["shot"] == 0.005
     result = CliRunner().invoke(main, ["add-noise", "--data", str(src), "--out", str(tmp_path / "robot"),
-                                       "--robot-camera", "--vignetting", "0.2", "--max-gain", "3"])
+                                       "--robot-camera", "--vignetting", "0.2", "--max-gain", "3", "--lens", "opencv",
+                                       "--distortion=-0.1,0.01,0,0"])
     assert result.exit_code == 0, result.output + repr(result.exception)
     record = json.loads((tmp_path / "robot" / "camera_effects.json").read_text())
     assert record["vignetting"] == 0.2 and record["max_gain"] == 3.0 and len(record["gains"]) == 2
+    transforms = json.loads((tmp_path / "robot" / "transforms.json").read_text())
+    assert transforms["camera_model"] == "OPENCV" and transforms["k1"] == -0.1 and record["camera"]["lens"] == "opencv"
+    result = CliRunner().invoke(main, ["add-noise", "--data", str(src), "--out", str(tmp_path / "bad"),
+                                       "--robot-camera", "--lens", "opencv", "--distortion", "x,y"])
+    assert result.exit_code == 2 and "--distortion" in result.output
 
 
 def _tree(root) -> dict:
