@@ -20,7 +20,7 @@ from typing import Any
 
 from simulator.child_process import die_with_parent
 from simulator.child_process import drop_blender_script_paths as _drop_blender_script_paths
-from spotlessgs.io.signals import raise_on_sigterm
+from spotlessgs.io.signals import deferred_interrupts, raise_on_sigterm
 from spotlessgs.experiments.reproduce.stages import (
     Stage, StageGraph, is_done, marker_path, prepare_retry, resolve, write_marker,
 )
@@ -61,6 +61,10 @@ def _init_worker(threads: int) -> None:
     _drop_blender_script_paths()
     die_with_parent(signal.SIGTERM)
     raise_on_sigterm()
+
+
+# How often the scheduling loop looks for a stop request while stages run (seconds).
+_POLL_SECONDS = 0.25
 
 
 def _stop_workers(pool: ProcessPoolExecutor, grace_seconds: float = 5.0) -> None:
@@ -127,35 +131,41 @@ def execute(graph: StageGraph, root: str | Path, jobs: int = 1, cores: int | Non
     with ProcessPoolExecutor(max_workers=jobs, mp_context=context, initializer=_init_worker, initargs=(threads,),
                              max_tasks_per_child=1) as pool:
         try:
-            while pending or running:
-                for name in list(pending):
-                    if len(running) >= jobs:
+            # Ctrl-C and SIGTERM only set stop.signum here and are raised at one safe point per round: raised inside
+            # the pool's own code (submit spawning a worker, wait holding the futures' locks) they could leave a lock
+            # held and the shutdown below waiting forever
+            with deferred_interrupts() as stop:
+                while pending or running:
+                    for name in list(pending):
+                        if len(running) >= jobs:
+                            break
+                        stage = graph[name]
+                        if any(d in report.failed or d in report.blocked for d in stage.deps):
+                            pending.remove(name)
+                            report.blocked.append(name)
+                            continue
+                        if all(d in done for d in stage.deps):
+                            pending.remove(name)
+                            if prepare_retry(root, stage):
+                                report.retried.append(name)
+                                log.info("stage %s was interrupted: deleted %s, starting it again", name,
+                                         stage.output)
+                            log.info("start %s", name)
+                            running[pool.submit(run_stage, str(root), stage, threads)] = name
+                    if not running:
                         break
-                    stage = graph[name]
-                    if any(d in report.failed or d in report.blocked for d in stage.deps):
-                        pending.remove(name)
-                        report.blocked.append(name)
-                        continue
-                    if all(d in done for d in stage.deps):
-                        pending.remove(name)
-                        if prepare_retry(root, stage):
-                            report.retried.append(name)
-                            log.info("stage %s was interrupted: deleted %s, starting it again", name, stage.output)
-                        log.info("start %s", name)
-                        running[pool.submit(run_stage, str(root), stage, threads)] = name
-                if not running:
-                    break
-                finished, _ = wait(list(running), return_when=FIRST_COMPLETED)
-                for future in finished:
-                    name = running.pop(future)
-                    error = future.exception()
-                    if error is None:
-                        done.add(name)
-                        report.ran.append(name)
-                        log.info("done %s (%.1f s)", name, future.result()["seconds"])
-                    else:
-                        report.failed[name] = f"{type(error).__name__}: {error}"
-                        log.error("stage %s failed: %s", name, report.failed[name])
+                    finished, _ = wait(list(running), timeout=_POLL_SECONDS, return_when=FIRST_COMPLETED)
+                    stop.raise_if_requested()
+                    for future in finished:
+                        name = running.pop(future)
+                        error = future.exception()
+                        if error is None:
+                            done.add(name)
+                            report.ran.append(name)
+                            log.info("done %s (%.1f s)", name, future.result()["seconds"])
+                        else:
+                            report.failed[name] = f"{type(error).__name__}: {error}"
+                            log.error("stage %s failed: %s", name, report.failed[name])
         except BaseException:  # Ctrl-C, SIGTERM (spotlessgs.io.signals.Terminated) or a bug: stop every stage now
             _stop_workers(pool)  # first: shutdown() forgets the pool's processes
             pool.shutdown(wait=True, cancel_futures=True)
