@@ -386,7 +386,8 @@ def _train_locked(data_dir: Path, run_dir: Path, variant: str | ModelConfig, con
                                   config.validation_blocks, block, seed).to(device)
     cameras = views.cameras.to(device)
     # pixels the loss leaves alone (held out, or with no input sample) and the pixels the held-out scores use
-    ignored, scored = fitted_and_scored_pixels(held_out, _unseen(views, device), len(views.names))
+    unseen = _unseen(views, device)
+    ignored, scored = fitted_and_scored_pixels(held_out, unseen, len(views.names))
     photometric = build_photometric(config, views, split, device)  # exposure and vignetting, or None
 
     start = 0
@@ -481,7 +482,7 @@ def _train_locked(data_dir: Path, run_dir: Path, variant: str | ModelConfig, con
             if s % config.log_every == 0 or s == end or held:
                 elapsed = time.perf_counter() - t0
                 rec = {"step": s, "loss": loss_value, "l1": parts["l1"], "ssim": parts["ssim"],
-                       "psnr": _psnr(recorded, images[k]), "gaussians": len(scene.gaussians),
+                       "psnr": _psnr(recorded, images[k], unseen), "gaussians": len(scene.gaussians),
                        "ms_per_step": 1000.0 * elapsed / (s - start), **{k2: v for k2, v in changes.items() if v},
                        **held}
                 _append_line(metrics_file, metrics_path, json.dumps(rec))
