@@ -42,7 +42,7 @@ from spotlessgs.io.images import write_png
 from spotlessgs.io.lens import check_invertible, distort_maps, remap, undistort
 from spotlessgs.io.paths import refuse_overlap
 from spotlessgs.io.seeding import numpy_rng
-from spotlessgs.io.transforms import read_transforms
+from spotlessgs.io.transforms import nerfstudio_camera, read_transforms
 
 NOISE_RECORD = "sensor_noise.json"
 EFFECTS_RECORD = "camera_effects.json"
@@ -277,11 +277,9 @@ def _write_transforms_with_effects(src: Path, dst: Path, effects: CameraEffects,
                                               "vignetting": effects.vignetting, "lens": effects.lens,
                                               "record": EFFECTS_RECORD}
     if not camera.is_pinhole:
-        keys = {"opencv": ("k1", "k2", "p1", "p2", "k3"), "fisheye": ("k1", "k2", "k3", "k4")}[camera.lens]
         for key in ("k1", "k2", "k3", "k4", "p1", "p2"):
             data.pop(key, None)
-        data.update({"camera_model": "OPENCV" if camera.lens == "opencv" else "OPENCV_FISHEYE",
-                     "fl_x": camera.fx, "fl_y": camera.fy, **dict(zip(keys, camera.distortion))})
+        data.update(nerfstudio_camera(camera, dst))
         for frame in data["frames"]:
             frame.pop("exr_file_path", None)
     write_json(dst, data)

@@ -15,6 +15,7 @@ warning, never dropped silently.
 
 from __future__ import annotations
 
+import dataclasses
 import logging
 import shutil
 import tempfile
@@ -116,7 +117,7 @@ def prepare_images(
     if model_dir is not None:
         _write_dataset(frames, sfm_names, model_dir, out)
         try:
-            summary["camera"] = _camera_summary(read_dataset(out).intrinsics)
+            summary["camera"] = dataclasses.asdict(read_dataset(out).intrinsics)
         except InputError as exc:  # e.g. a many-parameter lens fitted to too few features folds the image
             summary["error"] = str(exc)
             write_json(out / SUMMARY_FILE, summary)
@@ -159,11 +160,6 @@ def _write_dataset(frames: list[Path], sfm_names: list[str], model_dir: Path, ou
     if sparse.exists():
         shutil.rmtree(sparse)
     shutil.copytree(model_dir, sparse)
-
-
-def _camera_summary(intr: Intrinsics) -> dict[str, Any]:
-    return {"fx": intr.fx, "fy": intr.fy, "cx": intr.cx, "cy": intr.cy, "width": intr.width, "height": intr.height,
-            "lens": intr.lens, "distortion": list(intr.distortion)}
 
 
 def _pose_error(out: Path, truth: Path) -> dict[str, Any] | None:
@@ -220,7 +216,7 @@ def prepare_bag(
         records.append(FrameRecord(name, opencv_to_opengl_c2w(c2w)))
     write_transforms(out / "transforms.json", frames.intrinsics, records, None)
     summary = {"source": source, "frames": len(records), "registered": len(records), "not_registered": [],
-               "poses": "from the pose topic", "camera": _camera_summary(frames.intrinsics),
+               "poses": "from the pose topic", "camera": dataclasses.asdict(frames.intrinsics),
                "provenance": provenance(seed=seed)}
     if truth is not None:
         summary["pose_error"] = _pose_error(out, Path(truth))

@@ -246,6 +246,22 @@ def _check_relative(path_str: str, where: str) -> None:
         raise DatasetError(f"{where}: must be a relative POSIX path, got {path_str!r}")
 
 
+def nerfstudio_camera(intrinsics: Intrinsics, path: str | os.PathLike) -> dict[str, Any]:
+    """The top-level camera keys of a ``transforms.json`` for ``intrinsics``: ``camera_model`` (``OPENCV``, also for
+    a pinhole, or ``OPENCV_FISHEYE``), ``fl_x fl_y cx cy w h`` and the distortion keys (``k1 k2 p1 p2`` and ``k3``
+    when the lens has one, or ``k1..k4``). DatasetError naming ``path`` for a lens nerfstudio cannot hold."""
+    model = {"pinhole": "OPENCV", "opencv": "OPENCV", "fisheye": "OPENCV_FISHEYE"}[intrinsics.lens]
+    keys = _CAMERA_MODELS[model][1]
+    if len(intrinsics.distortion) > len(keys):
+        raise DatasetError(f"{path}: nerfstudio's camera models cannot hold the {len(intrinsics.distortion)}-coefficient "
+                           f"(rational) {intrinsics.lens} lens {list(intrinsics.distortion)}; keep it as a COLMAP model")
+    coeffs = dict(zip(keys, intrinsics.distortion))
+    written = keys if model == "OPENCV_FISHEYE" else ("k1", "k2", "p1", "p2") + (("k3",) if "k3" in coeffs else ())
+    return {"camera_model": model, "fl_x": intrinsics.fx, "fl_y": intrinsics.fy, "cx": intrinsics.cx,
+            "cy": intrinsics.cy, "w": intrinsics.width, "h": intrinsics.height,
+            **{k: coeffs.get(k, 0.0) for k in written}}
+
+
 def write_transforms(
     path: str | os.PathLike,
     intrinsics: Intrinsics,
@@ -260,24 +276,7 @@ def write_transforms(
     path = Path(path)
     if not frames:
         raise DatasetError(f"{path}: no frames to write")
-    model = {"pinhole": "OPENCV", "opencv": "OPENCV", "fisheye": "OPENCV_FISHEYE"}[intrinsics.lens]
-    keys = _CAMERA_MODELS[model][1]
-    if len(intrinsics.distortion) > len(keys):
-        raise DatasetError(f"{path}: nerfstudio's camera models cannot hold the {len(intrinsics.distortion)}-coefficient "
-                           f"(rational) {intrinsics.lens} lens {list(intrinsics.distortion)}; keep it as a COLMAP model")
-    coeffs = dict(zip(keys, intrinsics.distortion))
-    out: dict[str, Any] = {
-        "camera_model": model,
-        "fl_x": intrinsics.fx,
-        "fl_y": intrinsics.fy,
-        "cx": intrinsics.cx,
-        "cy": intrinsics.cy,
-        "w": intrinsics.width,
-        "h": intrinsics.height,
-        **{k: coeffs.get(k, 0.0) for k in (keys if model == "OPENCV_FISHEYE" else ("k1", "k2", "p1", "p2"))},
-    }
-    if "k3" in coeffs and model == "OPENCV":
-        out["k3"] = coeffs["k3"]
+    out: dict[str, Any] = nerfstudio_camera(intrinsics, path)
     if ply_file_path is not None:
         _check_relative(ply_file_path, f"{path}: ply_file_path")
         out["ply_file_path"] = ply_file_path
