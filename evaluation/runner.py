@@ -22,7 +22,7 @@ import contextlib
 import logging
 import os
 import tempfile
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
 from typing import Iterator, Sequence
 
@@ -185,7 +185,7 @@ def temporal_block(
     with _torch_threads(config.num_threads), torch.no_grad():
         frames = (_chw(_load(p)) for p in _bar(paths, config, f"temporal {label}", total=len(paths)))
         plain = temporal_scores(frames)
-        out = {"tmp_psnr": plain.mean_psnr, "tmp_ssim": plain.mean_ssim}
+        out = {"tmp_psnr": plain.mean_psnr, "tmp_ssim": plain.mean_ssim, "tmp_flicker": plain.flicker}
         # the warp is a pinhole one: a distorted camera's frames are not warped (their depth maps would need the lens)
         if posed is not None and posed.intrinsics.is_pinhole and all(f.depth_path is not None for f in posed.frames):
             K = torch.from_numpy(posed.intrinsics.K())
@@ -460,6 +460,9 @@ def score_inputs(data: DatasetViews, config: EvalConfig, sfm_dir: Path) -> tuple
     scores = score_pairs([ImagePair(f.name, f.input_path, f.gt_path) for f in test], config, "input vs gt")
     if config.temporal:
         scores.update(temporal_block([f.input_path for f in data.frames], config, "input", data))
+        if all(f.gt_path is not None and f.gt_path.is_file() for f in data.frames):  # what an even sequence has
+            gt = temporal_block([f.gt_path for f in data.frames], replace(config, progress=False), "ground truth")
+            scores["gt_tmp_flicker"] = gt.get("tmp_flicker")
     result = None
     if config.sfm:
         names = [f.name for f in data.frames]

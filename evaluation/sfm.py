@@ -211,6 +211,27 @@ def _pipeline(
     intrinsics: Intrinsics | None, step: Callable[[str], None],
 ) -> SfmResult:
     """The COLMAP steps of :func:`run_sfm` (arguments as there; ``step`` reports progress)."""
+    _features_and_matches(pycolmap, image_dir, names, database, config, intrinsics, step)
+    options = pycolmap.IncrementalPipelineOptions()
+    options.num_threads = config.num_threads
+    options.random_seed = config.seed
+    options.min_num_matches = config.min_num_matches
+    options.multiple_models = config.all_models
+    if intrinsics is not None and not config.refine_intrinsics:
+        options.ba_refine_focal_length = False
+        options.ba_refine_principal_point = False
+        options.ba_refine_extra_params = False
+    step("mapping")
+    models = pycolmap.incremental_mapping(database, image_dir, work / "sparse", options=options)
+    return _result_from_models(models, total=len(names), all_models=config.all_models)
+
+
+def _features_and_matches(
+    pycolmap, image_dir: Path, names: list[str], database: Path, config: SfmConfig, intrinsics: Intrinsics | None,
+    step: Callable[[str], None],
+) -> None:
+    """SIFT features of ``names`` (one camera: ``intrinsics`` or ``config.camera_model``) and their verified matches
+    (``config.matcher``), written to the new COLMAP ``database``."""
     reader = pycolmap.ImageReaderOptions()
     if intrinsics is not None:
         camera = ColmapCamera.from_intrinsics(1, intrinsics)  # the lens model too
@@ -239,18 +260,83 @@ def _pipeline(
                                   device=pycolmap.Device.cpu)
     else:
         pycolmap.match_exhaustive(database, matching_options=matching, device=pycolmap.Device.cpu)
-    options = pycolmap.IncrementalPipelineOptions()
-    options.num_threads = config.num_threads
-    options.random_seed = config.seed
-    options.min_num_matches = config.min_num_matches
-    options.multiple_models = config.all_models
-    if intrinsics is not None and not config.refine_intrinsics:
-        options.ba_refine_focal_length = False
-        options.ba_refine_principal_point = False
-        options.ba_refine_extra_params = False
-    step("mapping")
-    models = pycolmap.incremental_mapping(database, image_dir, work / "sparse", options=options)
-    return _result_from_models(models, total=len(names), all_models=config.all_models)
+
+
+def triangulate_known_poses(
+    image_dir: str | os.PathLike,
+    image_names: Sequence[str],
+    c2w_opencv: np.ndarray,
+    intrinsics: Intrinsics,
+    work_dir: str | os.PathLike,
+    config: SfmConfig = SfmConfig(),
+    progress: Callable[[str], None] | None = None,
+) -> SfmResult:
+    """Sparse 3D points of images whose camera and poses are known (a robot's VIO or odometry): SIFT features,
+    matching as :func:`run_sfm`, then COLMAP's point triangulator with the poses and the camera held fixed.
+
+    Args:
+        image_dir: folder holding the images.
+        image_names: their file names, in time order.
+        c2w_opencv: (V, 4, 4) camera-to-world pose of each image (OpenCV axes, metres).
+        intrinsics: the camera of every image (lens included).
+        work_dir: scratch folder for the COLMAP database and the model (``work_dir/sparse/0``; emptied first).
+        config: feature, matching and threading settings (``camera_model`` and the mapper's are not used).
+        progress: called with the name of each step as it starts.
+
+    Returns:
+        one model: the given poses (every image counts as registered) and the triangulated points, in the poses'
+        frame and units.
+
+    Raises:
+        ValueError: no images, poses of another count, or an image's size differs from ``intrinsics``;
+        FileNotFoundError: an image is missing.
+    """
+    import pycolmap
+
+    image_dir = Path(image_dir)
+    names = list(image_names)
+    c2w = np.asarray(c2w_opencv, dtype=np.float64)
+    if not names or c2w.shape != (len(names), 4, 4):
+        raise ValueError(f"triangulate_known_poses: {len(names)} images need ({len(names)}, 4, 4) poses, got "
+                         f"{c2w.shape}")
+    for n in names:
+        if not (image_dir / n).is_file():
+            raise FileNotFoundError(f"{image_dir / n}: image listed for triangulation does not exist")
+    _check_sizes(image_dir, names, intrinsics)
+    work = Path(work_dir)
+    if work.exists():
+        shutil.rmtree(work)
+    (work / "sparse" / "0").mkdir(parents=True)
+    database = work / "database.db"
+    step = progress or (lambda _s: None)
+    pycolmap.set_random_seed(config.seed)
+    old_level = pycolmap.logging.minloglevel
+    pycolmap.logging.minloglevel = 0 if config.verbose else 2  # the triangulator logs every image at INFO level
+    try:
+        _features_and_matches(pycolmap, image_dir, names, database, config, intrinsics, step)
+        known = pycolmap.Reconstruction()
+        pose_of = dict(zip(names, c2w))
+        db = pycolmap.Database.open(database)
+        try:
+            for camera in db.read_all_cameras():
+                known.add_camera_with_trivial_rig(camera)
+            for image in db.read_all_images():
+                cam_from_world = np.linalg.inv(pose_of[image.name])[:3, :4]
+                known.add_image_with_trivial_frame(
+                    pycolmap.Image(name=image.name, camera_id=image.camera_id, image_id=image.image_id),
+                    pycolmap.Rigid3d(cam_from_world))
+        finally:
+            db.close()
+        options = pycolmap.IncrementalPipelineOptions()
+        options.num_threads = config.num_threads
+        options.random_seed = config.seed
+        options.min_num_matches = config.min_num_matches
+        step("triangulation")
+        model = pycolmap.triangulate_points(known, database, image_dir, work / "sparse" / "0", options=options,
+                                            refine_intrinsics=False)
+    finally:
+        pycolmap.logging.minloglevel = old_level
+    return _result_from_models({0: model}, total=len(names))
 
 
 def _check_sizes(image_dir: Path, names: Sequence[str], intr: Intrinsics) -> None:

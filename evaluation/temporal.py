@@ -11,6 +11,7 @@ K = [[fx, 0, cx], [0, fy, cy], [0, 0, 1]] with pixel (i, j) centred at (i + 0.5,
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 from typing import Iterable, Iterator
 
@@ -18,6 +19,7 @@ import torch
 import torch.nn.functional as F
 from torch import Tensor
 
+from spotlessgs.io.colorspace import srgb_to_linear
 from spotlessgs.metrics import masked_psnr, masked_ssim, psnr, ssim
 
 
@@ -27,6 +29,9 @@ class TemporalScores:
 
     psnr: list[float]  # PSNR (dB) per consecutive pair
     ssim: list[float]  # SSIM per consecutive pair
+    # |log(mean linear brightness of frame k+1 / that of frame k)| per pair: the exposure flicker of a sequence (an
+    # auto-exposure camera's pumps in and out); camera motion changes it little where the lighting is even
+    brightness_step: list[float] = ()  # type: ignore[assignment]
 
     @property
     def mean_psnr(self) -> float:
@@ -37,6 +42,18 @@ class TemporalScores:
     def mean_ssim(self) -> float:
         """Mean SSIM over pairs."""
         return float(sum(self.ssim) / len(self.ssim))
+
+    @property
+    def flicker(self) -> float:
+        """Mean brightness step over pairs (0: constant brightness; 0.69: every frame half or twice the last)."""
+        if not self.brightness_step:
+            return math.nan
+        return float(sum(self.brightness_step) / len(self.brightness_step))
+
+
+def mean_linear_brightness(frame: Tensor) -> float:
+    """Mean linear intensity of a (3, H, W) sRGB frame in [0, 1] (at least 1e-6, so that its log is finite)."""
+    return max(float(srgb_to_linear(frame.double().clamp(0.0, 1.0)).mean()), 1e-6)
 
 
 def consecutive_pairs(frames: Iterable[Tensor]) -> Iterator[tuple[Tensor, Tensor]]:
@@ -57,15 +74,16 @@ def temporal_scores(frames: Iterable[Tensor]) -> TemporalScores:
     Raises:
         ValueError: fewer than two frames, or frames of different sizes (the pair index is named).
     """
-    ps, ss = [], []
+    ps, ss, steps = [], [], []
     for k, (a, b) in enumerate(consecutive_pairs(frames)):
         if a.shape != b.shape:
             raise ValueError(f"frames {k} and {k + 1} differ in shape: {tuple(a.shape)} vs {tuple(b.shape)}")
         ps.append(float(psnr(b, a)[0]))
         ss.append(float(ssim(b, a)[0]))
+        steps.append(abs(math.log(mean_linear_brightness(b) / mean_linear_brightness(a))))
     if not ps:
         raise ValueError("temporal metrics need at least two frames")
-    return TemporalScores(ps, ss)
+    return TemporalScores(ps, ss, steps)
 
 
 def warp_into(

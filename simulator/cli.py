@@ -131,7 +131,10 @@ def generate(kind, out_dir, seed):
               help="--robot-camera: resample the renders through this lens (the ground truth too).")
 @click.option("--distortion", default="", metavar="K1,K2,...",
               help="--robot-camera --lens: OpenCV's coefficients (opencv: k1,k2,p1,p2[,k3]; fisheye: k1,k2,k3,k4).")
-def add_noise(data_dir, out_dir, shot, read, seed, robot_camera, sensitivity, max_gain, vignetting, lens, distortion):
+@click.option("--no-point-cloud", is_flag=True,
+              help="Leave out the depth-derived point cloud (then: spotless prepare --points OUT).")
+def add_noise(data_dir, out_dir, shot, read, seed, robot_camera, sensitivity, max_gain, vignetting, lens, distortion,
+              no_point_cloud):
     """Copy a dataset with camera sensor noise (shot + read) added to its spotlight-only images, and with
     --robot-camera a robot camera's auto-exposure and vignetting.
 
@@ -145,7 +148,8 @@ def add_noise(data_dir, out_dir, shot, read, seed, robot_camera, sensitivity, ma
         raise click.BadParameter(f"not a comma-separated list of numbers: {distortion!r}", param_hint="--distortion")
     effects = CameraEffects(sensitivity=sensitivity, max_gain=max_gain, vignetting=vignetting, lens=lens,
                             distortion=coefficients) if robot_camera else None
-    written = add_sensor_noise_to_dataset(data_dir, out_dir, SensorNoise(shot, read), seed, effects)
+    written = add_sensor_noise_to_dataset(data_dir, out_dir, SensorNoise(shot, read), seed, effects,
+                                          point_cloud=not no_point_cloud)
     click.echo(f"{out_dir}: wrote {written} image(s)")
 
 

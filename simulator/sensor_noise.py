@@ -182,9 +182,11 @@ def add_sensor_noise(linear: np.ndarray, noise: SensorNoise, rng: np.random.Gene
 
 
 def add_sensor_noise_to_dataset(data: str | Path, out: str | Path, noise: SensorNoise | None, seed: int = 0,
-                                effects: CameraEffects | None = None) -> int:
+                                effects: CameraEffects | None = None, point_cloud: bool = True) -> int:
     """Write a copy of the finished dataset ``data`` to ``out`` whose spotlight-only images carry sensor noise
-    (``noise``; None: none) and, with ``effects``, a robot camera's auto-exposure and vignetting.
+    (``noise``; None: none) and, with ``effects``, a robot camera's auto-exposure and vignetting. Without
+    ``point_cloud`` the copy has no depth-derived point cloud (a robot has none: ``spotless prepare --points``
+    triangulates one from the images).
 
     Returns the number of images written now (frames already written by an earlier run with the same settings are
     kept; temporary files of a killed run are removed first). Raises ValueError naming the folder when ``data`` is not
@@ -202,6 +204,8 @@ def add_sensor_noise_to_dataset(data: str | Path, out: str | Path, noise: Sensor
                     "model": "y = x + N(0, shot*x + read^2) in linear intensity, clipped to [0, 1], 8-bit sRGB"}
     if effects is not None:
         record["camera_effects"] = asdict(effects)
+    if not point_cloud:
+        record["point_cloud"] = False
     record_path = out / NOISE_RECORD
     if record_path.is_file():
         old = json.loads(record_path.read_text())
@@ -232,9 +236,11 @@ def add_sensor_noise_to_dataset(data: str | Path, out: str | Path, noise: Sensor
                 **asdict(effects), "camera": asdict(camera)})
         for name in COPIED:
             src, dst = data / name, out / name
-            if name == "transforms.json" and effects is not None:
+            if name == "transforms.json" and (effects is not None or not point_cloud):
                 if not dst.exists():
-                    _write_transforms_with_effects(src, dst, effects, camera)
+                    _write_transforms(src, dst, effects, camera, point_cloud)
+                continue
+            if name in ("points3d.ply", "sparse") and not point_cloud:  # the COLMAP model holds the depth points too
                 continue
             if lens_maps is not None and name in ("gt", "exr", "sparse"):  # resampled below; no pinhole EXRs/model
                 continue
@@ -267,12 +273,15 @@ def add_sensor_noise_to_dataset(data: str | Path, out: str | Path, noise: Sensor
         return written
 
 
-def _write_transforms_with_effects(src: Path, dst: Path, effects: CameraEffects, camera: Intrinsics) -> None:
-    """``src``'s transforms.json with ``camera_effects`` in its "spotless" block (a plain nerfstudio file, which
-    has no block, is copied as it is: the trainer treats it as a real camera's anyway) and, for a lens, its camera
-    and no EXRs (they hold the pinhole renders), written atomically to ``dst``."""
+def _write_transforms(src: Path, dst: Path, effects: CameraEffects | None, camera: Intrinsics,
+                      point_cloud: bool) -> None:
+    """``src``'s transforms.json, written atomically to ``dst``, with ``camera_effects`` in its "spotless" block (a
+    plain nerfstudio file, which has no block, keeps none: the trainer treats it as a real camera's anyway), for a
+    lens its camera and no EXRs (they hold the pinhole renders), and without ``point_cloud`` no ``ply_file_path``."""
     data = json.loads(src.read_text(encoding="utf-8"))
-    if isinstance(data.get("spotless"), dict):
+    if not point_cloud:
+        data.pop("ply_file_path", None)
+    if effects is not None and isinstance(data.get("spotless"), dict):
         data["spotless"]["camera_effects"] = {"exposure": "auto" if effects.auto_exposure else "fixed",
                                               "vignetting": effects.vignetting, "lens": effects.lens,
                                               "record": EFFECTS_RECORD}

@@ -145,8 +145,12 @@ def render(run_dir, which, out_dir, exr, data_dir, device, quiet):
               help="--bag: keep frames at least this many seconds apart.")
 @click.option("--min-motion", "min_motion_m", default=0.0, show_default=True, type=click.FloatRange(0),
               help="--bag with --odometry-topic: keep frames at least this many metres apart.")
-@click.option("--out", "out_dir", required=True, type=click.Path(file_okay=False, path_type=Path),
-              help="The dataset folder to write: images/, sparse/0 (COLMAP), prepare.json.")
+@click.option("--points", "posed_dir", default=None,
+              type=click.Path(exists=True, file_okay=False, path_type=Path),
+              help="Or a posed dataset (transforms.json) without a point cloud: triangulate sparse points with its "
+                   "poses on brightened training frames (DATA/sfm_points.ply); no --out.")
+@click.option("--out", "out_dir", default=None, type=click.Path(file_okay=False, path_type=Path),
+              help="--images/--bag: the dataset folder to write: images/, sparse/0 (COLMAP), prepare.json.")
 @click.option("--camera-model", default="SIMPLE_RADIAL", show_default=True,
               type=click.Choice(["SIMPLE_PINHOLE", "PINHOLE", "SIMPLE_RADIAL", "RADIAL", "OPENCV", "FULL_OPENCV",
                                  "OPENCV_FISHEYE"]),
@@ -158,18 +162,26 @@ def render(run_dir, which, out_dir, exr, data_dir, device, quiet):
 @click.option("--threads", type=click.IntRange(1), default=1, show_default=True)
 @click.option("--seed", default=0, show_default=True, type=int)
 @click.option("-q", "--quiet", is_flag=True)
-def prepare(images_dir, bag, image_topic, camera_info_topic, odometry_topic, min_interval_s, min_motion_m, out_dir,
-            camera_model, matcher, truth_dir, threads, seed, quiet):
+def prepare(images_dir, bag, image_topic, camera_info_topic, odometry_topic, min_interval_s, min_motion_m, posed_dir,
+            out_dir, camera_model, matcher, truth_dir, threads, seed, quiet):
     """Turn a folder of spotlit frames, or a camera of a ROS bag, into a dataset: structure from motion on
-    brightened copies (or the bag's odometry), the originals kept for training; frames that do not register are
-    named."""
-    from spotlessgs.prepare import prepare_bag, prepare_images
+    brightened copies (or the bag's odometry and points triangulated with it), the originals kept for training;
+    frames that do not register are named. --points adds triangulated points to a posed dataset."""
+    from spotlessgs.prepare import add_sfm_points, prepare_bag, prepare_images
 
-    if (images_dir is None) == (bag is None):
-        raise click.UsageError("give one of --images and --bag")
+    if sum(x is not None for x in (images_dir, bag, posed_dir)) != 1:
+        raise click.UsageError("give one of --images, --bag and --points")
     if bag is not None and image_topic is None:
         raise click.UsageError("--bag needs --image-topic")
+    if (out_dir is None) != (posed_dir is not None):
+        raise click.UsageError("--points adds to its dataset and takes no --out" if posed_dir is not None
+                               else "--images and --bag need --out")
     progress = None if quiet else (lambda name: click.echo(f"prepare: {name}", err=True))
+    if posed_dir is not None:
+        points = add_sfm_points(posed_dir, matcher, threads, seed, progress)
+        click.echo(f"{posed_dir}: {points['points']} points triangulated from {points['frames']} training frames "
+                   f"(reprojection error {points['reprojection_error_px']:.2f} px) in {points['file']}")
+        return
     if bag is not None:
         summary = prepare_bag(bag, out_dir, image_topic, camera_info_topic, odometry_topic, min_interval_s,
                               min_motion_m, camera_model, matcher, truth_dir, threads, seed, progress)

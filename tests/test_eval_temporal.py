@@ -43,6 +43,16 @@ def test_plain_scores_by_hand():
     assert s.ssim[0] == pytest.approx(float(ssim(frames[1], frames[0])[0]))
 
 
+def test_flicker_is_the_mean_log_step_of_linear_brightness():
+    """sRGB 0.5 is linear 0.21404; sRGB 0.25 is linear 0.05087 (the sRGB formula by hand): frames 0.5, 0.25, 0.5
+    step by |log(0.05087 / 0.21404)| = 1.4369 twice; a constant sequence does not flicker."""
+    grey = torch.ones(3, 16, 16)
+    s = temporal_scores(iter([0.5 * grey, 0.25 * grey, 0.5 * grey]))
+    step = abs(math.log(((0.25 + 0.055) / 1.055) ** 2.4 / ((0.5 + 0.055) / 1.055) ** 2.4))
+    assert s.brightness_step == pytest.approx([step, step]) and s.flicker == pytest.approx(1.4369, abs=1e-3)
+    assert temporal_scores(iter([0.3 * grey] * 3)).flicker == 0.0
+
+
 def test_warp_with_identical_pose_is_the_identity(room):
     K, frames = room
     f = frames[0]

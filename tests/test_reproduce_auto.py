@@ -84,7 +84,8 @@ def test_method_stage_leaves_the_inputs_to_their_own_stage(auto_run):
 def test_collect_reads_what_each_run_needed(auto_run, tmp_path):
     """The report's collection adds run_decisions of every run folder; the tables show them."""
     _, auto_dir, result = auto_run
-    config = preset("tiny", variants=("uneven",), methods=("spotless", "auto"), baselines=(), sensor_noise=None)
+    config = preset("tiny", variants=("uneven",), methods=("spotless", "auto"), baselines=(), sensor_noise=None,
+                    robot_camera=False)
     check_or_record_config(config, tmp_path)
     runs = tmp_path / "runs" / "bedroom-uneven"
     (runs / "spotless").mkdir(parents=True)

@@ -113,14 +113,25 @@ def test_config_errors():
         ReproduceConfig(variants=("saturated",), baseline_variants=("saturated",))
     with pytest.raises(ValueError, match=r"noisy_methods: unknown \['ours'\]"):
         ReproduceConfig(noisy_methods=("ours",))
+    with pytest.raises(ValueError, match="robot_camera needs the 'uneven' variant"):
+        ReproduceConfig(sensor_noise=None, variants=("saturated",), baseline_variants=("saturated",))
+    with pytest.raises(ValueError, match="robot_lens must be pinhole, opencv or fisheye"):
+        ReproduceConfig(robot_lens="kannala")
+    with pytest.raises(ValueError, match="robot_noise must be \\(shot, read\\)"):
+        ReproduceConfig(robot_noise=(0.01,))
+    with pytest.raises(ValueError, match=r"robot_methods: unknown \['ours'\]"):
+        ReproduceConfig(robot_methods=("ours",))
 
 
 def test_sensor_noise_copies_are_extra_datasets():
     quick = preset("quick", scenes=("bedroom", "office"), gan_rooms=("living_room", "corridor"))
     assert quick.noisy_datasets() == [("bedroom", "uneven-noisy"), ("office", "uneven-noisy")]
-    assert quick.all_datasets() == quick.datasets() + quick.noisy_datasets()
+    assert quick.robot_datasets() == [("bedroom", "robot"), ("office", "robot")]
+    assert quick.all_datasets() == quick.datasets() + quick.noisy_datasets() + quick.robot_datasets()
     assert quick.methods_for("uneven-noisy") == ("spotless",) and quick.methods_for("saturated") == quick.methods
-    clean = preset("quick", sensor_noise=None, variants=("saturated",), baseline_variants=("saturated",))
+    assert quick.methods_for("robot") == quick.methods and preset("tiny").methods_for("robot") == ("spotless",)
+    clean = preset("quick", sensor_noise=None, robot_camera=False, variants=("saturated",),
+                   baseline_variants=("saturated",))
     assert clean.noisy_datasets() == [] and clean.all_datasets() == [("bedroom", "saturated")]
 
 
@@ -169,8 +180,9 @@ def test_pipeline_graph_shape(tmp_path):
     graph = build_graph(config, tmp_path)
     names = set(graph.stages)
     # 2 renders + 7 trainings and 1 inputs' evaluation per dataset (2 datasets), 2 GAN renders, the GAN, 3 baselines
-    # on the uneven set, the sensor-noise copy with its SpotlessGS run and inputs' evaluation, report
-    assert len(names) == 2 + 14 + 2 + 2 + 1 + 3 + 3 + 1
+    # on the uneven set, the sensor-noise and the robot-camera copies each with its SpotlessGS run and inputs'
+    # evaluation, report
+    assert len(names) == 2 + 14 + 2 + 2 + 1 + 3 + 3 + 3 + 1
     noise = graph["noise/bedroom-uneven-noisy"]
     assert noise.function == "spotlessgs.experiments.reproduce.tasks:add_noise_copy" and not noise.clean_on_retry
     assert noise.deps == ("render/bedroom-uneven",)
@@ -182,6 +194,15 @@ def test_pipeline_graph_shape(tmp_path):
     assert graph["train/bedroom-uneven-noisy/spotless"].deps == ("noise/bedroom-uneven-noisy",)
     assert graph["eval-inputs/bedroom-uneven-noisy"].deps == ("noise/bedroom-uneven-noisy",)
     assert len(build_graph(preset("tiny", sensor_noise=None), tmp_path).stages) == len(names) - 3
+    assert len(build_graph(preset("tiny", robot_camera=False), tmp_path).stages) == len(names) - 3
+    robot = graph["robot/bedroom-robot"]
+    assert robot.function == "spotlessgs.experiments.reproduce.tasks:robot_camera_copy" and not robot.clean_on_retry
+    assert robot.deps == ("render/bedroom-uneven",)
+    assert robot.kwargs == {"data_dir": str(tmp_path / "datasets" / "bedroom-uneven"),
+                            "out_dir": str(tmp_path / "datasets" / "bedroom-robot"), "shot": 0.002, "read": 0.004,
+                            "sensitivity": 0.25, "lens": "opencv", "distortion": [-0.18, 0.03, 0.0, 0.0], "matcher": "exhaustive",
+                            "seed": 0}
+    assert graph["train/bedroom-robot/spotless"].deps == ("robot/bedroom-robot",)
     # the uneven inputs are scored once per dataset, with the methods' evaluation settings, after its render only
     inputs = graph["eval-inputs/bedroom-saturated"]
     assert inputs.function == "spotlessgs.experiments.reproduce.tasks:evaluate_inputs"
@@ -194,7 +215,8 @@ def test_pipeline_graph_shape(tmp_path):
         assert {k: stage.kwargs[k] for k in ("sfm", "sfm_matcher", "lpips", "seed")} == {
             k: inputs.kwargs[k] for k in ("sfm", "sfm_matcher", "lpips", "seed")}
     assert sorted(n for n in names if n.startswith("eval-inputs/")) == [
-        "eval-inputs/bedroom-saturated", "eval-inputs/bedroom-uneven", "eval-inputs/bedroom-uneven-noisy"]
+        "eval-inputs/bedroom-robot", "eval-inputs/bedroom-saturated", "eval-inputs/bedroom-uneven",
+        "eval-inputs/bedroom-uneven-noisy"]
     no_sfm = build_graph(preset("tiny", sfm=False, lpips=False, seed=4), tmp_path)["eval-inputs/bedroom-uneven"]
     assert (no_sfm.kwargs["sfm"], no_sfm.kwargs["lpips"], no_sfm.kwargs["seed"]) == (False, False, 4)
     auto = graph["train/bedroom-uneven/auto"]
@@ -640,7 +662,7 @@ def test_collect_reads_the_inputs_once_per_dataset_from_their_stage(tmp_path):
     a method's metrics."""
     from spotlessgs.experiments.reproduce.report import collect
 
-    config = preset("tiny", methods=("3dgs", "spotless"), baselines=())
+    config = preset("tiny", methods=("3dgs", "spotless"), baselines=(), robot_camera=False)
     check_or_record_config(config, tmp_path)
     hand = _collected()["datasets"]["bedroom-uneven"]
     for variant, psnr in (("uneven", 11.0), ("saturated", 7.0)):

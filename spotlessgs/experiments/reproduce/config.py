@@ -23,6 +23,8 @@ VARIANTS: tuple[str, ...] = ("uneven", "saturated")
 # The copy of a room's ``uneven`` dataset with camera sensor noise (ReproduceConfig.sensor_noise): Table III's
 # robot-camera case.
 NOISY_VARIANT = "uneven-noisy"
+# The copy of a room's ``uneven`` dataset seen through a robot camera (ReproduceConfig.robot_camera).
+ROBOT_VARIANT = "robot"
 # The stage that scores a dataset's inputs once for every method (its folder: OUT/inputs/<dataset>).
 INPUTS_STAGE = "eval-inputs"
 # Room kinds shipped under scenes/<kind>/house.json.
@@ -90,6 +92,19 @@ class ReproduceConfig:
     sensor_noise: tuple[float, float] | None = (0.002, 0.004)
     # 3D models trained on the noisy copies.
     noisy_methods: tuple[str, ...] = ("spotless",)
+    # A robot's camera and start (``<room>-robot``): every room's ``uneven`` renders seen through an OpenCV lens
+    # (``robot_distortion``: k1, k2, p1, p2), with auto-exposure, vignetting (35 % at the corners) and sensor noise
+    # (``robot_noise``: shot, read) as ``spotless-sim add-noise --robot-camera --no-point-cloud`` makes them, and no
+    # depth-derived point cloud: the trainer starts from sparse points triangulated on those images with the poses
+    # (``spotless prepare --points``). ``robot_methods`` are trained on it; the report sets each against the same
+    # method on the ideal input (``<room>-uneven``).
+    robot_camera: bool = True
+    robot_lens: str = "opencv"
+    robot_distortion: tuple[float, ...] = (-0.18, 0.03, 0.0, 0.0)
+    robot_noise: tuple[float, float] = (0.002, 0.004)
+    # What the robot's sensor records of the render at gain 1 (a dark scene: auto-exposure raises the gain up to 4x).
+    robot_sensitivity: float = 0.25
+    robot_methods: tuple[str, ...] = METHODS_3D
     # SfM pairing: "sequential" or "exhaustive" (short sequences with wide baselines need exhaustive).
     sfm_matcher: str = "sequential"
     # Compute LPIPS (AlexNet) besides PSNR and SSIM.
@@ -145,6 +160,20 @@ class ReproduceConfig:
                 raise ValueError("ReproduceConfig.sensor_noise needs the 'uneven' variant (the noisy copy is made "
                                  f"from it); variants are {list(self.variants)}")
             check_subset("noisy_methods", METHODS_3D)
+        if self.robot_camera:
+            if "uneven" not in self.variants:
+                raise ValueError("ReproduceConfig.robot_camera needs the 'uneven' variant (the robot copy is made from "
+                                 f"it); variants are {list(self.variants)}")
+            if self.robot_lens not in ("pinhole", "opencv", "fisheye"):
+                raise ValueError(f"ReproduceConfig.robot_lens must be pinhole, opencv or fisheye, got "
+                                 f"{self.robot_lens!r}")
+            if len(self.robot_noise) != 2 or not all(isinstance(v, (int, float)) and math.isfinite(v) and v >= 0
+                                                     for v in self.robot_noise):
+                raise ValueError(f"ReproduceConfig.robot_noise must be (shot, read), two finite numbers >= 0; got "
+                                 f"{self.robot_noise!r}")
+            if not (math.isfinite(self.robot_sensitivity) and self.robot_sensitivity > 0):
+                raise ValueError(f"ReproduceConfig.robot_sensitivity must be > 0, got {self.robot_sensitivity!r}")
+            check_subset("robot_methods", METHODS_3D)
         if self.sfm_matcher not in ("sequential", "exhaustive"):
             raise ValueError(f"ReproduceConfig.sfm_matcher must be sequential or exhaustive, got {self.sfm_matcher!r}")
 
@@ -170,13 +199,17 @@ class ReproduceConfig:
         """(room, NOISY_VARIANT) of every sensor-noise copy (empty when ``sensor_noise`` is None)."""
         return [] if self.sensor_noise is None else [(room, NOISY_VARIANT) for room in self.scenes]
 
+    def robot_datasets(self) -> list[tuple[str, str]]:
+        """(room, ROBOT_VARIANT) of every robot-camera copy (empty when ``robot_camera`` is off)."""
+        return [(room, ROBOT_VARIANT) for room in self.scenes] if self.robot_camera else []
+
     def all_datasets(self) -> list[tuple[str, str]]:
-        """Every test dataset, rendered ones then noisy copies, in table order."""
-        return self.datasets() + self.noisy_datasets()
+        """Every test dataset, rendered ones, then noisy and robot-camera copies, in table order."""
+        return self.datasets() + self.noisy_datasets() + self.robot_datasets()
 
     def methods_for(self, variant: str) -> tuple[str, ...]:
         """The 3D methods trained on a dataset of this variant."""
-        return self.noisy_methods if variant == NOISY_VARIANT else self.methods
+        return {NOISY_VARIANT: self.noisy_methods, ROBOT_VARIANT: self.robot_methods}.get(variant, self.methods)
 
     def gan_domains(self) -> tuple[tuple[str, ...], tuple[str, ...]]:
         """(rooms whose uneven inputs form the Cycle-GAN's source domain, rooms whose ground truth forms its target)."""
@@ -196,7 +229,7 @@ PRESETS: dict[str, ReproduceConfig] = {
         preset="tiny", frames=12, width=96, height=72, samples=4, train_preset="tiny", train_iterations=150,
         train_width=64, curve_fractions=(0.5,), selection_min_proxy_iterations=20, gan_rooms=("office", "living_room"),
         gan_frames=6, gan_width=96, gan_height=72, gan_samples=4, cyclegan_preset="tiny", cyclegan_steps=None,
-        sfm_matcher="exhaustive",
+        sfm_matcher="exhaustive", robot_methods=("spotless",),
     ),
     # README main job: about half an hour on a 2-core CPU.
     "quick": ReproduceConfig(),

@@ -5,6 +5,7 @@ Output folder layout::
     OUT/reproduce.json                    the resolved config (a rerun with another config is refused)
     OUT/datasets/<room>-<variant>/        rendered test datasets (simulator)
     OUT/datasets/<room>-uneven-noisy/     the uneven dataset with camera sensor noise (config.sensor_noise)
+    OUT/datasets/<room>-robot/            the uneven dataset through a robot camera, sparse start (config.robot_*)
     OUT/datasets/gan-<room>/              other rooms' renders for the Cycle-GAN
     OUT/inputs/<room>-<variant>/          the uneven inputs' evaluation, once per dataset (results.json, sfm/)
     OUT/runs/<room>-<variant>/<method>/   training runs (+ relit/, eval/ without the inputs, curve/; auto:
@@ -23,7 +24,9 @@ from pathlib import Path
 from spotlessgs.io.atomic import write_json
 from spotlessgs.io.folder_lock import folder_lock
 from spotlessgs.io.paths import refuse_overlap
-from spotlessgs.experiments.reproduce.config import INPUTS_STAGE, NOISY_VARIANT, ReproduceConfig, dataset_id
+from spotlessgs.experiments.reproduce.config import (
+    INPUTS_STAGE, NOISY_VARIANT, ROBOT_VARIANT, ReproduceConfig, dataset_id,
+)
 from spotlessgs.experiments.reproduce.executor import RunReport, execute
 from spotlessgs.experiments.reproduce.stages import Stage, StageGraph
 from spotlessgs.run import AUTO
@@ -32,8 +35,9 @@ CONFIG_FILE = "reproduce.json"
 TASKS = "spotlessgs.experiments.reproduce.tasks"
 # Stage family that evaluates a dataset's uneven inputs once (``eval-inputs/<dataset>``; the report reads its marker).
 def dataset_stage(variant: str, ds: str) -> str:
-    """The stage that writes dataset ``ds``: ``noise/<ds>`` for a sensor-noise copy, ``render/<ds>`` otherwise."""
-    return f"noise/{ds}" if variant == NOISY_VARIANT else f"render/{ds}"
+    """The stage that writes dataset ``ds``: ``noise/<ds>`` for a sensor-noise copy, ``robot/<ds>`` for a
+    robot-camera copy, ``render/<ds>`` otherwise."""
+    return {NOISY_VARIANT: f"noise/{ds}", ROBOT_VARIANT: f"robot/{ds}"}.get(variant, f"render/{ds}")
 
 
 def build_graph(config: ReproduceConfig, out: Path) -> StageGraph:
@@ -77,6 +81,17 @@ def build_graph(config: ReproduceConfig, out: Path) -> StageGraph:
             clean_on_retry=False,
             kwargs={"data_dir": str(out / "datasets" / source), "out_dir": str(out / "datasets" / ds),
                     "shot": float(shot), "read": float(read), "seed": config.seed}))
+    for room, variant in config.robot_datasets():
+        ds, source = dataset_id(room, variant), dataset_id(room, "uneven")
+        shot, read = config.robot_noise
+        stages.append(Stage(
+            f"robot/{ds}", f"{TASKS}:robot_camera_copy", deps=(f"render/{source}",), output=out / "datasets" / ds,
+            clean_on_retry=False,
+            kwargs={"data_dir": str(out / "datasets" / source), "out_dir": str(out / "datasets" / ds),
+                    "shot": float(shot), "read": float(read), "sensitivity": float(config.robot_sensitivity),
+                    "lens": config.robot_lens,
+                    "distortion": [float(v) for v in config.robot_distortion], "matcher": config.sfm_matcher,
+                    "seed": config.seed}))
     for room, variant in config.all_datasets():
         ds = dataset_id(room, variant)
         for method in config.methods_for(variant):

@@ -10,7 +10,9 @@ from evaluation.dataset import read_dataset
 from spotlessgs.io.atomic import write_json, write_text
 from spotlessgs.io.provenance import provenance
 from spotlessgs.experiments.reproduce import paper
-from spotlessgs.experiments.reproduce.config import INPUTS_STAGE, NOISY_VARIANT, ReproduceConfig, dataset_id
+from spotlessgs.experiments.reproduce.config import (
+    INPUTS_STAGE, NOISY_VARIANT, ROBOT_VARIANT, ReproduceConfig, dataset_id,
+)
 from spotlessgs.experiments.reproduce.figures import qualitative_grid, speed_error_plot
 from spotlessgs.experiments.reproduce.stages import MARKER_DIR, read_marker
 from spotlessgs.experiments.reproduce.tables import Agreement, Table, agreement_notes, all_tables
@@ -48,6 +50,8 @@ def collect(out: Path, config: ReproduceConfig) -> dict[str, Any]:
                                  "input": read_marker(out, f"{INPUTS_STAGE}/{ds}")["result"]["metrics"]}
         if variant == NOISY_VARIANT:
             entry["sensor_noise"] = read_marker(out, f"noise/{ds}")["result"]
+        if variant == ROBOT_VARIANT:
+            entry["robot_camera"] = read_marker(out, f"robot/{ds}")["result"]
         for method in config.methods_for(variant):
             marker = read_marker(out, f"train/{ds}/{method}")
             entry["methods"][method] = marker["result"]
@@ -83,7 +87,11 @@ def render_markdown(config: ReproduceConfig, tables: list[Table], notes: list[Ag
         + (f" Sensor-noise copies of the uneven datasets (`<room>-{NOISY_VARIANT}`, shot variance "
            f"{config.sensor_noise[0]:g}, read noise {config.sensor_noise[1]:g} in linear intensity; Table III's "
            f"robot-camera case, as the paper's SfM test is on a real camera): "
-           f"{', '.join(config.noisy_methods)}." if config.sensor_noise is not None else ""),
+           f"{', '.join(config.noisy_methods)}." if config.sensor_noise is not None else "")
+        + (f" Robot-camera copies (`<room>-{ROBOT_VARIANT}`: {config.robot_lens} lens "
+           f"{list(config.robot_distortion)}, auto-exposure, vignetting, sensor noise {list(config.robot_noise)}, "
+           f"sparse start triangulated on its images): {', '.join(config.robot_methods)}."
+           if config.robot_camera else ""),
         "",
         f"Paper figures are from the {paper.SOURCE} (Table III: its real-world sequence); they come from other data "
         "(and a GPU), so compare orderings, "

@@ -26,14 +26,17 @@ from evaluation.report import write_results_json
 from evaluation.runner import EvalConfig, evaluate_run, score_inputs, score_pairs, temporal_block
 from evaluation.sfm import SfmConfig, run_sfm
 from simulator.render_pipeline import ExecutionOptions, RenderConfig, render_dataset
-from simulator.sensor_noise import SensorNoise, add_sensor_noise_to_dataset
+from simulator.sensor_noise import CameraEffects, SensorNoise, add_sensor_noise_to_dataset
 from spotlessgs.baselines2d import enhance_folder
 from spotlessgs.baselines2d.cyclegan.config import preset as cyclegan_config
 from spotlessgs.baselines2d.cyclegan.train import train_cyclegan
 from spotlessgs.experiments.reproduce.report import write_report
 from spotlessgs.io.atomic import to_jsonable, write_json
 from spotlessgs.io.cameras import opengl_to_opencv_c2w
+from spotlessgs.io.dataset import read_dataset as read_dataset_description
+from spotlessgs.io.errors import InputError
 from spotlessgs.io.provenance import provenance
+from spotlessgs.prepare import SUMMARY_FILE, add_sfm_points
 from spotlessgs.run import AUTO, Run, RunSpec, given_overrides, train
 from spotlessgs.training.selection import SelectionConfig
 
@@ -95,6 +98,29 @@ def add_noise_copy(data_dir: str, out_dir: str, shot: float, read: float, seed: 
     (simulator.sensor_noise.add_sensor_noise_to_dataset; the ground truth and poses are the source's)."""
     written = add_sensor_noise_to_dataset(data_dir, out_dir, SensorNoise(shot=shot, read=read), seed=seed)
     return {"source": data_dir, "shot": shot, "read": read, "written": written}
+
+
+def robot_camera_copy(data_dir: str, out_dir: str, shot: float, read: float, sensitivity: float, lens: str,
+                      distortion: Sequence[float], matcher: str, seed: int, threads: int) -> dict[str, Any]:
+    """Write (or resume) the robot-camera copy of a finished dataset: its renders through ``lens``, with
+    auto-exposure, vignetting and sensor noise and without the depth-derived point cloud
+    (simulator.sensor_noise.add_sensor_noise_to_dataset), then sparse points triangulated on the copy's images with
+    its poses (spotlessgs.prepare.add_sfm_points). When none can be triangulated the summary says so and the
+    trainer starts from random points in the frusta (it warns too)."""
+    effects = CameraEffects(sensitivity=sensitivity, lens=lens, distortion=tuple(distortion))
+    written = add_sensor_noise_to_dataset(data_dir, out_dir, SensorNoise(shot=shot, read=read), seed=seed,
+                                          effects=effects, point_cloud=False)
+    summary: dict[str, Any] = {"source": data_dir, "shot": shot, "read": read, "written": written,
+                               "camera_effects": asdict(effects)}
+    if read_dataset_description(out_dir).ply_path is None:
+        try:
+            add_sfm_points(out_dir, matcher=matcher, threads=1, seed=seed)
+        except InputError as exc:
+            summary["points_error"] = str(exc)
+    points_file = Path(out_dir) / SUMMARY_FILE
+    summary["points"] = json.loads(points_file.read_text(encoding="utf-8")).get("points") if points_file.is_file() \
+        else None
+    return summary
 
 
 # ---------------------------------------------------------------------------------------------------------------------

@@ -18,7 +18,6 @@ from __future__ import annotations
 import dataclasses
 import logging
 import shutil
-import tempfile
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any
@@ -29,15 +28,13 @@ from evaluation.sfm import SfmConfig, run_sfm
 from evaluation.trajectory import trajectory_errors
 from spotlessgs.baselines2d.clahe import clahe
 from spotlessgs.io.atomic import atomic_path, write_json
-from spotlessgs.io.cameras import Intrinsics, opencv_to_opengl_c2w
+from spotlessgs.io.cameras import Intrinsics
 from spotlessgs.io.colmap_text import read_colmap_model
 from spotlessgs.io.dataset import read_dataset
 from spotlessgs.io.errors import InputError
 from spotlessgs.io.images import list_image_files, read_image, write_png
 from spotlessgs.io.paths import refuse_overlap
 from spotlessgs.io.provenance import provenance
-from spotlessgs.io.rosbag import read_bag
-from spotlessgs.io.transforms import FrameRecord, write_transforms
 
 log = logging.getLogger(__name__)
 
@@ -124,7 +121,7 @@ def prepare_images(
             raise InputError(f"{images_dir}: structure from motion estimated a {camera_model} camera that cannot be "
                              f"used ({exc}); try a simpler --camera-model such as SIMPLE_RADIAL") from None
         if truth is not None:
-            summary["pose_error"] = _pose_error(out, Path(truth))
+            summary["pose_error"] = pose_error(out, Path(truth))
     write_json(out / SUMMARY_FILE, summary)
     if summary["registered"] < 2:
         raise InputError(f"{images_dir}: structure from motion registered {summary['registered']} of {len(names)} "
@@ -162,7 +159,7 @@ def _write_dataset(frames: list[Path], sfm_names: list[str], model_dir: Path, ou
     shutil.copytree(model_dir, sparse)
 
 
-def _pose_error(out: Path, truth: Path) -> dict[str, Any] | None:
+def pose_error(out: Path, truth: Path) -> dict[str, Any] | None:
     """ATE (m, after similarity alignment) and mean relative rotation error of the dataset's poses against the
     poses of the same file names in ``truth``."""
     mine, true = read_dataset(out), read_dataset(truth)
@@ -174,51 +171,3 @@ def _pose_error(out: Path, truth: Path) -> dict[str, Any] | None:
                                                                   for i in common]))
     return {"poses": len(common), "ate_rmse_m": errors.ate_rmse, "ate_mean_m": errors.ate_mean,
             "rre_mean_deg": errors.rre_mean_deg, "sim3_scale": errors.alignment.scale}
-
-
-def prepare_bag(
-    bag: str | Path, out: str | Path, image_topic: str, camera_info_topic: str | None = None,
-    pose_topic: str | None = None, min_interval_s: float = 0.0, min_motion_m: float = 0.0,
-    camera_model: str = "SIMPLE_RADIAL", matcher: str = "sequential", truth: str | Path | None = None,
-    threads: int = 1, seed: int = 0, progress: Callable[[str], None] | None = None,
-) -> dict[str, Any]:
-    """Turn one camera of a ROS 1 or ROS 2 bag into a dataset in ``out``.
-
-    With ``pose_topic`` (odometry of the camera's optical frame) the frames and their poses become a nerfstudio
-    ``transforms.json`` (the camera from ``camera_info_topic``, which is then required); without it the frames go
-    through :func:`prepare_images` (structure from motion; the CameraInfo camera, when given, is kept fixed).
-
-    Raises:
-        InputError: as :func:`spotlessgs.io.rosbag.read_bag` and :func:`prepare_images`; poses without a camera.
-    """
-    bag, out = Path(bag), Path(out)
-    refuse_overlap(out, {"--bag": bag}, "--out")
-    if pose_topic is not None and camera_info_topic is None:
-        raise InputError(f"{bag}: poses from {pose_topic!r} need the camera too: give its CameraInfo topic")
-    step = progress or (lambda _name: None)
-    step(f"reading {image_topic}")
-    frames = read_bag(bag, image_topic, camera_info_topic, pose_topic, min_interval_s, min_motion_m)
-    source = {"bag": str(bag.resolve()), "image_topic": image_topic, "camera_info_topic": camera_info_topic,
-              "pose_topic": pose_topic, "frames_kept": len(frames.images), "frames_skipped": frames.skipped}
-    if frames.c2w is None:
-        with tempfile.TemporaryDirectory(prefix="spotless-bag-") as tmp:
-            for k, image in enumerate(frames.images):
-                write_png(Path(tmp) / f"frame_{k:05d}.png", image)
-            summary = prepare_images(tmp, out, camera_model, matcher, frames.intrinsics, truth, threads, seed,
-                                     progress)
-        summary["source"] = source
-        write_json(out / SUMMARY_FILE, summary)
-        return summary
-    records = []
-    for k, (image, c2w) in enumerate(zip(frames.images, frames.c2w)):
-        name = f"images/frame_{k:05d}.png"
-        write_png(out / name, image)
-        records.append(FrameRecord(name, opencv_to_opengl_c2w(c2w)))
-    write_transforms(out / "transforms.json", frames.intrinsics, records, None)
-    summary = {"source": source, "frames": len(records), "registered": len(records), "not_registered": [],
-               "poses": "from the pose topic", "camera": dataclasses.asdict(frames.intrinsics),
-               "provenance": provenance(seed=seed)}
-    if truth is not None:
-        summary["pose_error"] = _pose_error(out, Path(truth))
-    write_json(out / SUMMARY_FILE, summary)
-    return summary
