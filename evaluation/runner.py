@@ -22,7 +22,7 @@ import contextlib
 import logging
 import os
 import tempfile
-from dataclasses import asdict, dataclass, field, replace
+from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Iterator, Sequence
 
@@ -36,7 +36,7 @@ from evaluation.lpips import lpips
 from evaluation.plots import save_image_grid, save_trajectory_plot
 from evaluation.report import write_markdown, write_results_json
 from evaluation.sfm import SfmConfig, SfmResult, run_sfm
-from evaluation.temporal import PosedFrame, temporal_scores, warped_temporal_scores
+from evaluation.temporal import PosedFrame, sequence_flicker, temporal_scores, warped_temporal_scores
 from spotlessgs.io.cameras import Intrinsics, opengl_to_opencv_c2w
 from spotlessgs.io.errors import InputError
 from spotlessgs.io.folder_lock import folder_lock
@@ -460,9 +460,9 @@ def score_inputs(data: DatasetViews, config: EvalConfig, sfm_dir: Path) -> tuple
     scores = score_pairs([ImagePair(f.name, f.input_path, f.gt_path) for f in test], config, "input vs gt")
     if config.temporal:
         scores.update(temporal_block([f.input_path for f in data.frames], config, "input", data))
-        if all(f.gt_path is not None and f.gt_path.is_file() for f in data.frames):  # what an even sequence has
-            gt = temporal_block([f.gt_path for f in data.frames], replace(config, progress=False), "ground truth")
-            scores["gt_tmp_flicker"] = gt.get("tmp_flicker")
+        if len(data.frames) > 1 and all(f.gt_path is not None and f.gt_path.is_file() for f in data.frames):
+            with _torch_threads(config.num_threads), torch.no_grad():  # what an evenly lit sequence has
+                scores["gt_tmp_flicker"] = sequence_flicker(_chw(_load(f.gt_path)) for f in data.frames)
     result = None
     if config.sfm:
         names = [f.name for f in data.frames]

@@ -15,11 +15,12 @@ poses on its own before the trajectory errors are pooled.
 
 from __future__ import annotations
 
+import contextlib
 import os
 import shutil
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Callable, Literal, Mapping, Sequence
+from typing import Callable, Iterator, Literal, Mapping, Sequence
 
 import numpy as np
 
@@ -182,28 +183,51 @@ def run_sfm(
     """
     import pycolmap
 
-    image_dir = Path(image_dir)
-    names = list(image_names)
+    image_dir, names = Path(image_dir), list(image_names)
+    work, database = _new_work_folder(image_dir, names, work_dir, intrinsics, "SfM")
+    step = progress or (lambda _s: None)
+    with _colmap_logging(pycolmap, config, quiet_level=1):
+        return _pipeline(pycolmap, image_dir, names, work, database, config, intrinsics, step)
+
+
+def _new_work_folder(image_dir: Path, names: list[str], work_dir: str | os.PathLike, intrinsics: Intrinsics | None,
+                     what: str) -> tuple[Path, Path]:
+    """Check the images (at least one, each present, each of ``intrinsics``' size when given), empty ``work_dir``
+    and return it with the path of its new COLMAP database."""
     if not names:
-        raise ValueError("SfM needs at least one image")
+        raise ValueError(f"{what} needs at least one image")
     for n in names:
         if not (image_dir / n).is_file():
-            raise FileNotFoundError(f"{image_dir / n}: image listed for SfM does not exist")
+            raise FileNotFoundError(f"{image_dir / n}: image listed for {what} does not exist")
     if intrinsics is not None:
         _check_sizes(image_dir, names, intrinsics)
     work = Path(work_dir)
     if work.exists():
         shutil.rmtree(work)
     (work / "sparse").mkdir(parents=True)
-    database = work / "database.db"
-    step = progress or (lambda _s: None)
+    return work, work / "database.db"
+
+
+@contextlib.contextmanager
+def _colmap_logging(pycolmap, config: SfmConfig, quiet_level: int) -> Iterator[None]:
+    """COLMAP's random seed set from ``config``, and its log level INFO when ``config.verbose``, else
+    ``quiet_level`` (1: warnings and errors, 2: errors), restored afterwards."""
     pycolmap.set_random_seed(config.seed)
     old_level = pycolmap.logging.minloglevel
-    pycolmap.logging.minloglevel = 0 if config.verbose else 1
+    pycolmap.logging.minloglevel = 0 if config.verbose else quiet_level
     try:
-        return _pipeline(pycolmap, image_dir, names, work, database, config, intrinsics, step)
+        yield
     finally:
         pycolmap.logging.minloglevel = old_level
+
+
+def _mapper_options(pycolmap, config: SfmConfig):
+    """COLMAP's mapper options with ``config``'s threads, seed and minimum matches per image pair."""
+    options = pycolmap.IncrementalPipelineOptions()
+    options.num_threads = config.num_threads
+    options.random_seed = config.seed
+    options.min_num_matches = config.min_num_matches
+    return options
 
 
 def _pipeline(
@@ -212,10 +236,7 @@ def _pipeline(
 ) -> SfmResult:
     """The COLMAP steps of :func:`run_sfm` (arguments as there; ``step`` reports progress)."""
     _features_and_matches(pycolmap, image_dir, names, database, config, intrinsics, step)
-    options = pycolmap.IncrementalPipelineOptions()
-    options.num_threads = config.num_threads
-    options.random_seed = config.seed
-    options.min_num_matches = config.min_num_matches
+    options = _mapper_options(pycolmap, config)
     options.multiple_models = config.all_models
     if intrinsics is not None and not config.refine_intrinsics:
         options.ba_refine_focal_length = False
@@ -293,26 +314,14 @@ def triangulate_known_poses(
     """
     import pycolmap
 
-    image_dir = Path(image_dir)
-    names = list(image_names)
+    image_dir, names = Path(image_dir), list(image_names)
     c2w = np.asarray(c2w_opencv, dtype=np.float64)
-    if not names or c2w.shape != (len(names), 4, 4):
+    if c2w.shape != (len(names), 4, 4):
         raise ValueError(f"triangulate_known_poses: {len(names)} images need ({len(names)}, 4, 4) poses, got "
                          f"{c2w.shape}")
-    for n in names:
-        if not (image_dir / n).is_file():
-            raise FileNotFoundError(f"{image_dir / n}: image listed for triangulation does not exist")
-    _check_sizes(image_dir, names, intrinsics)
-    work = Path(work_dir)
-    if work.exists():
-        shutil.rmtree(work)
-    (work / "sparse" / "0").mkdir(parents=True)
-    database = work / "database.db"
+    work, database = _new_work_folder(image_dir, names, work_dir, intrinsics, "triangulation")
     step = progress or (lambda _s: None)
-    pycolmap.set_random_seed(config.seed)
-    old_level = pycolmap.logging.minloglevel
-    pycolmap.logging.minloglevel = 0 if config.verbose else 2  # the triangulator logs every image at INFO level
-    try:
+    with _colmap_logging(pycolmap, config, quiet_level=2):  # the triangulator logs every image at INFO level
         _features_and_matches(pycolmap, image_dir, names, database, config, intrinsics, step)
         known = pycolmap.Reconstruction()
         pose_of = dict(zip(names, c2w))
@@ -327,15 +336,10 @@ def triangulate_known_poses(
                     pycolmap.Rigid3d(cam_from_world))
         finally:
             db.close()
-        options = pycolmap.IncrementalPipelineOptions()
-        options.num_threads = config.num_threads
-        options.random_seed = config.seed
-        options.min_num_matches = config.min_num_matches
         step("triangulation")
-        model = pycolmap.triangulate_points(known, database, image_dir, work / "sparse" / "0", options=options,
-                                            refine_intrinsics=False)
-    finally:
-        pycolmap.logging.minloglevel = old_level
+        (work / "sparse" / "0").mkdir()
+        model = pycolmap.triangulate_points(known, database, image_dir, work / "sparse" / "0",
+                                            options=_mapper_options(pycolmap, config), refine_intrinsics=False)
     return _result_from_models({0: model}, total=len(names))
 
 

@@ -56,6 +56,17 @@ def mean_linear_brightness(frame: Tensor) -> float:
     return max(float(srgb_to_linear(frame.double().clamp(0.0, 1.0)).mean()), 1e-6)
 
 
+def brightness_step(a: Tensor, b: Tensor) -> float:
+    """|log(mean linear brightness of frame ``b`` / that of frame ``a``)| (see TemporalScores.brightness_step)."""
+    return abs(math.log(mean_linear_brightness(b) / mean_linear_brightness(a)))
+
+
+def sequence_flicker(frames: Iterable[Tensor]) -> float:
+    """TemporalScores.flicker of a sequence of (3, H, W) frames without the pairs' PSNR and SSIM (NaN for fewer
+    than two frames)."""
+    return TemporalScores([], [], [brightness_step(a, b) for a, b in consecutive_pairs(frames)]).flicker
+
+
 def consecutive_pairs(frames: Iterable[Tensor]) -> Iterator[tuple[Tensor, Tensor]]:
     """Yield (frame t, frame t+1) from an iterable of (3, H, W) frames, holding only two in memory."""
     prev = None
@@ -80,7 +91,7 @@ def temporal_scores(frames: Iterable[Tensor]) -> TemporalScores:
             raise ValueError(f"frames {k} and {k + 1} differ in shape: {tuple(a.shape)} vs {tuple(b.shape)}")
         ps.append(float(psnr(b, a)[0]))
         ss.append(float(ssim(b, a)[0]))
-        steps.append(abs(math.log(mean_linear_brightness(b) / mean_linear_brightness(a))))
+        steps.append(brightness_step(a, b))
     if not ps:
         raise ValueError("temporal metrics need at least two frames")
     return TemporalScores(ps, ss, steps)

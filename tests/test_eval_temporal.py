@@ -11,6 +11,7 @@ from spotlessgs.metrics import masked_psnr, masked_ssim, ssim
 from evaluation.synthetic import render_room_sequence
 from evaluation.temporal import (
     PosedFrame,
+    sequence_flicker,
     temporal_scores,
     warp_into,
     warped_temporal_scores,
@@ -51,6 +52,7 @@ def test_flicker_is_the_mean_log_step_of_linear_brightness():
     step = abs(math.log(((0.25 + 0.055) / 1.055) ** 2.4 / ((0.5 + 0.055) / 1.055) ** 2.4))
     assert s.brightness_step == pytest.approx([step, step]) and s.flicker == pytest.approx(1.4369, abs=1e-3)
     assert temporal_scores(iter([0.3 * grey] * 3)).flicker == 0.0
+    assert sequence_flicker(iter([0.5 * grey, 0.25 * grey, 0.5 * grey])) == pytest.approx(step)  # without the PSNRs
 
 
 def test_warp_with_identical_pose_is_the_identity(room):

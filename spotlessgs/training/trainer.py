@@ -104,12 +104,17 @@ def resolve_device(name: str) -> torch.device:
 SPARSE_START_SHARE = 0.25
 
 
+def initial_gaussian_limit(config: TrainConfig) -> int:
+    """The most Gaussians a run starts with (a seeded subset of a larger point cloud)."""
+    return config.max_gaussians if config.init_points is None else min(config.init_points, config.max_gaussians)
+
+
 def sparse_start_schedule(config: TrainConfig, views: TrainingViews) -> TrainConfig:
     """``config`` with ``densify_from`` at the first densification step when the dataset's point cloud is sparse
     (see SPARSE_START_SHARE); unchanged for a dense cloud or none (the random start has enough points)."""
     cloud = load_initial_points(views.dataset)
-    limit = config.max_gaussians if config.init_points is None else min(config.init_points, config.max_gaussians)
-    if cloud is None or len(cloud.xyz) >= SPARSE_START_SHARE * limit or config.densify_from <= config.densify_every:
+    sparse = cloud is not None and len(cloud.xyz) < SPARSE_START_SHARE * initial_gaussian_limit(config)
+    if not sparse or config.densify_from <= config.densify_every:
         return config
     log.info("%s: a sparse start (%d points): densifying from step %d", views.dataset.root, len(cloud.xyz),
              config.densify_every)
@@ -124,7 +129,7 @@ def build_scene(
     cfg = model_config(variant, config)
     cloud = initial_point_cloud(views, numpy_rng(seed, "init_points"))
     xyz, rgb, normals = cloud.xyz, cloud.rgb, cloud.normals
-    limit = config.max_gaussians if config.init_points is None else min(config.init_points, config.max_gaussians)
+    limit = initial_gaussian_limit(config)
     if len(xyz) > limit:
         keep = np.sort(numpy_rng(seed, "init_subsample").choice(len(xyz), limit, replace=False))
         xyz, rgb = xyz[keep], rgb[keep]

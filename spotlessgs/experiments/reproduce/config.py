@@ -12,6 +12,8 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+from spotlessgs.io.cameras import LENS_MODELS
+
 # Every model the trainer knows; the tables read them by these names. "auto" is ``spotless train --model auto
 # --gaussian-budget``: the light/reflectance model chosen on held-out training views (spotlessgs.training.selection)
 # and densification that stops when held-out error stops improving (spotlessgs.training.budget).
@@ -31,6 +33,11 @@ INPUTS_STAGE = "eval-inputs"
 SHIPPED_ROOMS: tuple[str, ...] = ("bedroom", "living_room", "office", "storage_room", "corridor")
 # The default location of the shipped rooms (the repository's scenes/ folder).
 DEFAULT_SCENES_DIR = Path(__file__).resolve().parents[3] / "scenes"
+
+
+def _is_shot_read(value: Any) -> bool:
+    """Is ``value`` (shot, read) of simulator.sensor_noise.SensorNoise: two finite numbers >= 0?"""
+    return len(value) == 2 and all(isinstance(v, (int, float)) and math.isfinite(v) and v >= 0 for v in value)
 
 
 @dataclass(frozen=True)
@@ -152,8 +159,7 @@ class ReproduceConfig:
         if any(not 0.0 < f < 1.0 for f in self.curve_fractions):
             raise ValueError(f"ReproduceConfig.curve_fractions must lie in (0, 1), got {self.curve_fractions}")
         if self.sensor_noise is not None:
-            if len(self.sensor_noise) != 2 or not all(isinstance(v, (int, float)) and math.isfinite(v) and v >= 0
-                                                      for v in self.sensor_noise):
+            if not _is_shot_read(self.sensor_noise):
                 raise ValueError(f"ReproduceConfig.sensor_noise must be (shot, read), two finite numbers >= 0, or "
                                  f"None; got {self.sensor_noise!r}")
             if "uneven" not in self.variants:
@@ -164,11 +170,10 @@ class ReproduceConfig:
             if "uneven" not in self.variants:
                 raise ValueError("ReproduceConfig.robot_camera needs the 'uneven' variant (the robot copy is made from "
                                  f"it); variants are {list(self.variants)}")
-            if self.robot_lens not in ("pinhole", "opencv", "fisheye"):
+            if self.robot_lens not in LENS_MODELS:
                 raise ValueError(f"ReproduceConfig.robot_lens must be pinhole, opencv or fisheye, got "
                                  f"{self.robot_lens!r}")
-            if len(self.robot_noise) != 2 or not all(isinstance(v, (int, float)) and math.isfinite(v) and v >= 0
-                                                     for v in self.robot_noise):
+            if not _is_shot_read(self.robot_noise):
                 raise ValueError(f"ReproduceConfig.robot_noise must be (shot, read), two finite numbers >= 0; got "
                                  f"{self.robot_noise!r}")
             if not (math.isfinite(self.robot_sensitivity) and self.robot_sensitivity > 0):

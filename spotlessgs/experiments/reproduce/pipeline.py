@@ -73,20 +73,22 @@ def build_graph(config: ReproduceConfig, out: Path) -> StageGraph:
                     "even_dirs": [str(out / "datasets" / f"gan-{r}" / "gt") for r in target],
                     "out_dir": str(out / "cyclegan"), "cyclegan_preset": config.cyclegan_preset,
                     "steps": config.cyclegan_steps, "seed": config.seed}))
-    def copy_of_uneven(family: str, task: str, room: str, variant: str, settings: dict) -> Stage:
-        """The stage ``family/<room>-<variant>`` that writes a copy of the room's uneven dataset with ``task``."""
+
+    def copy_of_uneven(task: str, room: str, variant: str, settings: dict) -> Stage:
+        """The stage (:func:`dataset_stage`) that writes a copy of the room's uneven dataset with ``task``."""
         ds, source = dataset_id(room, variant), dataset_id(room, "uneven")
-        return Stage(f"{family}/{ds}", f"{TASKS}:{task}", deps=(f"render/{source}",), output=out / "datasets" / ds,
-                     clean_on_retry=False, kwargs={"data_dir": str(out / "datasets" / source),
-                                                   "out_dir": str(out / "datasets" / ds), **settings})
+        return Stage(dataset_stage(variant, ds), f"{TASKS}:{task}", deps=(f"render/{source}",),
+                     output=out / "datasets" / ds, clean_on_retry=False,
+                     kwargs={"data_dir": str(out / "datasets" / source), "out_dir": str(out / "datasets" / ds),
+                             **settings})
 
     for room, variant in config.noisy_datasets():
         shot, read = config.sensor_noise
-        stages.append(copy_of_uneven("noise", "add_noise_copy", room, variant,
+        stages.append(copy_of_uneven("add_noise_copy", room, variant,
                                      {"shot": float(shot), "read": float(read), "seed": config.seed}))
     for room, variant in config.robot_datasets():
         shot, read = config.robot_noise
-        stages.append(copy_of_uneven("robot", "robot_camera_copy", room, variant, {
+        stages.append(copy_of_uneven("robot_camera_copy", room, variant, {
             "shot": float(shot), "read": float(read), "sensitivity": float(config.robot_sensitivity),
             "lens": config.robot_lens, "distortion": [float(v) for v in config.robot_distortion],
             "matcher": config.sfm_matcher, "seed": config.seed}))

@@ -382,7 +382,7 @@ def robot_table(collected: dict) -> Table:
               "with normals.")
     table.notes.append("Loss = ideal − robot (positive: the robot camera costs that much). Flicker: mean |log| "
                        "ratio of consecutive frames' mean linear brightness over the whole sequence (relit; the "
-                       "input row: the recorded frames; auto-exposure pumps it up).")
+                       "input row: the recorded frames, whose auto-exposure follows the scene's brightness).")
     return table
 
 
