@@ -39,7 +39,7 @@ class DatasetViews:
     """What the evaluation needs from a dataset folder (a view of the shared :class:`DatasetDescription`)."""
 
     root: Path  # the dataset folder
-    intrinsics: Intrinsics  # shared pinhole intrinsics
+    intrinsics: Intrinsics | None  # the camera every frame shares; None for frames of several cameras
     frames: tuple[DatasetFrame, ...]  # all views in time order
     test_indices: tuple[int, ...]  # indices into ``frames`` of the test views
 
@@ -80,7 +80,7 @@ def dataset_views(desc: DatasetDescription) -> DatasetViews:
                 f"are both {frame.name!r} (relit images are matched to views by this name)"
             )
         seen[frame.name] = i
-    return DatasetViews(desc.root, desc.intrinsics, frames, tuple(desc.split.test))
+    return DatasetViews(desc.root, desc.intrinsics if desc.has_one_camera else None, frames, tuple(desc.split.test))
 
 
 def read_depth_exr(path: str | os.PathLike) -> np.ndarray:

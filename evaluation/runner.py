@@ -187,7 +187,9 @@ def temporal_block(
         plain = temporal_scores(frames)
         out = {"tmp_psnr": plain.mean_psnr, "tmp_ssim": plain.mean_ssim, "tmp_flicker": plain.flicker}
         # the warp is a pinhole one: a distorted camera's frames are not warped (their depth maps would need the lens)
-        if posed is not None and posed.intrinsics.is_pinhole and all(f.depth_path is not None for f in posed.frames):
+        # (and one camera: the frames of several cameras are not warped either)
+        if (posed is not None and posed.intrinsics is not None and posed.intrinsics.is_pinhole
+                and all(f.depth_path is not None for f in posed.frames)):
             K = torch.from_numpy(posed.intrinsics.K())
 
             def gen():

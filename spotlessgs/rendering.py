@@ -20,12 +20,13 @@ import os
 import shutil
 import time
 from pathlib import Path
-from typing import Any, Sequence
+from typing import Any, Iterable, Sequence
 
 import numpy as np
 import torch
 
 from spotlessgs.io.atomic import PARTIAL_MARK, write_json
+from spotlessgs.io.cameras import Intrinsics
 from spotlessgs.io.colorspace import linear_to_srgb
 from spotlessgs.io.errors import InputError, OutputOverlapError
 from spotlessgs.io.exr import write_exr
@@ -306,6 +307,13 @@ def render_run(
     return summary
 
 
+def _output_size(cameras: Iterable[Intrinsics]) -> dict[str, Any]:
+    """The outputs' ``width`` and ``height`` (the input cameras' shared size), or their ``sizes`` ([w, h] each) when
+    the input cameras differ in size."""
+    sizes = sorted({(c.width, c.height) for c in cameras})
+    return {"width": sizes[0][0], "height": sizes[0][1]} if len(sizes) == 1 else {"sizes": [list(s) for s in sizes]}
+
+
 def _render_into(run_dir: Path, data_dir: Path, mode: str, which: str, out: Path, tmp: Path,
                  l0: Sequence[float] | str, exr: bool, progress: bool, device: str,
                  low_frequency: bool) -> dict[str, Any]:
@@ -315,14 +323,15 @@ def _render_into(run_dir: Path, data_dir: Path, mode: str, which: str, out: Path
     checkpoint = checkpoint_identity(run_dir)  # the file the model is loaded from (the lock keeps it unchanged)
     scene, views, config, _info = load_run(run_dir, device=device, data_dir=data_dir)
     dev = scene.gaussians.means.device
-    native = views.dataset.intrinsics  # the input camera: outputs have its size and lens
-    cameras = views.cameras.with_intrinsics(working_camera(native)).to(dev)  # rendered in its pinhole working camera
-    K, width, height = cameras.K, cameras.width, cameras.height
-    to_input = None if native.is_pinhole else distort_maps(native, cameras.intrinsics)[:2]
+    natives = views.dataset.cameras  # each view's input camera: its output has that camera's size and lens
+    working = {native: working_camera(native) for native in dict.fromkeys(natives)}
+    cameras = views.cameras.with_intrinsics(tuple(working[c] for c in natives)).to(dev)  # rendered in pinhole cameras
+    to_input = {native: distort_maps(native, pinhole)[:2] for native, pinhole in working.items() if not native.is_pinhole}
 
-    def in_input_camera(img: np.ndarray) -> np.ndarray:
-        """A working-camera image (Hw, Ww, 3) resampled into the input camera's geometry (H, W, 3)."""
-        return img if to_input is None else remap(img, *to_input)
+    def in_input_camera(img: np.ndarray, k: int) -> np.ndarray:
+        """View ``k``'s working-camera image (Hw, Ww, 3) resampled into its input camera's geometry (H, W, 3)."""
+        maps = to_input.get(natives[k])
+        return img if maps is None else remap(img, *maps)
 
     indices = select_views(views, which)
     g = scene.gaussians
@@ -332,7 +341,8 @@ def _render_into(run_dir: Path, data_dir: Path, mode: str, which: str, out: Path
         parts = RelitColours(scene, cameras.c2w[indices[0]])
 
     def raster(k: int, feats: torch.Tensor) -> np.ndarray:
-        res = rasterize(g.means, g.quats, g.scales, g.opacities, feats, cameras.viewmat[k], K, width, height,
+        view = cameras[k]
+        res = rasterize(g.means, g.quats, g.scales, g.opacities, feats, view.viewmat, view.K, view.width, view.height,
                         backend=config.raster_backend, num_threads=config.num_threads)
         return res.image.float().cpu().numpy()
 
@@ -364,7 +374,7 @@ def _render_into(run_dir: Path, data_dir: Path, mode: str, which: str, out: Path
         else:
             res = scene.render(cameras[k], backend=config.raster_backend, num_threads=config.num_threads)
             img = res.image.float().cpu().numpy()
-        img = in_input_camera(img)
+        img = in_input_camera(img, k)
         clipped += int((img.max(axis=2) > 1.0).sum())
         total += img.shape[0] * img.shape[1]
         write_png(tmp / views.names[k], linear_to_srgb(img))
@@ -378,11 +388,12 @@ def _render_into(run_dir: Path, data_dir: Path, mode: str, which: str, out: Path
         log.warning("%.2f%% of relit pixels exceed 1 and are clipped in the PNGs; lower --l0 (now %s) or use --exr",
                     100 * fraction, relight)
     summary = {"mode": mode, "views": which, "count": len(indices), "l0": relight, "low_frequency": low_frequency,
-               "l0_mode": "auto" if isinstance(l0, str) else "given", "width": native.width,
-               "height": native.height,
+               "l0_mode": "auto" if isinstance(l0, str) else "given",
+               **_output_size(working),
                "seconds_per_view": seconds / max(len(indices), 1), "fps": len(indices) / max(seconds, 1e-9),
                "clipped_fraction": fraction, "num_gaussians": len(g), "device": str(dev), "out_dir": str(out)}
-    options = {k: summary[k] for k in ("mode", "views", "l0", "l0_mode", "low_frequency", "width", "height")}
+    options = {k: summary[k] for k in ("mode", "views", "l0", "l0_mode", "low_frequency", "width", "height")
+               if k in summary}
     write_manifest(tmp, "relit" if mode == "relit" else "render", run_dir=run_dir, checkpoint=checkpoint,
                    options={**options, "exr": exr}, dataset=dataset_record(data_dir, run_dir, len(views.names)),
                    frames=hash_frames(tmp, written))

@@ -775,9 +775,14 @@ def test_transforms_error_paths(tmp_path):
         with pytest.raises(InputError, match=match):  # DatasetError, or the lens check's InputError
             read_transforms(path)
     frames = json.loads(_plain(tmp_path).read_text())["frames"]
-    frames[2]["fl_x"] = 60.0
-    match = r"frames\[2\] has different intrinsics from frames\[0\] \{'fl_x': \(50.0, 60.0\)\}"
-    with pytest.raises(DatasetError, match=match):
+    frames[2]["fl_x"] = 60.0  # a frame of another camera: read, and a step that needs one camera says so
+    two = read_transforms(_plain(tmp_path, frames=frames))
+    assert [c.fx for c in two.cameras] == [50.0, 50.0, 60.0] + [50.0] * (len(frames) - 3)
+    assert two.cameras[0] is two.cameras[1] and not two.has_one_camera
+    with pytest.raises(DatasetError, match="the frames use 2 different cameras; this step needs one camera"):
+        two.intrinsics  # noqa: B018
+    frames[2]["k1"] = -5.0  # that camera's lens folds: named by its frame
+    with pytest.raises(InputError, match=r"frames\[2\]: the opencv distortion .* cannot be inverted"):
         read_transforms(_plain(tmp_path, frames=frames))
     (tmp_path / "bad.json").write_text("{not json")
     with pytest.raises(DatasetError, match="bad.json: not valid JSON"):
@@ -864,16 +869,21 @@ def test_read_dataset_dispatch_and_colmap_folder(tmp_path):
         read_dataset(tmp_path / "bad")
     distorted = tmp_path / "distorted" / "sparse" / "0"
     distorted.mkdir(parents=True)
-    _pycolmap_reconstruction().write_binary(str(distorted))  # a pinhole and an OPENCV camera
-    with pytest.raises(DatasetError, match="images use 2 different cameras"):
-        read_dataset(tmp_path / "distorted")
+    _pycolmap_reconstruction().write_binary(str(distorted))  # a pinhole and an OPENCV camera, images 1-3
+    mixed = read_dataset(tmp_path / "distorted")  # each image keeps its own camera, as pycolmap has it
+    assert [(c.lens, c.width, c.fy) for c in mixed.cameras] == [("pinhole", 64, 101.0), ("opencv", 80, 91.0),
+                                                                 ("pinhole", 64, 101.0)]
+    assert mixed.cameras[1].distortion == (0.01, -0.02, 0.001, 0.002)
     second = ColmapCamera(2, "PINHOLE", 320, 240, (200.0, 200.0, 160.0, 120.0))
     images = dict(model.images)
     images[2] = dataclasses.replace(images[2], camera_id=2)
     two_camera_model = dataclasses.replace(model, cameras={**model.cameras, 2: second}, images=images)
     write_colmap_text(tmp_path / "two" / "sparse", two_camera_model)
-    with pytest.raises(DatasetError, match="images use 2 different cameras; only one camera is supported"):
-        read_dataset(tmp_path / "two")
+    two = read_dataset(tmp_path / "two")
+    assert [c.fx for c in two.cameras] == [intr.fx if im.camera_id == 1 else 200.0
+                                           for im in sorted(images.values(), key=lambda im: im.name)]
+    with pytest.raises(DatasetError, match="two/sparse: the frames use 2 different cameras; this step needs one"):
+        two.intrinsics  # noqa: B018
 
 
 def test_cameras_of_a_colmap_dataset_project_points_as_pycolmap_does(tmp_path):

@@ -49,9 +49,11 @@ def test_views_of_a_distorted_camera_are_resampled_into_its_working_camera(datas
     cams = views.cameras
     assert cams.intrinsics.is_pinhole and (cams.width, cams.height) > (WIDTH, HEIGHT)
     assert views.dataset.intrinsics.distortion == BARREL  # the input camera is kept for the outputs
-    unseen = views.unseen.numpy()
+    assert views.unseen.shape == (len(views.names), cams.height, cams.width)
+    assert (views.unseen == views.unseen[0]).all()  # one camera: the same pixels in every view
+    unseen = views.unseen[0].numpy()
     # barrel: the input's corners reach the working image's corners, its edges bow inwards: no sample there
-    assert unseen.shape == (cams.height, cams.width) and not unseen[0, 0] and not unseen[-1, -1]
+    assert not unseen[0, 0] and not unseen[-1, -1]
     assert unseen[0, cams.width // 2] and unseen[cams.height // 2, 0] and unseen[cams.height // 2, -1]
     assert not unseen[2:-2, 2:-2].any() and 0.02 < unseen.mean() < 0.2
     assert load_training_views(datasets["pinhole"]).unseen is None

@@ -455,7 +455,7 @@ def test_training_stops_cleanly_on_a_signal_and_resumes_to_the_same_model(box, t
 
 @pytest.mark.parametrize("camera, match", [
     # k1 = -0.9 folds the image: the radius 0.8 of the corners maps back inside (d r_d / d r = 1 + 3 k1 r^2 < 0)
-    ("1 OPENCV 64 48 50 50 32 24 -0.9 0 0 0", r"cameras\.txt: the opencv distortion .* cannot be inverted"),
+    ("1 OPENCV 64 48 50 50 32 24 -0.9 0 0 0", r"cameras\.txt: COLMAP camera 1: the opencv distortion .* cannot be inverted"),
     ("1 FOV 64 48 50 50 32 24 0.5", r"cameras\.txt: COLMAP camera 1: model FOV is not supported"),
 ])
 def test_a_colmap_camera_we_cannot_use_names_cameras_txt(tmp_path, camera, match):

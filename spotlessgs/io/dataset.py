@@ -37,8 +37,9 @@ def _camera_file(sparse: Path) -> Path:
 
 
 def read_colmap_dataset(folder: str | os.PathLike, check_files: bool = False) -> DatasetDescription:
-    """Read a COLMAP folder (``images/`` + ``sparse/0``) with a single camera of a supported model
-    (:data:`spotlessgs.io.colmap_text.SUPPORTED_MODELS`) whose lens can be inverted over the image. With a ``raw/``
+    """Read a COLMAP folder (``images/`` + ``sparse/0``) whose cameras (one, or several: a rig, or COLMAP's camera per
+    image) are of supported models (:data:`spotlessgs.io.colmap_text.SUPPORTED_MODELS`) with lenses that can be
+    inverted over their images. With a ``raw/``
     folder (DarkGS's layout) the frames are ``raw/``'s, linear (``meta["linear_images"]``), matched by file stem."""
     folder = Path(folder)
     sparse = _find_sparse_dir(folder)
@@ -50,10 +51,8 @@ def read_colmap_dataset(folder: str | os.PathLike, check_files: bool = False) ->
         intrinsics = {cid: model.cameras[cid].to_intrinsics() for cid in {im.camera_id for im in images}}
     except ValueError as exc:  # a camera model we cannot use: name the file that defines it
         raise DatasetError(f"{_camera_file(sparse)}: {exc}") from None
-    if len(set(intrinsics.values())) > 1:
-        raise DatasetError(f"{sparse}: images use {len(intrinsics)} different cameras; only one camera is supported")
-    camera = next(iter(intrinsics.values()))
-    check_invertible(camera, str(_camera_file(sparse)))
+    for cid, camera in sorted(intrinsics.items()):
+        check_invertible(camera, f"{_camera_file(sparse)}: COLMAP camera {cid}")
     c2w_opencv = np.stack([im.c2w_opencv() for im in images])
     image_paths = tuple(folder / "images" / im.name for im in images)
     meta: dict = {"source_format": "colmap", "sparse_dir": str(sparse)}
@@ -68,7 +67,7 @@ def read_colmap_dataset(folder: str | os.PathLike, check_files: bool = False) ->
     return DatasetDescription(
         root=folder,
         source=sparse,
-        intrinsics=camera,
+        cameras=tuple(intrinsics[im.camera_id] for im in images),
         c2w_opengl=opencv_to_opengl_c2w(c2w_opencv),
         c2w_opencv=c2w_opencv,
         file_paths=tuple(f"images/{im.name}" for im in images),

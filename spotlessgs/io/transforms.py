@@ -8,8 +8,8 @@ See ``docs/dataset.md`` for the full description and an example. In short:
 * ``"spotless"``: ``schema_version`` (1), ``scene_id``, ``room``, ``seed``, ``preset``, ``split``, ``color_space``
   ("srgb"), ``light`` (:class:`LightTruth` or null), ``renderer`` and ``provenance`` (free dicts).
 
-The reader also accepts plain nerfstudio files (no ``"spotless"`` block; per-frame intrinsics are accepted when every
-frame resolves to the same camera, otherwise rejected with an error naming two differing frames).
+The reader also accepts plain nerfstudio files (no ``"spotless"`` block) with per-frame intrinsics: frames may use
+different cameras (sizes, lenses), as nerfstudio allows.
 """
 
 from __future__ import annotations
@@ -341,7 +341,8 @@ class DatasetDescription:
     Attributes:
         root: the dataset folder (relative paths are resolved against it).
         source: the file it was read from.
-        intrinsics: the shared pinhole camera.
+        cameras: N cameras, one per frame (the same object for frames that share one); see :attr:`intrinsics` for
+            the camera of a single-camera dataset.
         c2w_opengl: (N, 4, 4) float64 camera-to-world, OpenGL camera axes (as stored).
         c2w_opencv: (N, 4, 4) float64 camera-to-world, OpenCV camera axes (for the trainer).
         file_paths: N image paths as stored (relative).
@@ -356,7 +357,7 @@ class DatasetDescription:
 
     root: Path
     source: Path
-    intrinsics: Intrinsics
+    cameras: tuple[Intrinsics, ...]
     c2w_opengl: np.ndarray
     c2w_opencv: np.ndarray
     file_paths: tuple[str, ...]
@@ -368,10 +369,33 @@ class DatasetDescription:
     ply_path: Path | None
     meta: dict[str, Any]
 
+    def __post_init__(self) -> None:
+        if len(self.cameras) != len(self.image_paths):
+            raise ValueError(f"DatasetDescription: {len(self.cameras)} cameras for {len(self.image_paths)} frames")
+
     @property
     def n_frames(self) -> int:
         """Number of frames N."""
         return len(self.image_paths)
+
+    def distinct_cameras(self) -> list[Intrinsics]:
+        """The different cameras of the frames, in the order they first appear."""
+        return list(dict.fromkeys(self.cameras))
+
+    @property
+    def has_one_camera(self) -> bool:
+        """True when every frame has the same camera."""
+        return len(self.distinct_cameras()) == 1
+
+    @property
+    def intrinsics(self) -> Intrinsics:
+        """The camera every frame shares; DatasetError naming the dataset when its frames use several (steps that
+        take one camera for the whole sequence, e.g. SfM with known intrinsics, call this)."""
+        distinct = self.distinct_cameras()
+        if len(distinct) > 1:
+            raise DatasetError(f"{self.source}: the frames use {len(distinct)} different cameras; this step needs "
+                               "one camera for every frame")
+        return distinct[0]
 
     def view_matrices(self) -> np.ndarray:
         """(N, 4, 4) world-to-camera matrices, OpenCV camera axes."""
@@ -395,6 +419,13 @@ def _resolve_image(root: Path, rel: str) -> Path:
     if not path.suffix:
         path = path.with_suffix(".png")
     return path
+
+
+def _checked_camera(values: tuple, where: str) -> Intrinsics:
+    """The camera of the (fx, fy, cx, cy, w, h, lens, distortion) ``values``, checked to be invertible."""
+    camera = Intrinsics(*values)
+    check_invertible(camera, where)
+    return camera
 
 
 def _frame_intrinsics(data: dict[str, Any], frame: dict[str, Any], where: str, root: Path, image: Path) -> tuple:
@@ -533,16 +564,10 @@ def read_transforms(path: str | os.PathLike, check_files: bool = False) -> Datas
                 _check_relative(value, f"{where}.{key}")
                 store.append(root / value)
         cameras.append(_frame_intrinsics(data, frame, where, root, images[-1]))
-    for i, camera in enumerate(cameras):
-        if camera != cameras[0]:
-            names = ("fl_x", "fl_y", "cx", "cy", "w", "h", "lens", "distortion")
-            diff = {k: (a, b) for k, a, b in zip(names, cameras[0], camera) if a != b}
-            raise DatasetError(
-                f"{path}: frames[{i}] has different intrinsics from frames[0] {diff}; "
-                "datasets with several cameras are not supported"
-            )
-    intrinsics = Intrinsics(*cameras[0])
-    check_invertible(intrinsics, str(path))
+    distinct: dict[tuple, Intrinsics] = {}  # one Intrinsics per different camera, checked once
+    for i, values in enumerate(cameras):
+        if values not in distinct:
+            distinct[values] = _checked_camera(values, str(path) if i == 0 else f"{path}: frames[{i}]")
 
     ply_path = None
     if data.get("ply_file_path") is not None:
@@ -585,7 +610,7 @@ def read_transforms(path: str | os.PathLike, check_files: bool = False) -> Datas
     return DatasetDescription(
         root=root,
         source=path,
-        intrinsics=intrinsics,
+        cameras=tuple(distinct[values] for values in cameras),
         c2w_opengl=c2w_opengl,
         c2w_opencv=opengl_to_opencv_c2w(c2w_opengl),
         file_paths=tuple(file_paths),

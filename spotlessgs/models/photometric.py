@@ -29,13 +29,18 @@ MIN_FALLOFF = 0.05
 
 
 class PhotometricCamera(nn.Module):
-    """Per-frame exposure and per-camera vignetting of V frames of H × W pixels.
+    """Per-frame exposure and vignetting of V frames of H × W pixels.
+
+    One vignetting curve serves every frame, in each frame's own normalised radius: frames from several cameras (a
+    rig, or COLMAP's camera per image) share it, so that a curve per camera cannot take up the spotlight's profile
+    on the few frames of that camera.
 
     Args:
         num_views: V.
         fitted: the frames whose images are fitted (their mean log-gain is the reference, 0).
         radius: (H, W) distance of each (training-resolution) pixel from the principal point in the input image, 1 at
-            the farthest corner.
+            the farthest corner, or (V, H, W) one per frame (frames of different cameras); derived from the dataset,
+            so not part of the state dict.
         exposure, vignetting: which of the two to learn.
         log_gain_prior: (V,) known log exposures (any common offset), or None (all frames start equal).
     """
@@ -55,7 +60,10 @@ class PhotometricCamera(nn.Module):
         is_fitted[self.fitted] = True
         self.register_buffer("is_fitted", is_fitted)
         self.register_buffer("start", start - start[self.fitted].mean())  # known log exposures, fitted mean 0
-        self.register_buffer("radius", radius.float())
+        if radius.ndim not in (2, 3) or (radius.ndim == 3 and radius.shape[0] != num_views):
+            raise ValueError(f"PhotometricCamera: radius must be (H, W) or ({num_views}, H, W), got "
+                             f"{tuple(radius.shape)}")
+        self.register_buffer("radius", radius.float(), persistent=False)
 
     def log_gains(self) -> torch.Tensor:
         """(V,) log exposure of every frame relative to the fitted frames' mean (frames never fitted: their known
@@ -69,7 +77,7 @@ class PhotometricCamera(nn.Module):
         return torch.exp(self.log_gains())
 
     def falloff(self, radius: torch.Tensor | None = None) -> torch.Tensor:
-        """V(r) at ``radius`` (default: every pixel, (H, W)); ones without vignetting."""
+        """V(r) at ``radius`` (default: every pixel, (H, W) or (V, H, W) as given); ones without vignetting."""
         r2 = (self.radius if radius is None else radius) ** 2
         if self.coefficients is None:
             return torch.ones_like(r2)
@@ -80,7 +88,7 @@ class PhotometricCamera(nn.Module):
         """What the camera records of the rendered radiance ``image`` (H, W, C) in frame ``view``."""
         out = image
         if self.coefficients is not None:
-            out = out * self.falloff()[..., None]
+            out = out * self.falloff(self.radius if self.radius.ndim == 2 else self.radius[view])[..., None]
         if self.log_gain is not None:
             out = out * torch.exp(self.log_gains()[view])
         return out

@@ -17,6 +17,7 @@ import torch
 import torch.nn.functional as F
 
 from spotlessgs.io.camera_batch import Cameras
+from spotlessgs.io.cameras import Intrinsics
 from spotlessgs.io.colorspace import srgb_to_linear
 from spotlessgs.io.dataset import load_initial_points, read_dataset
 from spotlessgs.io.frame_quality import FrameStats, frame_stats, usable_frames
@@ -38,12 +39,13 @@ class TrainingViews:
         names: N image file names (``frame_00000.png``), used to name rendered outputs.
         images: (N, H, W, 3) float32 linear RGB inputs.
         saturated: (N, H, W) bool, True where an input pixel was clipped (any channel >= the threshold).
-        cameras: the N views' poses (float32, OpenCV axes) and the (pinhole) camera at the training resolution: the
-            dataset's own, or for a distorted lens its working camera.
-        unseen: (H, W) bool, True where a working-camera pixel has no sample of the input image (outside the
-            distorted image's edges); None for a pinhole camera.
-        radius: (H, W) float32 distance of each pixel's sample from the principal point in the input image, 1 at the
-            farthest corner (what vignetting depends on).
+        cameras: the N views' poses (float32, OpenCV axes) and (pinhole) cameras at the training resolution: the
+            dataset's own, or for a distorted lens its working camera; one shared camera, or one per view when the
+            frames come from several cameras (all of the canvas size H × W).
+        unseen: (N, H, W) bool, True where a working-camera pixel has no sample of the input image (outside the
+            distorted image's edges, or outside a smaller camera's image on the canvas); None when there is none.
+        radius: (N, H, W) float32 distance of each pixel's sample from the principal point in the input image, 1 at
+            the farthest corner (what vignetting depends on). With one camera both are views of one (H, W) tensor.
         exposures: the frames' known exposures (shutter time × gain, ``spotlessgs.io.exposure``), or None.
         train: indices of training views; test: indices of held-out views.
         light: the true spotlight (simulated data) or None.
@@ -86,6 +88,72 @@ def _downscale(images: torch.Tensor, masks: torch.Tensor, size: tuple[int, int])
     return scaled.contiguous(), clipped
 
 
+@dataclass(frozen=True)
+class _CameraSampling:
+    """How the images of one input camera become training images.
+
+    Attributes:
+        working: its pinhole working camera at the training size, drawn on the shared canvas (its own size may be
+            smaller: the rest of the canvas is unseen).
+        size: (h, w) of its working image at the training size, at the top-left of the canvas.
+        maps: (map_x, map_y) where each working pixel samples the input image (native working size), or None for a
+            pinhole camera.
+        unseen: (H, W) bool canvas pixels without an input sample of this camera.
+        radius: (H, W) float32 distance of each canvas pixel's sample from the principal point, 1 at the farthest
+            corner (1 outside the camera's own image).
+    """
+
+    working: Intrinsics
+    size: tuple[int, int]
+    maps: tuple[np.ndarray, np.ndarray] | None
+    unseen: torch.Tensor
+    radius: torch.Tensor
+
+
+def _camera_sampling(native: Intrinsics, factor: float, canvas: tuple[int, int]) -> _CameraSampling:
+    """The sampling of camera ``native`` at ``factor`` × its working size, on a canvas of ``canvas`` (H, W)."""
+    working = working_camera(native)  # the camera itself when it is a pinhole
+    intr = working if factor == 1.0 else working.scaled(factor)
+    size = (int(intr.height), int(intr.width))
+    unseen = torch.ones(canvas, dtype=torch.bool)
+    unseen[: size[0], : size[1]] = False
+    maps = None
+    if native.is_pinhole:
+        u, v = np.meshgrid(np.arange(native.width) + 0.5, np.arange(native.height) + 0.5)
+    else:
+        map_x, map_y, valid = undistort_maps(native, working)
+        maps = (map_x, map_y)
+        unseen[: size[0], : size[1]] = F.adaptive_max_pool2d(torch.from_numpy(~valid)[None, None].float(), size)[0, 0] > 0
+        u, v = map_x + 0.5, map_y + 0.5  # where each working pixel samples the input image
+    corner = max(math.hypot(x - native.cx, y - native.cy) for x in (0, native.width) for y in (0, native.height))
+    radius = np.hypot(u - native.cx, v - native.cy).astype(np.float32) / corner
+    on_canvas = torch.ones(canvas, dtype=torch.float32)
+    on_canvas[: size[0], : size[1]] = F.interpolate(torch.from_numpy(radius)[None, None], size=size, mode="area")[0, 0]
+    drawn = Intrinsics(intr.fx, intr.fy, intr.cx, intr.cy, canvas[1], canvas[0])
+    return _CameraSampling(drawn, size, maps, unseen, on_canvas)
+
+
+def _training_scale(cameras: list[Intrinsics], image_width: int | None) -> float:
+    """The factor from each camera's working size to its training size: ``image_width`` over the widest input
+    camera's width (1 for ``None`` or a width at least that)."""
+    widest = max(c.width for c in cameras)
+    return 1.0 if image_width is None or image_width >= widest else image_width / widest
+
+
+def _canvas(cameras: list[Intrinsics], factor: float) -> tuple[int, int]:
+    """(H, W) of the shared training image: the largest working image at the training size."""
+    sizes = [(w.height, w.width) for w in (working_camera(c) if factor == 1.0 else working_camera(c).scaled(factor)
+                                           for c in cameras)]
+    return max(h for h, _ in sizes), max(w for _, w in sizes)
+
+
+def _per_view(per_camera: dict[Intrinsics, torch.Tensor], cameras: tuple[Intrinsics, ...]) -> torch.Tensor:
+    """(N, H, W): each view's camera's (H, W) tensor; a view of the one tensor when every view has one camera."""
+    if len(per_camera) == 1:
+        return next(iter(per_camera.values())).expand(len(cameras), -1, -1)
+    return torch.stack([per_camera[c] for c in cameras])
+
+
 def load_training_views(
     data_dir: str | Path, image_width: int | None = None, linear_input: bool = False,
     saturation_threshold: float = 250.0 / 255.0,
@@ -94,57 +162,49 @@ def load_training_views(
 
     Black and fully saturated frames are left out of ``train`` with a warning naming them
     (:mod:`spotlessgs.io.frame_quality`); a dataset with no usable training frame, or whose frames are all one image,
-    raises InputError.
+    raises InputError. Frames of several cameras (sizes, lenses) share one training image size, the largest working
+    image; each is drawn at its top-left, and the rest is unseen.
 
     Args:
         data_dir: our dataset folder, a nerfstudio folder or a COLMAP folder.
-        image_width: training width in pixels (height keeps the aspect ratio); None = native size.
+        image_width: training width in pixels of the widest camera (every camera is scaled by the same factor,
+            heights keep the aspect ratio); None = native size.
         linear_input: the files are linear already (default: sRGB, linearised here).
         saturation_threshold: value (in the file's encoding, [0, 1]) at or above which a pixel counts as clipped.
     """
     dataset = read_dataset(data_dir, check_files=True)
     linear_input = linear_input or bool(dataset.meta.get("linear_images"))  # e.g. DarkGS's raw/ frames
-    native = dataset.intrinsics
-    working = working_camera(native)  # the camera itself when it is a pinhole
-    intr = working
-    if image_width is not None and image_width < native.width:
-        intr = working.scaled(image_width / native.width)
-    size = (int(intr.height), int(intr.width))
-    unseen = None
-    if native.is_pinhole:
-        u, v = np.meshgrid(np.arange(native.width) + 0.5, np.arange(native.height) + 0.5)
-    else:
-        map_x, map_y, valid = undistort_maps(native, working)
-        unseen = F.adaptive_max_pool2d(torch.from_numpy(~valid)[None, None].float(), size)[0, 0] > 0
-        u, v = map_x + 0.5, map_y + 0.5  # where each working pixel samples the input image
-    corner = max(math.hypot(x - native.cx, y - native.cy) for x in (0, native.width) for y in (0, native.height))
-    radius = np.hypot(u - native.cx, v - native.cy).astype(np.float32) / corner
-    radius = F.interpolate(torch.from_numpy(radius)[None, None], size=size, mode="area")[0, 0]
+    natives = dataset.distinct_cameras()
+    factor = _training_scale(natives, image_width)
+    canvas = _canvas(natives, factor)
+    sampling = {native: _camera_sampling(native, factor, canvas) for native in natives}
     imgs, masks, stats = [], [], []
-    for path in dataset.image_paths:
+    for path, native in zip(dataset.image_paths, dataset.cameras):
         img, sat, quality = _load_linear(path, linear_input, saturation_threshold)
         stats.append(quality)
         if img.shape[:2] != (native.height, native.width):
             raise ValueError(f"{path}: image is {img.shape[1]}x{img.shape[0]}, the camera says "
                              f"{native.width}x{native.height}")
-        if not native.is_pinhole:  # a working pixel is clipped when any input pixel it samples is
-            img, sat = remap(img, map_x, map_y), remap(sat.astype(np.float32), map_x, map_y) > 0
-        t_img, t_sat = _downscale(torch.from_numpy(img)[None], torch.from_numpy(sat)[None], size)
-        imgs.append(t_img[0])
-        masks.append(t_sat[0])
+        camera = sampling[native]
+        if camera.maps is not None:  # a working pixel is clipped when any input pixel it samples is
+            img, sat = remap(img, *camera.maps), remap(sat.astype(np.float32), *camera.maps) > 0
+        t_img, t_sat = _downscale(torch.from_numpy(img)[None], torch.from_numpy(sat)[None], camera.size)
+        imgs.append(F.pad(t_img[0], (0, 0, 0, canvas[1] - camera.size[1], 0, canvas[0] - camera.size[0])))
+        masks.append(F.pad(t_sat[0], (0, canvas[1] - camera.size[1], 0, canvas[0] - camera.size[0])))
     names = [p.name for p in dataset.image_paths]
     train = usable_frames(str(dataset.root), names, stats, list(dataset.split.train))
+    unseen = _per_view({c: s.unseen for c, s in sampling.items()}, dataset.cameras)
     return TrainingViews(
         dataset=dataset,
         names=names,
         images=torch.stack(imgs),
         saturated=torch.stack(masks),
-        cameras=Cameras.from_dataset(dataset, intr),
+        cameras=Cameras.from_dataset(dataset, tuple(sampling[c].working for c in dataset.cameras)),
         train=train,
         test=list(dataset.split.test),
         light=dataset.light,
-        unseen=unseen,
-        radius=radius,
+        unseen=unseen if bool(unseen.any()) else None,
+        radius=_per_view({c: s.radius for c, s in sampling.items()}, dataset.cameras),
         exposures=frame_exposures(dataset.image_paths),
     )
 
@@ -182,11 +242,11 @@ def initial_point_cloud(views: TrainingViews, rng: np.random.Generator, n_random
         return cloud
     log.warning("%s has no point cloud: initialising %d Gaussians at random in the camera frusta",
                 views.dataset.root, n_random)
-    intr = views.cameras.intrinsics
     per_view = max(n_random // max(len(views.train), 1), 1)
     far = 2.0 * views.scene_extent()
     pts = []
     for k in views.train:
+        intr = views.cameras.camera(k)
         u = rng.uniform(0, intr.width, per_view)
         v = rng.uniform(0, intr.height, per_view)
         z = rng.uniform(0.3, max(far, 0.6), per_view)

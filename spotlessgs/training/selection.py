@@ -263,7 +263,7 @@ def measure_light_need(run_dir: Path, selection: SelectionConfig, device: str = 
     dev = scene.gaussians.means.device
     images = views.images[views.train]
     if views.unseen is not None:  # a distorted camera's working pixels without a sample say nothing (NaN is skipped)
-        images = images.masked_fill(views.unseen[None, :, :, None], float("nan"))
+        images = images.masked_fill(views.unseen[views.train][..., None], float("nan"))
     level = dark_level(images, block_size(views.cameras.width, selection.holdout_block))
     share = low_frequency_share(scene, views.cameras.to(dev), evenly_spaced(views.train, selection.share_views),
                                 config.raster_backend, config.num_threads)

@@ -313,7 +313,7 @@ def _psnr(pred: torch.Tensor, target: torch.Tensor, unseen: torch.Tensor | None 
 
 
 def _unseen(views: TrainingViews, device: torch.device | str) -> torch.Tensor | None:
-    """``views.unseen`` on ``device`` (None for a pinhole camera)."""
+    """``views.unseen`` (V, H, W) on ``device`` (None when every working pixel has an input sample)."""
     return None if views.unseen is None else views.unseen.to(device)
 
 
@@ -424,7 +424,8 @@ def _train_locked(data_dir: Path, run_dir: Path, variant: str | ModelConfig, con
             if "photometric" not in ckpt:
                 raise InputError(f"{ckpt_file}: the run was trained without a photometric camera; resume it with "
                                  "photometric 'off'")
-            photometric.load_state_dict(ckpt["photometric"])
+            # runs before 2026-11-24 stored the pixels' radii too; they are derived from the dataset
+            photometric.load_state_dict({k: v for k, v in ckpt["photometric"].items() if k != "radius"})
         strategy = make_strategy(config, extent, seed, device, scene, views, split, photometric)
         opts = build_optimizers(scene, config, extent, photometric)
         for k, o in opts.items():
@@ -508,7 +509,7 @@ def _train_locked(data_dir: Path, run_dir: Path, variant: str | ModelConfig, con
             if s % config.log_every == 0 or s == end or held:
                 elapsed = time.perf_counter() - t0
                 rec = {"step": s, "loss": loss_value, "l1": parts["l1"], "ssim": parts["ssim"],
-                       "psnr": _psnr(recorded, images[k], unseen), "gaussians": len(scene.gaussians),
+                       "psnr": _psnr(recorded, images[k], None if unseen is None else unseen[k]), "gaussians": len(scene.gaussians),
                        "ms_per_step": 1000.0 * elapsed / (s - start), **{k2: v for k2, v in changes.items() if v},
                        **held}
                 _append_line(metrics_file, metrics_path, json.dumps(rec))
@@ -642,7 +643,7 @@ def evaluate_reconstruction(scene: RelightableScene, views: TrainingViews, confi
     for k in views.test:
         out = scene.render(cameras[k], backend=config.raster_backend, num_threads=config.num_threads)
         image = out.image if photometric is None else photometric(out.image, k)
-        values.append(_psnr(image, views.images[k], unseen))
+        values.append(_psnr(image, views.images[k], None if unseen is None else unseen[k]))
     return float(np.mean(values))
 
 

@@ -86,8 +86,8 @@ def fitted_and_scored_pixels(
     """Which pixels the loss leaves alone and which the held-out scores use.
 
     Args:
-        held_out: (V, H, W) bool held-out pixel blocks, or None; unseen: (H, W) bool working-camera pixels without an
-        input sample (``TrainingViews.unseen``), or None; views: V.
+        held_out: (V, H, W) bool held-out pixel blocks, or None; unseen: (V, H, W) (or (H, W), the same in every
+        view) bool working-camera pixels without an input sample (``TrainingViews.unseen``), or None; views: V.
     Returns:
         ``ignored`` (V, H, W): held-out or unseen, never fitted; ``scored`` (V, H, W): what the held-out scores use,
         the held-out blocks (or, without blocks, every pixel) that are not unseen. Each is None where it would select
@@ -95,7 +95,7 @@ def fitted_and_scored_pixels(
     """
     if unseen is None:
         return held_out, held_out
-    unseen = unseen.expand(views, *unseen.shape)
+    unseen = unseen.expand(views, *unseen.shape[-2:])
     if held_out is None:
         return unseen, ~unseen
     return held_out | unseen, held_out & ~unseen
@@ -189,10 +189,10 @@ def gaussian_contributions(
     """
     means, quats, scales, opacities = (t.detach() for t in (means, quats, scales, opacities))
     total = torch.zeros(len(means), dtype=means.dtype, device=means.device)
-    K, width, height = cameras.K, cameras.width, cameras.height
     for k in indices:
+        view = cameras[k]
         ones = torch.ones((len(means), 1), dtype=means.dtype, device=means.device, requires_grad=True)
-        out = rasterize(means, quats, scales, opacities, ones, cameras.viewmat[k], K, width, height,
+        out = rasterize(means, quats, scales, opacities, ones, view.viewmat, view.K, view.width, view.height,
                         background=torch.zeros(1, dtype=means.dtype, device=means.device), backend=backend,
                         num_threads=num_threads)
         (grad,) = torch.autograd.grad(out.image.sum(), ones)
