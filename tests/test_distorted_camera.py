@@ -7,21 +7,18 @@ as a real distorted camera sees the room.
 from __future__ import annotations
 
 import json
-import math
 
 import numpy as np
 import pytest
-import torch
+
+from rendered_points import centroid_errors, render_points_on_rays
 
 from evaluation.synthetic import render_room_sequence, write_dataset_folder
 from spotlessgs.io import lens
 from spotlessgs.io.cameras import Intrinsics
 from spotlessgs.io.colmap_text import model_from_poses, write_colmap_text
-from spotlessgs.io.exr import read_exr
 from spotlessgs.io.images import read_image, write_png
-from spotlessgs.models.gaussians import GaussianParams
-from spotlessgs.run import Run, RunSpec, train
-from spotlessgs.training.checkpoint import load_checkpoint, save_checkpoint
+from spotlessgs.run import RunSpec, train
 from spotlessgs.training.data import load_training_views
 
 pytestmark = pytest.mark.usefixtures("one_torch_thread")
@@ -111,24 +108,9 @@ def test_rendered_points_land_where_the_lens_projects_them(datasets, tmp_path):
     xy_pinhole = np.stack([gx.ravel(), gy.ravel()], 1)
     xy = lens.undistort(native, lens.distort(Intrinsics(native.fx, native.fy, native.cx, native.cy, native.width,
                                                         native.height), xy_pinhole))  # the rays of those pixels
-    cam = np.concatenate([1.5 * xy, np.full((len(xy), 1), 1.5)], axis=1)
-    world = cam @ c2w[:3, :3].T + c2w[:3, 3]
-    blobs = GaussianParams.from_point_cloud(world, np.full((len(world), 3), 255, np.uint8)).params
-    blobs["log_scales"] = torch.full_like(blobs["log_scales"], math.log(0.03))  # sigma ~1.15 px at 1.5 m
-    blobs["opacity_logits"] = torch.full_like(blobs["opacity_logits"], 5.0)
-    checkpoint = load_checkpoint(run_dir)
-    checkpoint.pop("version")
-    save_checkpoint(run_dir, {**checkpoint, "gaussians": {n: t.detach() for n, t in blobs.items()}})
-    Run.load(run_dir).render("test", exr=True, progress=False)
-    image = read_exr(run_dir / "render" / f"{views.names[k][:-4]}.exr")["R"]
+    image = render_points_on_rays(run_dir, views.names[k], c2w, xy, sigma_m=0.03)  # sigma ~1.15 px at 1.5 m
     expected = lens.distort(native, xy)
     pinhole_guess = np.stack([native.fx * xy[:, 0] + native.cx, native.fy * xy[:, 1] + native.cy], 1)
     assert np.abs(pinhole_guess - expected).max() > 1.0  # the lens matters at these points
-    v, u = np.mgrid[0:native.height, 0:native.width] + 0.5
-    errors = []
-    for (ex, ey) in expected:
-        near = (np.abs(u - ex) < 4) & (np.abs(v - ey) < 4)
-        weight = image * near
-        centroid = np.array([(weight * u).sum(), (weight * v).sum()]) / weight.sum()
-        errors.append(np.linalg.norm(centroid - (ex, ey)))
+    errors = centroid_errors(image, expected, half_window=4)
     assert max(errors) < 0.1, errors

@@ -9,16 +9,14 @@ import math
 
 import numpy as np
 import pytest
-import torch
+
+from rendered_points import centroid_errors, render_points_on_rays
 
 from evaluation.synthetic import render_room_sequence
 from spotlessgs.io import lens
 from spotlessgs.io.colmap_text import ColmapModel, ColmapPoints, model_from_poses, write_colmap_text
-from spotlessgs.io.exr import read_exr
 from spotlessgs.io.images import read_image, write_png
-from spotlessgs.models.gaussians import GaussianParams
-from spotlessgs.run import Run, RunSpec, train
-from spotlessgs.training.checkpoint import load_checkpoint, save_checkpoint
+from spotlessgs.run import RunSpec, train
 from spotlessgs.training.data import load_training_views
 
 pytestmark = pytest.mark.usefixtures("one_torch_thread")
@@ -128,22 +126,7 @@ def test_rendered_points_land_where_each_frames_camera_projects_them(folder, tmp
     pixels = np.stack(np.meshgrid(np.linspace(0.2, 0.8, 4) * native.width, np.linspace(0.2, 0.8, 4) * native.height),
                       -1).reshape(-1, 2)
     xy = lens.undistort(native, pixels)  # the rays of those pixels of this frame's camera
-    cam = np.concatenate([1.5 * xy, np.full((len(xy), 1), 1.5)], axis=1)
-    world = cam @ c2w[:3, :3].T + c2w[:3, 3]
-    blobs = GaussianParams.from_point_cloud(world, np.full((len(world), 3), 255, np.uint8)).params
-    blobs["log_scales"] = torch.full_like(blobs["log_scales"], math.log(0.025))
-    blobs["opacity_logits"] = torch.full_like(blobs["opacity_logits"], 5.0)
-    checkpoint = load_checkpoint(run_dir)
-    checkpoint.pop("version")
-    save_checkpoint(run_dir, {**checkpoint, "gaussians": {n: t.detach() for n, t in blobs.items()}})
-    Run.load(run_dir).render("test", exr=True, progress=False)
-    image = read_exr(run_dir / "render" / f"{views.names[k][:-4]}.exr")["R"]
+    image = render_points_on_rays(run_dir, views.names[k], c2w, xy, sigma_m=0.025)
     assert image.shape == (native.height, native.width)
-    v, u = np.mgrid[0:native.height, 0:native.width] + 0.5
-    errors = []
-    for ex, ey in pixels:
-        near = (np.abs(u - ex) < 3) & (np.abs(v - ey) < 3)
-        weight = image * near
-        centroid = np.array([(weight * u).sum(), (weight * v).sum()]) / weight.sum()
-        errors.append(np.linalg.norm(centroid - (ex, ey)))
+    errors = centroid_errors(image, pixels, half_window=3)
     assert max(errors) < 0.1, errors

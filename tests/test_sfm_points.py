@@ -110,3 +110,19 @@ def test_a_sparse_start_densifies_from_the_first_densification_step(room, tmp_pa
     assert adjusted.replace(densify_from=quick.densify_from) == quick  # nothing else changes
     dense = quick.replace(init_points=points, max_gaussians=points)  # the same cloud is dense for a smaller limit
     assert sparse_start_schedule(dense, load_training_views(data)) == dense
+    switched_off = quick.replace(sparse_start=False)  # the benchmark's row without it
+    assert sparse_start_schedule(switched_off, load_training_views(data)) == switched_off
+
+
+def test_normals_of_sfm_points_are_estimated_unless_switched_off(room, tmp_path):
+    from spotlessgs.training.data import initial_point_cloud, load_training_views
+
+    root, _seq = room
+    data = tmp_path / "data"
+    shutil.copytree(root, data)
+    add_sfm_points(data)
+    views = load_training_views(data)
+    estimated = initial_point_cloud(views, np.random.default_rng(0))
+    assert estimated.normals is not None and np.allclose(np.linalg.norm(estimated.normals, axis=1), 1.0)
+    kept = initial_point_cloud(views, np.random.default_rng(0), estimate=False)
+    assert (kept.normals is None or not kept.normals.any()) and np.array_equal(kept.xyz, estimated.xyz)

@@ -2,9 +2,12 @@
 
     spotless benchmark models --data data/bedroom --out bench/train --iterations 1500
     spotless benchmark selection --data data/bedroom --data data/storage_room --out bench/selection --seed 0 --seed 1
+    spotless benchmark robot --ideal out/quick/datasets/bedroom-uneven --robot out/quick/datasets/bedroom-robot \
+        --out bench/robot --threads 2
 
 ``models`` is :mod:`spotlessgs.experiments.benchmark` (what each model component costs and buys), ``selection`` is
-:mod:`spotlessgs.experiments.selection_benchmark` (model selection and the Gaussian budget against SpotlessGS).
+:mod:`spotlessgs.experiments.selection_benchmark` (model selection and the Gaussian budget against SpotlessGS),
+``robot`` is :mod:`spotlessgs.experiments.robot_benchmark` (what each robot-camera component costs and buys).
 """
 
 from __future__ import annotations
@@ -19,7 +22,8 @@ from spotlessgs.experiments.benchmark import VARIANTS
 
 @click.group()
 def benchmark() -> None:
-    """Benchmarks: per-model cost and quality (models); model selection and the Gaussian budget (selection)."""
+    """Benchmarks: per-model cost and quality (models); model selection and the Gaussian budget (selection); the
+    robot-camera components (robot)."""
 
 
 @benchmark.command("models")
@@ -67,3 +71,28 @@ def selection(data_dirs, out, preset, iterations, image_width, threads, seeds, m
     settings = BenchmarkSettings(preset, iterations, image_width, threads, seeds[0], min_proxy_iterations)
     run_seeds(list(data_dirs), out, settings, list(seeds))
     click.echo((out / RESULTS_MD).read_text())
+
+
+@benchmark.command("robot")
+@click.option("--ideal", required=True, type=click.Path(exists=True, file_okay=False, path_type=Path),
+              help="The room's ideal input (e.g. out/quick/datasets/bedroom-uneven).")
+@click.option("--robot", required=True, type=click.Path(exists=True, file_okay=False, path_type=Path),
+              help="The same room through a robot camera with a sparse start (e.g. out/quick/datasets/bedroom-robot).")
+@click.option("--out", required=True, type=click.Path(file_okay=False, path_type=Path))
+@click.option("--rows", default=None, help="Comma-separated rows (default: all of them, in order).")
+@click.option("--model", default="spotless", show_default=True)
+@click.option("--preset", default="quick", show_default=True, type=click.Choice(["tiny", "quick", "paper"]))
+@click.option("--iterations", type=click.IntRange(1), default=None, help="Override the preset's iteration count.")
+@click.option("--threads", default=1, show_default=True, type=click.IntRange(1))
+@click.option("--seed", default=0, show_default=True, type=int)
+def robot(ideal, robot, out, rows, model, preset, iterations, threads, seed):
+    """What each robot-camera component costs per training step and buys in relit PSNR (one row per component)."""
+    from spotlessgs.experiments.robot_benchmark import ROWS, markdown_table, run_robot_benchmark
+
+    logging.basicConfig(level=logging.INFO, format="%(levelname)s %(name)s: %(message)s")
+    names = tuple(ROWS) if rows is None else tuple(r for r in rows.split(",") if r)
+    unknown = [r for r in names if r not in ROWS]
+    if unknown:
+        raise click.BadParameter(f"unknown rows {unknown}; choose from {list(ROWS)}", param_hint="--rows")
+    results = run_robot_benchmark(ideal, robot, out, names, model, preset, threads, seed, iterations)
+    click.echo(markdown_table(results))

@@ -85,6 +85,12 @@ class TrainConfig:
     lr_exposure: float = 2e-2
     lr_vignetting: float = 2e-3
 
+    # A start from points without normals (an SfM cloud): estimate them from each point's neighbours (True) or start
+    # the Gaussians facing the camera (False). A start with few points densifies from the first densification step
+    # (True; see spotlessgs.training.trainer.SPARSE_START_SHARE) or from densify_from as any other (False).
+    estimate_normals: bool = True
+    sparse_start: bool = True
+
     # ---- held-out validation views and the Gaussian budget (spotlessgs.training.validation / .budget) ----------------
     # Hold out every k-th training view (by position in the training split, never a test view) as a validation view
     # that is not fitted; 0 = fit every training view.

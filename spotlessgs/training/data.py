@@ -227,16 +227,18 @@ def estimate_normals(xyz: np.ndarray, viewpoints: np.ndarray, neighbours: int = 
     return normals * np.where(facing < 0, -1.0, 1.0)[:, None]
 
 
-def initial_point_cloud(views: TrainingViews, rng: np.random.Generator, n_random: int = 20_000) -> PointCloud:
+def initial_point_cloud(views: TrainingViews, rng: np.random.Generator, n_random: int = 20_000,
+                        estimate: bool = True) -> PointCloud:
     """The dataset's point cloud (PLY or COLMAP points3D), else random points in the camera frusta (with a warning).
 
-    A dataset cloud without normals (SfM points) gets :func:`estimate_normals` facing the training cameras. Random
+    A dataset cloud without normals (SfM points) gets :func:`estimate_normals` facing the training cameras (unless
+    ``estimate`` is False: then it keeps none, and the Gaussians start facing the camera). Random
     points are drawn per training view at uniform pixels and depths in [0.3, 2 × scene extent] m, grey, without
     normals.
     """
     cloud = load_initial_points(views.dataset)
     if cloud is not None and len(cloud.xyz) > 0:
-        if cloud.normals is None or not np.any(cloud.normals):  # none in the file, or written as zeros
+        if estimate and (cloud.normals is None or not np.any(cloud.normals)):  # none in the file, or zeros
             centres = views.cameras.centres[views.train].double().numpy()
             return PointCloud(cloud.xyz, cloud.rgb, estimate_normals(np.asarray(cloud.xyz, np.float64), centres))
         return cloud

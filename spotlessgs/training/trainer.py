@@ -112,6 +112,8 @@ def initial_gaussian_limit(config: TrainConfig) -> int:
 def sparse_start_schedule(config: TrainConfig, views: TrainingViews) -> TrainConfig:
     """``config`` with ``densify_from`` at the first densification step when the dataset's point cloud is sparse
     (see SPARSE_START_SHARE); unchanged for a dense cloud or none (the random start has enough points)."""
+    if not config.sparse_start:
+        return config
     cloud = load_initial_points(views.dataset)
     sparse = cloud is not None and len(cloud.xyz) < SPARSE_START_SHARE * initial_gaussian_limit(config)
     if not sparse or config.densify_from <= config.densify_every:
@@ -127,7 +129,7 @@ def build_scene(
 ) -> RelightableScene:
     """Initial Gaussians from the dataset's points and the variant's light/BRDF modules."""
     cfg = model_config(variant, config)
-    cloud = initial_point_cloud(views, numpy_rng(seed, "init_points"))
+    cloud = initial_point_cloud(views, numpy_rng(seed, "init_points"), estimate=config.estimate_normals)
     xyz, rgb, normals = cloud.xyz, cloud.rgb, cloud.normals
     limit = initial_gaussian_limit(config)
     if len(xyz) > limit:

@@ -1,0 +1,147 @@
+"""What each robot-camera component costs per training step and buys in relit quality, in one table.
+
+    spotless reproduce --preset quick --out out/quick --jobs 2
+    spotless benchmark robot --ideal out/quick/datasets/bedroom-uneven --robot out/quick/datasets/bedroom-robot \\
+        --out bench/robot --threads 2
+
+One model (SpotlessGS by default) is trained once per row on the same robot-camera dataset (lens, auto-exposure,
+vignetting, noise, a sparse start without normals), each row with one component switched off, and once on the ideal
+input of the same room as the reference:
+
+* ``ideal``: the ideal input (pinhole, fixed exposure, no noise, dense start with normals);
+* ``robot``: every component on (the lens's working camera, the photometric camera, estimated normals, the sparse
+  start's early densification);
+* ``no-photometric``: the photometric camera off (no exposure, no vignetting);
+* ``no-normals``: the SfM points' normals not estimated (the Gaussians start facing the camera);
+* ``no-sparse-start``: densification from the preset's ``densify_from``, as for a dense start;
+* ``lens-ignored``: the lens treated as a pinhole (a copy of the dataset with its distortion set to 0): what reading
+  the lens buys, against what its larger working image costs per step.
+
+Each row: training ms/step (wall clock, this machine: compare rows of one run), relit PSNR / SSIM of the test views
+after one exposure gain, the relit sequence's flicker, and the differences to ``robot``. Rows are resumable: a rerun
+skips trained rows (their run folders hold the result) and trains the rest.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import shutil
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any
+
+from spotlessgs.io.atomic import write_json, write_text
+from spotlessgs.io.json_files import read_json
+from spotlessgs.io.provenance import provenance
+
+log = logging.getLogger(__name__)
+
+#: Row name -> (dataset: "ideal" / "robot" / "lens-ignored", training overrides, what the row switches off).
+ROWS: dict[str, tuple[str, tuple[tuple[str, Any], ...], str]] = {
+    "ideal": ("ideal", (), "the ideal input: pinhole, fixed exposure, no noise, dense start with normals"),
+    "robot": ("robot", (("photometric", "on"),), "every robot-camera component on"),
+    "no-photometric": ("robot", (("photometric", "off"),), "photometric camera (exposure, vignetting)"),
+    "no-normals": ("robot", (("photometric", "on"), ("estimate_normals", False)), "normals of the SfM points"),
+    "no-sparse-start": ("robot", (("photometric", "on"), ("sparse_start", False)),
+                        "early densification of a sparse start"),
+    "lens-ignored": ("lens-ignored", (("photometric", "on"),), "the lens model (read as a pinhole)"),
+}
+RESULTS_JSON, RESULTS_MD = "robot_components.json", "robot_components.md"
+
+
+def lens_ignored_copy(robot: Path, out: Path) -> Path:
+    """A copy of the dataset ``robot`` whose cameras have no distortion (what a tool that ignores the lens sees);
+    made once, atomically (an interrupted copy is redone)."""
+    if (out / "transforms.json").is_file():
+        return out
+    partial = out.with_name(out.name + ".partial")
+    shutil.rmtree(partial, ignore_errors=True)
+    shutil.copytree(robot, partial)
+    transforms = json.loads((partial / "transforms.json").read_text(encoding="utf-8"))
+    for record in [transforms, *transforms["frames"]]:
+        for key in ("k1", "k2", "k3", "k4", "p1", "p2"):
+            if key in record:
+                record[key] = 0.0
+    write_json(partial / "transforms.json", transforms)
+    partial.rename(out)
+    return out
+
+
+def run_row(name: str, data: Path, out: Path, model: str, preset: str, threads: int, seed: int,
+            iterations: int | None) -> dict[str, Any]:
+    """Train row ``name`` on ``data`` into ``out/name`` (resumed when interrupted), relight and score its test views;
+    the row's result, also kept in ``out/name/row.json`` so that a rerun skips it."""
+    from spotlessgs.run import RunSpec, train
+
+    row_file = out / name / "row.json"
+    if row_file.is_file():
+        return read_json(row_file, "benchmark row")
+    overrides = (("num_threads", threads), *ROWS[name][1])
+    if iterations is not None:
+        overrides += (("iterations", iterations),)
+    run = train(RunSpec(data=data, model=model, preset=preset, seed=seed, overrides=overrides), out / name / "run",
+                resume=(out / name / "run" / "run.json").is_file(), progress=False)
+    scores = run.score_views(out / name / "relit", "all", threads)
+    temporal = _flicker(out / name / "relit", data)
+    row = {"row": name, "switched_off": ROWS[name][2], "data": str(data), "ms_per_step": run.summary["ms_per_step"],
+           "gaussians": run.summary["num_gaussians"], "psnr_aligned": scores["psnr_aligned"],
+           "ssim_aligned": scores["ssim_aligned"], "psnr": scores["psnr"], **temporal}
+    write_json(row_file, row)
+    return row
+
+
+def _flicker(relit: Path, data: Path) -> dict[str, float]:
+    """The relit sequence's and the ground truth's flicker (evaluation.temporal.sequence_flicker)."""
+    import torch
+
+    from evaluation.dataset import read_dataset
+    from evaluation.temporal import sequence_flicker
+    from spotlessgs.io.images import read_image
+
+    def frames(paths):
+        for path in paths:
+            yield torch.from_numpy(read_image(path)).permute(2, 0, 1)
+
+    views = read_dataset(data)
+    return {"flicker": sequence_flicker(frames(relit / f.name for f in views.frames)),
+            "flicker_truth": sequence_flicker(frames(f.gt_path for f in views.frames))}
+
+
+def run_robot_benchmark(ideal: Path, robot: Path, out: Path, rows: Sequence[str] = tuple(ROWS), model: str = "spotless",
+                        preset: str = "quick", threads: int = 1, seed: int = 0,
+                        iterations: int | None = None) -> list[dict[str, Any]]:
+    """Every row of :data:`ROWS` asked for, in order; writes ``out/robot_components.json`` and ``.md``."""
+    unknown = [r for r in rows if r not in ROWS]
+    if unknown:
+        raise ValueError(f"unknown rows {unknown}; choose from {list(ROWS)}")
+    out.mkdir(parents=True, exist_ok=True)
+    datasets = {"ideal": ideal, "robot": robot}
+    results = []
+    for name in rows:
+        kind = ROWS[name][0]
+        data = lens_ignored_copy(robot, out / "data-lens-ignored") if kind == "lens-ignored" else datasets[kind]
+        log.info("robot benchmark: row %s on %s", name, data)
+        results.append(run_row(name, data, out, model, preset, threads, seed, iterations))
+    settings = {"model": model, "preset": preset, "threads": threads, "seed": seed, "iterations": iterations,
+                "ideal": str(ideal), "robot": str(robot)}
+    write_json(out / RESULTS_JSON, {"settings": settings, "rows": results, "provenance": provenance(seed=seed)})
+    write_text(out / RESULTS_MD, markdown_table(results))
+    return results
+
+
+def markdown_table(rows: Sequence[dict[str, Any]]) -> str:
+    """The rows as a Markdown table, each with its cost (ms/step) and what it buys (dB) against ``robot``."""
+    full = next((r for r in rows if r["row"] == "robot"), None)
+    lines = ["| row | switched off | ms / step | relit PSNR aligned (dB) | SSIM aligned | flicker (truth) | "
+             "the component costs (ms / step) | and buys (dB) |", "|---|---|---|---|---|---|---|---|"]
+    for r in rows:
+        cost = buys = "–"
+        if full is not None and r["row"] not in ("robot", "ideal"):
+            cost = f"{full['ms_per_step'] - r['ms_per_step']:+.1f}"
+            buys = f"{full['psnr_aligned'] - r['psnr_aligned']:+.2f}"
+        elif full is not None and r["row"] == "ideal":
+            buys = f"{full['psnr_aligned'] - r['psnr_aligned']:+.2f} (robot − ideal)"
+        lines.append(f"| {r['row']} | {r['switched_off']} | {r['ms_per_step']:.1f} | {r['psnr_aligned']:.2f} | "
+                     f"{r['ssim_aligned']:.3f} | {r['flicker']:.3f} ({r['flicker_truth']:.3f}) | {cost} | {buys} |")
+    return "\n".join(lines) + "\n"
