@@ -91,7 +91,8 @@ def test_negligible_mask_rejects_bad_input(contrib, fraction, match):
 
 
 @pytest.mark.parametrize("kwargs, match", [({"patience": 0}, "patience"), ({"min_gain_db": -1.0}, "min_gain_db"),
-                                           ({"prune_fraction": 1.0}, "prune_fraction")])
+                                           ({"prune_fraction": 1.0}, "prune_fraction"),
+                                           ({"judge_from": -1}, "judge_from")])
 def test_budget_config_rejects_bad_values(kwargs, match):
     with pytest.raises(ValueError, match=match):
         BudgetConfig(**kwargs)
@@ -163,6 +164,36 @@ def test_growth_stops_after_patience_checks_without_gain_and_cap_holds():
     again = BudgetStrategy(cfg, strategy.budget, 1.0, torch.Generator(), validate, lambda gg: torch.ones(len(gg)))
     again.load_state_dict(state)
     assert again.growth_stopped_at == 50 and again.checks == strategy.checks
+
+
+def test_before_judge_from_the_budget_densifies_as_the_default_strategy():
+    """A sparse start densifies from step 10, the budget judges from step 30: the steps before 30 are the default
+    strategy's exactly (same growth, no validation render, no contribution pruning), and the checks start at 30."""
+    cfg = DensifyConfig(densify_from=10, densify_until=100, densify_every=10, grad_threshold=1e-4,
+                        opacity_reset_every=0, max_gaussians=200, prune_opacity=0.0)
+    validated, weighed = [], []
+
+    def validate(gg):
+        validated.append(len(gg))
+        return 20.0
+
+    def contributions(gg):
+        weighed.append(len(gg))
+        return torch.arange(1.0, len(gg) + 1.0)
+
+    g = _gaussians()
+    strategy = BudgetStrategy(cfg, BudgetConfig(patience=2, min_gain_db=0.05, prune_fraction=0.2, judge_from=30),
+                              1.0, torch.Generator().manual_seed(0), validate, contributions)
+    log = _drive(strategy, g, _optimizers(g), 29)
+    g2 = _gaussians()
+    default_log = _drive(DensifyStrategy(cfg, 1.0, torch.Generator().manual_seed(0)), g2, _optimizers(g2), 29)
+    assert log == default_log and len(g) == len(g2) == 32  # 8 -> 16 at step 10 -> 32 at step 20
+    torch.testing.assert_close(g.means.detach(), g2.means.detach())
+    assert validated == [] and weighed == []
+    rest = [strategy.step_post_backward(step, g, _optimizers(g), torch.full((len(g), 2), 1.0),
+                                        torch.ones(len(g), dtype=torch.int32), 32, 32) for step in range(29, 60)]
+    assert [c["step"] for c in strategy.checks] == [30, 40, 50] and strategy.growth_stopped_at == 50
+    assert "pruned_negligible" in rest[0] and validated[0] == 32
 
 
 def test_no_opacity_reset_after_the_growth_stop():

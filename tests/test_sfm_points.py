@@ -114,6 +114,27 @@ def test_a_sparse_start_densifies_from_the_first_densification_step(room, tmp_pa
     assert sparse_start_schedule(switched_off, load_training_views(data)) == switched_off
 
 
+def test_the_gaussian_budget_judges_a_sparse_start_from_the_presets_densify_from(room, tmp_path):
+    """A sparse start densifies from step 30 (the tiny preset's densify_every) while the budget's first validation
+    check is at the preset's densify_from, 60: the early growth is not judged (judged, the budget stopped a robot
+    camera's sparse start at 424 Gaussians)."""
+    from spotlessgs.training.config import preset
+    from spotlessgs.training.trainer import train
+
+    root, _seq = room
+    data = tmp_path / "data"
+    shutil.copytree(root, data)
+    add_sfm_points(data)
+    cfg = preset("tiny").replace(iterations=90, image_width=64, num_threads=1, gaussian_budget=True,
+                                 validation_every=4, validation_rejoin=True)
+    train(data, tmp_path / "run", "darkgs", cfg, seed=0, progress=False)
+    report = json.loads((tmp_path / "run" / "gaussian_budget.json").read_text())
+    assert report["settings"]["judge_from"] == cfg.densify_from == 60
+    assert [c["step"] for c in report["checks"]] == [60, 90]
+    grown = [json.loads(line) for line in (tmp_path / "run" / "metrics.jsonl").read_text().splitlines()]
+    assert any(r.get("split", 0) + r.get("cloned", 0) > 0 for r in grown if r.get("step") == 30)
+
+
 def test_normals_of_sfm_points_are_estimated_unless_switched_off(room, tmp_path):
     from spotlessgs.training.data import initial_point_cloud, load_training_views
 

@@ -219,9 +219,10 @@ def fitted_view(seed: int, step: int, train: Sequence[int], split: ViewSplit, co
 
 def make_strategy(
     config: TrainConfig, extent: float, seed: int, device: torch.device, scene: RelightableScene,
-    views: TrainingViews, split: ViewSplit, photometric: PhotometricCamera | None = None,
+    views: TrainingViews, split: ViewSplit, photometric: PhotometricCamera | None = None, judge_from: int = 0,
 ) -> DensifyStrategy:
-    """The default densification strategy, or the Gaussian budget's when ``config.gaussian_budget``."""
+    """The default densification strategy, or the Gaussian budget's when ``config.gaussian_budget`` (judging growth
+    from step ``judge_from``: the preset's ``densify_from`` when a sparse start densifies earlier)."""
     generator = torch_generator(seed, "densify", device=str(device))
     if not config.gaussian_budget:
         return DensifyStrategy(densify_config(config), extent, generator)
@@ -238,7 +239,7 @@ def make_strategy(
         return gaussian_contributions(g.means, g.quats, g.scales, g.opacities, cameras, contribution_views,
                                       config.raster_backend, config.num_threads)
 
-    budget = BudgetConfig(config.budget_patience, config.budget_min_gain_db, config.budget_prune_fraction)
+    budget = BudgetConfig(config.budget_patience, config.budget_min_gain_db, config.budget_prune_fraction, judge_from)
     return BudgetStrategy(densify_config(config), budget, extent, generator, validate, contributions)
 
 
@@ -404,6 +405,7 @@ def _train_locked(data_dir: Path, run_dir: Path, variant: str | ModelConfig, con
         raise ValueError(f"{data_dir}: the split has no training views")
     _stop_before_training(stop, run_dir)  # Ctrl-C while the images loaded: stop now, before anything is written
     split = split_training_views(views.train, config.validation_every)
+    judge_from = config.densify_from  # the budget judges growth from the preset's start, also after a sparse start
     config = sparse_start_schedule(config, views)  # derived from the dataset: the same on a resume
     extent = views.scene_extent()
     images, saturated = views.images.to(device), views.saturated.to(device)
@@ -428,7 +430,7 @@ def _train_locked(data_dir: Path, run_dir: Path, variant: str | ModelConfig, con
                                  "photometric 'off'")
             # runs before 2026-11-24 stored the pixels' radii too; they are derived from the dataset
             photometric.load_state_dict({k: v for k, v in ckpt["photometric"].items() if k != "radius"})
-        strategy = make_strategy(config, extent, seed, device, scene, views, split, photometric)
+        strategy = make_strategy(config, extent, seed, device, scene, views, split, photometric, judge_from)
         opts = build_optimizers(scene, config, extent, photometric)
         for k, o in opts.items():
             o.load_state_dict(ckpt["optimizers"][k])
@@ -442,7 +444,7 @@ def _train_locked(data_dir: Path, run_dir: Path, variant: str | ModelConfig, con
         if init_from is not None:
             scene = warm_start_scene(scene, load_checkpoint(Path(init_from)), str(init_from))
         scene = scene.to(device)
-        strategy = make_strategy(config, extent, seed, device, scene, views, split, photometric)
+        strategy = make_strategy(config, extent, seed, device, scene, views, split, photometric, judge_from)
         opts = build_optimizers(scene, config, extent, photometric)
         write_json(run_dir / "run.json", run_info)
         numerics = numerics_record(config.num_threads, device.type)
