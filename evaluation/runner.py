@@ -186,11 +186,10 @@ def temporal_block(
         frames = (_chw(_load(p)) for p in _bar(paths, config, f"temporal {label}", total=len(paths)))
         plain = temporal_scores(frames)
         out = {"tmp_psnr": plain.mean_psnr, "tmp_ssim": plain.mean_ssim, "tmp_flicker": plain.flicker}
-        # the warp is a pinhole one: a distorted camera's frames are not warped (their depth maps would need the lens)
-        # (and one camera: the frames of several cameras are not warped either)
-        if (posed is not None and posed.intrinsics is not None and posed.intrinsics.is_pinhole
+        # one camera (the frames of several cameras are not warped); a lens warps through OpenCV's camera model
+        if (posed is not None and posed.intrinsics is not None
                 and all(f.depth_path is not None for f in posed.frames)):
-            K = torch.from_numpy(posed.intrinsics.K())
+            K = torch.from_numpy(posed.intrinsics.K()) if posed.intrinsics.is_pinhole else posed.intrinsics
 
             def gen():
                 for p, f in zip(paths, posed.frames):

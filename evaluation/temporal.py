@@ -6,7 +6,9 @@ in front of both cameras, inside frame t+1, not occluded when frame t+1's depth 
 no longer counts as inconsistency, so the warped figures separate flicker from motion.
 
 Camera convention here: OpenCV axes (x right, y down, z forward), camera-to-world 4×4 matrices, pinhole intrinsics
-K = [[fx, 0, cx], [0, fy, cy], [0, 0, 1]] with pixel (i, j) centred at (i + 0.5, j + 0.5).
+K = [[fx, 0, cx], [0, fy, cy], [0, 0, 1]] with pixel (i, j) centred at (i + 0.5, j + 0.5), or a camera with a lens
+(:class:`~spotlessgs.io.cameras.Intrinsics`: the rays of its pixels and the pixels of points through OpenCV's camera
+models, :mod:`spotlessgs.io.lens`).
 """
 
 from __future__ import annotations
@@ -19,7 +21,9 @@ import torch
 import torch.nn.functional as F
 from torch import Tensor
 
+from spotlessgs.io.cameras import Intrinsics
 from spotlessgs.io.colorspace import srgb_to_linear
+from spotlessgs.io.lens import distort, undistort
 from spotlessgs.metrics import masked_psnr, masked_ssim, psnr, ssim
 
 
@@ -97,10 +101,44 @@ def temporal_scores(frames: Iterable[Tensor]) -> TemporalScores:
     return TemporalScores(ps, ss, steps)
 
 
+def _rays_and_projection(camera: Tensor | Intrinsics, h: int, w: int):
+    """The normalised ray (x/z, y/z) of every pixel centre, each (H*W,) float64, and the projection of normalised
+    points to pixels (u, v), for a (3, 3) pinhole K or a camera with a lens; the projection also says which points the
+    camera sees (a lens only maps the normalised points of its own field of view faithfully: a radial polynomial
+    folds points far outside it back into the image)."""
+    dt = torch.float64
+    jj, ii = torch.meshgrid(torch.arange(h, dtype=dt) + 0.5, torch.arange(w, dtype=dt) + 0.5, indexing="ij")
+    if isinstance(camera, Intrinsics):
+        if (camera.width, camera.height) != (w, h):
+            raise ValueError(f"camera is {camera.width}x{camera.height}, the images {w}x{h}")
+        rays = torch.from_numpy(undistort(camera, torch.stack([ii, jj], -1).reshape(-1, 2).numpy()))
+        edge_u, edge_v = torch.linspace(0, w, 4 * w + 1, dtype=dt), torch.linspace(0, h, 4 * h + 1, dtype=dt)
+        edges = torch.cat([torch.stack([edge_u, torch.full_like(edge_u, side)], -1) for side in (0.0, h)]
+                          + [torch.stack([torch.full_like(edge_v, side), edge_v], -1) for side in (0.0, w)])
+        bounds = torch.from_numpy(undistort(camera, edges.numpy()))  # the field of view's edge (beyond the centres)
+        lo, hi = bounds.min(0).values, bounds.max(0).values
+
+        def project(x: Tensor, y: Tensor) -> tuple[Tensor, Tensor, Tensor]:
+            xy = torch.stack([x, y], -1)
+            seen = ((xy >= lo) & (xy <= hi)).all(-1)
+            px = torch.from_numpy(distort(camera, torch.where(seen[:, None], xy, torch.zeros_like(xy)).numpy()))
+            return px[:, 0], px[:, 1], seen
+
+        return rays[:, 0], rays[:, 1], project
+    K = camera.to(dt)
+    if K.shape != (3, 3):
+        raise ValueError("K must be (3, 3) and camera poses (4, 4)")
+
+    def project_pinhole(x: Tensor, y: Tensor) -> tuple[Tensor, Tensor, Tensor]:
+        return K[0, 0] * x + K[0, 2], K[1, 1] * y + K[1, 2], torch.ones_like(x, dtype=torch.bool)
+
+    return ((ii - K[0, 2]) / K[0, 0]).reshape(-1), ((jj - K[1, 2]) / K[1, 1]).reshape(-1), project_pinhole
+
+
 def warp_into(
     src: Tensor,
     depth: Tensor,
-    K: Tensor,
+    K: Tensor | Intrinsics,
     c2w_dst: Tensor,
     c2w_src: Tensor,
     src_depth: Tensor | None = None,
@@ -111,7 +149,7 @@ def warp_into(
     Args:
         src: (C, H, W) image of the source camera (e.g. frame t+1).
         depth: (H, W) planar depth of the destination camera (frame t), metres; inf/NaN/≤0 where there is no surface.
-        K: (3, 3) pinhole intrinsics shared by both cameras.
+        K: (3, 3) pinhole intrinsics shared by both cameras, or their camera with its lens (its size the images').
         c2w_dst: (4, 4) camera-to-world of the destination camera (OpenCV axes).
         c2w_src: (4, 4) camera-to-world of the source camera (OpenCV axes).
         src_depth: optional (H, W) planar depth of the source camera, for an occlusion test.
@@ -124,27 +162,24 @@ def warp_into(
     c, h, w = src.shape
     if depth.shape != (h, w):
         raise ValueError(f"depth shape {tuple(depth.shape)} does not match image size {h}x{w}")
-    if K.shape != (3, 3) or c2w_dst.shape != (4, 4) or c2w_src.shape != (4, 4):
+    if c2w_dst.shape != (4, 4) or c2w_src.shape != (4, 4):
         raise ValueError("K must be (3, 3) and camera poses (4, 4)")
     dt = torch.float64
-    K, c2w_dst, c2w_src = K.to(dt), c2w_dst.to(dt), c2w_src.to(dt)
+    ray_x, ray_y, project = _rays_and_projection(K, h, w)
+    c2w_dst, c2w_src = c2w_dst.to(dt), c2w_src.to(dt)
     z = depth.to(dt)
     finite = torch.isfinite(z) & (z > 0)
-    z = torch.where(finite, z, torch.ones_like(z))
-    jj, ii = torch.meshgrid(torch.arange(h, dtype=dt) + 0.5, torch.arange(w, dtype=dt) + 0.5, indexing="ij")
-    x = (ii - K[0, 2]) / K[0, 0] * z
-    y = (jj - K[1, 2]) / K[1, 1] * z
-    pts = torch.stack([x, y, z, torch.ones_like(z)], dim=-1).reshape(-1, 4)  # (H*W, 4) in dst camera
+    z = torch.where(finite, z, torch.ones_like(z)).reshape(-1)
+    pts = torch.stack([ray_x * z, ray_y * z, z, torch.ones_like(z)], dim=-1)  # (H*W, 4) in dst camera
     src_from_dst = torch.linalg.inv(c2w_src) @ c2w_dst
     p = pts @ src_from_dst.T
     zs = p[:, 2]
     in_front = zs > 1e-9
     zs_safe = torch.where(in_front, zs, torch.ones_like(zs))
-    u = K[0, 0] * p[:, 0] / zs_safe + K[0, 2]
-    v = K[1, 1] * p[:, 1] / zs_safe + K[1, 2]
+    u, v, seen = project(p[:, 0] / zs_safe, p[:, 1] / zs_safe)
     tol = 1e-6  # pixels: round-off at the border must not drop the outermost pixel centres
     inside = (u >= 0.5 - tol) & (u <= w - 0.5 + tol) & (v >= 0.5 - tol) & (v <= h - 0.5 + tol)  # bilinear support
-    valid = finite.reshape(-1) & in_front & inside
+    valid = finite.reshape(-1) & in_front & inside & seen
     grid = torch.stack([2 * u / w - 1, 2 * v / h - 1], dim=-1).reshape(1, h, w, 2)
     warped = F.grid_sample(src[None].to(dt), grid, mode="bilinear", padding_mode="border", align_corners=False)[0]
     if src_depth is not None:
@@ -169,12 +204,12 @@ class PosedFrame:
     c2w: Tensor  # (4, 4) camera-to-world, OpenCV axes
 
 
-def warped_temporal_scores(frames: Iterable[PosedFrame], K: Tensor, min_valid_fraction: float = 0.05) -> TemporalScores:
+def warped_temporal_scores(frames: Iterable[PosedFrame], K: Tensor | Intrinsics, min_valid_fraction: float = 0.05) -> TemporalScores:
     """PSNR and SSIM between frame t and frame t+1 warped into frame t, on valid pixels only.
 
     Args:
         frames: ordered frames with depth and pose; at least two.
-        K: (3, 3) intrinsics shared by all frames.
+        K: (3, 3) pinhole intrinsics shared by all frames, or their camera with its lens.
         min_valid_fraction: a pair whose valid pixels cover less than this fraction of the image is skipped (too little
             overlap to say anything); NaN is never reported.
 

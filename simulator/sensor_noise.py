@@ -36,10 +36,10 @@ import numpy as np
 from spotlessgs.io.atomic import atomic_path, remove_partial_files, write_json
 from spotlessgs.io.cameras import Intrinsics
 from spotlessgs.io.colorspace import linear_to_srgb
-from spotlessgs.io.exr import read_frame_exr
+from spotlessgs.io.exr import FrameEXR, read_frame_exr, write_frame_exr
 from spotlessgs.io.folder_lock import folder_lock
 from spotlessgs.io.images import write_png
-from spotlessgs.io.lens import check_invertible, distort_maps, remap, undistort
+from spotlessgs.io.lens import check_invertible, distort_maps, remap, remap_nearest, undistort
 from spotlessgs.io.paths import refuse_overlap
 from spotlessgs.io.seeding import numpy_rng
 from spotlessgs.io.transforms import nerfstudio_camera, read_transforms
@@ -242,7 +242,7 @@ def add_sensor_noise_to_dataset(data: str | Path, out: str | Path, noise: Sensor
                 continue
             if name in ("points3d.ply", "sparse") and not point_cloud:  # the COLMAP model holds the depth points too
                 continue
-            if lens_maps is not None and name in ("gt", "exr", "sparse"):  # resampled below; no pinhole EXRs/model
+            if lens_maps is not None and name in ("gt", "exr", "sparse"):  # resampled below; no pinhole model
                 continue
             if not src.exists() or dst.exists():
                 continue
@@ -260,10 +260,15 @@ def add_sensor_noise_to_dataset(data: str | Path, out: str | Path, noise: Sensor
                 continue
             rendered = read_frame_exr(data / frame.exr_file_path)
             linear = rendered.uneven
-            if lens_maps is not None:  # the render seen through the lens; the ground truth too
+            if lens_maps is not None:  # the render seen through the lens; the ground truth and the geometry too
                 linear = remap(linear, *lens_maps)
+                gt = remap(rendered.gt, *lens_maps)
+                # depth and normals: nearest samples (an interpolated depth at an edge is a surface nobody sees)
+                write_frame_exr(out / frame.exr_file_path, FrameEXR(
+                    uneven=linear, gt=gt, depth=remap_nearest(rendered.depth, *lens_maps),
+                    normal=remap_nearest(rendered.normal, *lens_maps)))
                 if frame.gt_file_path is not None:
-                    write_png(out / frame.gt_file_path, linear_to_srgb(np.clip(remap(rendered.gt, *lens_maps), 0, 1)))
+                    write_png(out / frame.gt_file_path, linear_to_srgb(np.clip(gt, 0, 1)))
             if gains is not None:
                 linear = linear * (effects.sensitivity * gains[index] * falloff)
             recorded = np.clip(linear, 0.0, 1.0) if noise is None else add_sensor_noise(
@@ -277,7 +282,8 @@ def _write_transforms(src: Path, dst: Path, effects: CameraEffects | None, camer
                       point_cloud: bool) -> None:
     """``src``'s transforms.json, written atomically to ``dst``, with ``camera_effects`` in its "spotless" block (a
     plain nerfstudio file, which has no block, keeps none: the trainer treats it as a real camera's anyway), for a
-    lens its camera and no EXRs (they hold the pinhole renders), and without ``point_cloud`` no ``ply_file_path``."""
+    lens its camera (the EXRs are the renders resampled through it), and without ``point_cloud`` no
+    ``ply_file_path``."""
     data = json.loads(src.read_text(encoding="utf-8"))
     if not point_cloud:
         data.pop("ply_file_path", None)
@@ -289,6 +295,4 @@ def _write_transforms(src: Path, dst: Path, effects: CameraEffects | None, camer
         for key in ("k1", "k2", "k3", "k4", "p1", "p2"):
             data.pop(key, None)
         data.update(nerfstudio_camera(camera, dst))
-        for frame in data["frames"]:
-            frame.pop("exr_file_path", None)
     write_json(dst, data)

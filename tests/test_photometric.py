@@ -146,8 +146,9 @@ def test_a_robot_camera_copy_through_a_lens_resamples_the_renders_and_records_th
     src, records = tmp_path / "clean", []
     for k in range(2):
         name = f"frame_{k:05d}"
-        write_frame_exr(src / "exr" / f"{name}.exr", FrameEXR(uneven=0.5 * ramp, gt=ramp, depth=np.ones((height, width),
-                        np.float32), normal=np.zeros((height, width, 3), np.float32)))
+        step = np.where(np.arange(width) < width // 2, 1.0, 3.0)[None, :].repeat(height, 0).astype(np.float32)
+        write_frame_exr(src / "exr" / f"{name}.exr", FrameEXR(uneven=0.5 * ramp, gt=ramp, depth=step,
+                        normal=np.zeros((height, width, 3), np.float32)))
         write_png(src / "images" / f"{name}.png", linear_to_srgb(0.5 * ramp))
         write_png(src / "gt" / f"{name}.png", linear_to_srgb(ramp))
         records.append(FrameRecord(f"images/{name}.png", np.eye(4), gt_file_path=f"gt/{name}.png",
@@ -158,7 +159,16 @@ def test_a_robot_camera_copy_through_a_lens_resamples_the_renders_and_records_th
     data = read_dataset(tmp_path / "robot", check_files=True)
     camera = data.intrinsics
     assert camera == effects.camera(render) and camera.lens == "opencv" and camera.fx > render.fx
-    assert data.exr_paths == (None, None) and data.meta["camera_effects"]["lens"] == "opencv"
+    assert data.meta["camera_effects"]["lens"] == "opencv"
+    # the EXRs are the renders through the lens: the ground truth as its PNG, the depth sampled, never blended
+    from spotlessgs.io.exr import read_frame_exr
+
+    assert data.exr_paths == tuple(tmp_path / "robot" / "exr" / f"frame_{k:05d}.exr" for k in range(2))
+    through_lens = read_frame_exr(data.exr_paths[1])
+    np.testing.assert_allclose(linear_to_srgb(np.clip(through_lens.gt, 0, 1)),
+                               read_image(tmp_path / "robot" / "gt" / "frame_00001.png"), atol=1 / 255 + 1e-6)
+    assert set(np.unique(through_lens.depth)) == {1.0, 3.0}
+    assert (through_lens.depth[:, 0] == 1.0).all() and (through_lens.depth[:, -1] == 3.0).all()
     # every pixel's ray falls inside the render, the outermost just so (the image edge, finely sampled)
     t = np.linspace(0.0, 1.0, 401)
     edges = np.concatenate([np.c_[t * width, 0 * t], np.c_[t * width, 0 * t + height], np.c_[0 * t, t * height],

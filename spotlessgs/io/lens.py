@@ -151,6 +151,13 @@ def distort_maps(intr: Intrinsics, working: Intrinsics) -> tuple[np.ndarray, np.
     return _sampling_maps(rays, working, intr.height, intr.width)
 
 
+def remap_nearest(image: np.ndarray, map_x: np.ndarray, map_y: np.ndarray) -> np.ndarray:
+    """``image`` (H, W[, C]) float32 sampled at the maps' nearest pixels (for depth and normals, which must not be
+    blended across edges; inf passes through)."""
+    return cv2.remap(np.ascontiguousarray(image, dtype=np.float32), map_x, map_y, interpolation=cv2.INTER_NEAREST,
+                     borderMode=cv2.BORDER_REPLICATE)
+
+
 def remap(image: np.ndarray, map_x: np.ndarray, map_y: np.ndarray) -> np.ndarray:
     """``image`` (H, W[, C]) float32 resampled bilinearly at the maps' positions (edge pixels repeated outside)."""
     return cv2.remap(np.ascontiguousarray(image, dtype=np.float32), map_x, map_y, interpolation=cv2.INTER_LINEAR,
