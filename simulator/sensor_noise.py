@@ -11,7 +11,8 @@ parametrisation of Brooks et al. 2019, "Unprocessing images for learned raw deno
 to the spotlight-only images of a dataset. :func:`add_sensor_noise_to_dataset` derives a noisy copy of a finished
 dataset from its linear renders (``exr/``), so the same renders can be used clean and noisy: the copy's ``images/``
 are noisy, everything else (ground truth, EXRs, poses, point cloud, transforms.json) is copied unchanged, and
-``sensor_noise.json`` records the parameters. Noise of frame k comes from its own generator (seed, frame index), so a
+``sensor_noise.json`` records the parameters (a copy through a lens resamples the ground truth and the EXRs through it:
+the renders and the ground truth bilinearly, depth and normals by nearest sample). Noise of frame k comes from its own generator (seed, frame index), so a
 rerun writes the same bytes and an interrupted run resumes frame by frame; the temporary files a killed run left
 (``.<name>.partial-*``) are removed when the next run starts.
 
