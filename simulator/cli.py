@@ -56,6 +56,12 @@ def main(verbose: bool) -> None:
 @click.option("--lambertian", is_flag=True,
               help="Render every surface as an ideal Lambertian reflector (specular layer off, metallic 0): a room "
                    "with only diffuse materials.")
+@click.option("--motion-blur", default=0.0, show_default=True, type=click.FloatRange(0, 1),
+              help="Camera motion blur in the spotlit input: the shutter's open time as a fraction of the time "
+                   "between two frames (0: sharp; the ground truth stays sharp).")
+@click.option("--path", "camera_path", default="paper", show_default=True, type=click.Choice(["paper", "robot"]),
+              help="Camera loop: the paper's (perpendicular to the path, 90° turns at the corners, 10 cm / 0.1 rad "
+                   "pose noise) or a robot's (looks at the room's centre and turns smoothly, 2 cm / 0.02 rad).")
 @click.option("--seed", default=0, show_default=True, type=int)
 @click.option("--preset", default="uneven", show_default=True, type=click.Choice(["uneven", "saturated"]),
               help="Spotlight strength: uneven, or saturated (clips highlights).")
@@ -65,7 +71,7 @@ def main(verbose: bool) -> None:
 @click.option("--device", default="auto", show_default=True, type=click.Choice(["auto", "cpu", "gpu"]))
 @click.option("-q", "--quiet", is_flag=True, help="No progress bar, and no messages from Blender's device probing.")
 def render(scene_path, out_dir, future_dir, texture_dir, allow_missing, room, frames, width, height, h_fov_deg, samples,
-           no_denoise, bounces, ambient, lambertian, seed, preset, shard, threads, device, quiet):
+           no_denoise, bounces, ambient, lambertian, motion_blur, camera_path, seed, preset, shard, threads, device, quiet):
     """Render the spotlight-only and the evenly lit image of every pose of a room's camera loop.
 
     Ctrl-C (or SIGTERM) stops within a second or two (exit 130 / 143) and keeps every finished frame: rerun the same
@@ -74,11 +80,12 @@ def render(scene_path, out_dir, future_dir, texture_dir, allow_missing, room, fr
     """
     from simulator.front3d import LoadOptions
     from simulator.render_pipeline import ExecutionOptions, RenderConfig, render_dataset
+    from simulator.trajectory import PATHS
 
     config = RenderConfig.from_preset(
         preset, frames=frames, width=width, height=height, h_fov_deg=h_fov_deg, samples=samples,
         denoise=not no_denoise, max_bounces=bounces, ambient=ambient, lambertian=lambertian, seed=seed,
-        room=room,
+        room=room, trajectory=PATHS[camera_path], motion_blur=motion_blur,
     )
     summary = render_dataset(
         scene_path, out_dir, config,

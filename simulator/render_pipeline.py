@@ -42,7 +42,7 @@ from simulator.child_process import die_with_parent, drop_blender_script_paths, 
 from simulator.front3d import LoadOptions, load_house
 from simulator.lighting import SPOTLIGHT_PRESETS, GroundTruthLighting, SpotlightConfig, with_ground_truth_lighting
 from simulator.pointcloud import backproject_depth, merge_point_clouds
-from simulator.trajectory import TrajectoryConfig, sample_trajectory
+from simulator.trajectory import TrajectoryConfig, sample_trajectory, shutter_poses
 from spotlessgs.io.atomic import PARTIAL_MARK, remove_partial_files, to_jsonable, write_json
 from spotlessgs.io.cameras import Intrinsics
 from spotlessgs.io.colmap_text import model_from_poses, write_colmap_text
@@ -77,6 +77,8 @@ class RenderConfig:
         lambertian: render every surface as an ideal Lambertian reflector (the Principled BSDF's specular layer off,
             metallic 0; colours and textures kept): a room with only diffuse materials. Blender's default dielectric
             keeps a 4 % Fresnel specular layer even at roughness 0.9, which is not Lambertian.
+        motion_blur: camera motion blur in the spotlight-only input: the shutter is open this fraction of the time
+            between two frames, centred on the frame (0 = sharp; the ground truth is always sharp).
         seed: the command seed; poses, render noise and point sampling each derive their own generator from it.
         preset: name of the spotlight preset (``uneven`` or ``saturated``), recorded in the dataset.
         spotlight: the camera-mounted spotlight.
@@ -95,6 +97,7 @@ class RenderConfig:
     max_bounces: int = 4
     ambient: float = 0.0
     lambertian: bool = False
+    motion_blur: float = 0.0
     seed: int = 0
     preset: str = "uneven"
     spotlight: SpotlightConfig = field(default_factory=SpotlightConfig)
@@ -102,6 +105,11 @@ class RenderConfig:
     trajectory: TrajectoryConfig = field(default_factory=TrajectoryConfig)
     room: str | None = None
     max_points: int = 60_000
+
+    def __post_init__(self) -> None:
+        if not 0.0 <= self.motion_blur <= 1.0:
+            raise ValueError(f"RenderConfig.motion_blur must be in [0, 1] (a fraction of the time between two "
+                             f"frames), got {self.motion_blur}")
 
     @staticmethod
     def from_preset(preset: str, **overrides: Any) -> "RenderConfig":
@@ -162,8 +170,9 @@ def frame_done(out_dir: Path, index: int) -> bool:
 def _fingerprint(scene_path: Path, config: RenderConfig) -> dict[str, Any]:
     """The settings that determine the output (JSON-able)."""
     cfg = dataclasses.asdict(config)
-    if not cfg["lambertian"]:
-        del cfg["lambertian"]  # recorded only when set: datasets rendered before the option existed still resume
+    for option in ("lambertian", "motion_blur"):
+        if not cfg[option]:
+            del cfg[option]  # recorded only when set: datasets rendered before the option existed still resume
     return {"scene": str(scene_path.resolve()), "config": to_jsonable(cfg)}
 
 
@@ -565,6 +574,7 @@ def _render_frames(conn, out_dir: Path, config: RenderConfig, execution: Executi
             threads=execution.threads,
             device=execution.device,
             ambient=config.ambient,
+            motion_blur=config.motion_blur > 0,
         )
         device = renderer.configure(settings)
         built = scene_builder.build_scene(room_scene, config.spotlight, config.ground_truth.ceiling_glow,
@@ -574,8 +584,9 @@ def _render_frames(conn, out_dir: Path, config: RenderConfig, execution: Executi
     scratch.mkdir(parents=True, exist_ok=True)
     try:
         for k in todo:
+            shutter = shutter_poses(poses, k, config.motion_blur) if config.motion_blur > 0 else None
             pair = renderer.render_pair(built, poses[k], settings, stage_seed(config.seed, f"cycles/{k}"),
-                                        workdir=scratch)
+                                        workdir=scratch, shutter=shutter)
             paths = frame_paths(out_dir, k)
             write_frame_exr(paths["exr"], FrameEXR(uneven=pair.uneven, gt=pair.gt, depth=pair.depth,
                                                    normal=pair.normal))
@@ -757,6 +768,7 @@ def finalize_dataset(
             "view_transform": "Standard",
             "ambient": config.ambient,
             "lambertian": config.lambertian,
+            **({"motion_blur": config.motion_blur} if config.motion_blur > 0 else {}),
             "ground_truth_lighting": to_jsonable(dataclasses.asdict(config.ground_truth)),
             "trajectory": to_jsonable(dataclasses.asdict(config.trajectory)),
             "h_fov_deg": config.h_fov_deg,

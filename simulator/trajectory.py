@@ -9,8 +9,10 @@ Construction (all in the world frame: metres, z up):
 2. **Positions.** ``n_frames`` points uniformly spaced by arc length along the rectangle, counter-clockwise (seen from
    above) starting half a step after the (x_min, y_min) corner, at ``floor_z + height``.
 3. **Orientation.** The camera looks horizontally, perpendicular to the local path direction: inward (to the left of
-   the counter-clockwise direction) by default, or outward. Camera up is world +z. OpenGL/Blender axes: x right, y up,
-   the camera looks along -z.
+   the counter-clockwise direction) by default, or outward; or (``facing="centre"``) at the rectangle's centre, so
+   that the view turns continuously along the loop instead of by 90° between the two frames at each corner (the
+   paper's loop falls apart into four sides that share no view: SfM builds one model per side). Camera up is world
+   +z. OpenGL/Blender axes: x right, y up, the camera looks along -z.
 4. **Noise.** Position += N(0, pos_sigma^2 I_3); rotation := R @ exp([w]x) with w ~ N(0, rot_sigma^2 I_3) an axis-angle
    vector in the camera frame.
 5. **Rejection.** A noisy pose is redrawn (up to ``max_tries`` times) when its camera centre is not admissible
@@ -46,6 +48,10 @@ from spotlessgs.io.cameras import axis_angle_to_matrix
 log = logging.getLogger(__name__)
 
 
+#: Where the camera looks along the loop (:class:`TrajectoryConfig` ``facing``).
+FACINGS = ("inward", "outward", "centre")
+
+
 @dataclass(frozen=True)
 class TrajectoryConfig:
     """Settings of the rectangular camera path."""
@@ -53,7 +59,8 @@ class TrajectoryConfig:
     n_frames: int = 316  # number of poses (paper: 287 train + 29 test)
     height: float = 1.5  # camera height above the floor before noise, metres
     margin: float = 0.6  # distance between the walls and the path rectangle, metres
-    facing: str = "inward"  # "inward" (towards the room centre) or "outward" (towards the walls)
+    # "inward" / "outward": perpendicular to the path, towards the inside / the walls; "centre": at the loop's centre
+    facing: str = "inward"
     pos_sigma: float = 0.1  # standard deviation of the position noise per axis, metres
     rot_sigma: float = 0.1  # standard deviation of each axis-angle noise component, radians
     clearance: float = 0.15  # minimum distance of a camera centre to walls, floor, ceiling and obstacle boxes, metres
@@ -63,14 +70,24 @@ class TrajectoryConfig:
     def __post_init__(self) -> None:
         if self.n_frames < 1:
             raise ValueError(f"TrajectoryConfig.n_frames must be >= 1, got {self.n_frames}")
-        if self.facing not in ("inward", "outward"):
-            raise ValueError(f"TrajectoryConfig.facing must be 'inward' or 'outward', got {self.facing!r}")
+        if self.facing not in FACINGS:
+            raise ValueError(f"TrajectoryConfig.facing must be one of {', '.join(FACINGS)}, got {self.facing!r}")
         for name in ("height", "margin", "pos_sigma", "rot_sigma", "clearance"):
             value = getattr(self, name)
             if not (math.isfinite(value) and value >= 0):
                 raise ValueError(f"TrajectoryConfig.{name} must be finite and >= 0, got {value!r}")
         if self.max_tries < 1 or self.grid_steps < 1:
             raise ValueError("TrajectoryConfig.max_tries and grid_steps must be >= 1")
+
+
+#: Named camera paths (``spotless-sim render --path``): ``paper``, the paper's loop (perpendicular to the path, a 90°
+#: turn at each corner, pose noise 10 cm / 0.1 rad per frame and axis, drawn independently per frame); ``robot``, a
+#: camera that a robot carries round the room: it looks at the loop's centre and turns smoothly, pose noise 2 cm /
+#: 0.02 rad (consecutive frames of the quick preset's 60 overlap as a video's do, so SfM can chain them).
+PATHS: dict[str, TrajectoryConfig] = {
+    "paper": TrajectoryConfig(),
+    "robot": TrajectoryConfig(facing="centre", pos_sigma=0.02, rot_sigma=0.02),
+}
 
 
 @dataclass(frozen=True)
@@ -244,7 +261,12 @@ def nominal_trajectory(floor_polygon: np.ndarray, floor_z: float, config: Trajec
     xy, tangent = rectangle_path(rect, config.n_frames)
     # Left of the counter-clockwise direction of travel is the inside of the rectangle.
     inward = np.stack([-tangent[:, 1], tangent[:, 0], np.zeros(len(tangent))], axis=1)
-    forward = inward if config.facing == "inward" else -inward
+    if config.facing == "centre":
+        to_centre = np.array([(rect[0] + rect[2]) / 2, (rect[1] + rect[3]) / 2]) - xy
+        forward = np.concatenate([to_centre / np.linalg.norm(to_centre, axis=1, keepdims=True),
+                                  np.zeros((len(xy), 1))], axis=1)
+    else:
+        forward = inward if config.facing == "inward" else -inward
     poses = np.tile(np.eye(4), (config.n_frames, 1, 1))
     poses[:, :3, :3] = look_rotation(forward)
     poses[:, :2, 3] = xy
@@ -397,3 +419,26 @@ def sample_trajectory(
         out[i, :3, 3] = position
         out[i, :3, :3] = poses[i, :3, :3] @ axis_angle_to_matrix(rotvec)
     return out
+
+
+def interpolate_pose(a: np.ndarray, b: np.ndarray, t: float) -> np.ndarray:
+    """The (4, 4) rigid pose a fraction ``t`` in [0, 1] of the way from ``a`` to ``b`` (camera-to-world): the
+    centre moves on the straight line, the rotation on the shortest arc (slerp)."""
+    from scipy.spatial.transform import Rotation, Slerp
+
+    out = np.eye(4)
+    out[:3, :3] = Slerp([0.0, 1.0], Rotation.from_matrix(np.stack([a[:3, :3], b[:3, :3]])))([t]).as_matrix()[0]
+    out[:3, 3] = (1.0 - t) * a[:3, 3] + t * b[:3, 3]
+    return out
+
+
+def shutter_poses(poses: np.ndarray, index: int, exposure: float) -> tuple[np.ndarray, np.ndarray]:
+    """The camera poses at shutter open and close of frame ``index`` of a closed loop of ``poses`` (N, 4, 4), for a
+    shutter open ``exposure`` (in (0, 1]) of the time between two frames, centred on the frame: open lies
+    ``exposure / 2`` of the way to the previous frame, close as far towards the next (the loop wraps)."""
+    if not 0.0 < exposure <= 1.0:
+        raise ValueError(f"shutter_poses: exposure must be in (0, 1], got {exposure}")
+    n = len(poses)
+    here = poses[index]
+    return (interpolate_pose(here, poses[(index - 1) % n], exposure / 2),
+            interpolate_pose(here, poses[(index + 1) % n], exposure / 2))

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
@@ -9,6 +11,7 @@ from scipy.stats import chi2, norm
 from shapely.geometry import Point, Polygon
 
 from simulator.trajectory import (
+    PATHS,
     TrajectoryConfig,
     largest_inscribed_rectangle,
     nominal_trajectory,
@@ -42,6 +45,29 @@ def test_square_room_hand_computed_poses():
     np.testing.assert_allclose(np.linalg.det(poses[:, :3, :3]), 1.0)
     outward = nominal_trajectory(SQUARE, 0.3, TrajectoryConfig(n_frames=4, height=1.2, margin=0.5, facing="outward"))
     np.testing.assert_allclose(_forward(outward), -np.array(expected_forward), atol=1e-12)
+
+
+def test_facing_the_centre_turns_smoothly_where_the_paper_loop_turns_by_90_degrees():
+    """4x4 room, margin 0.5: the rectangle [0.5, 3.5]^2 around the centre (2, 2). Facing the centre, a frame at
+    (2, 0.5) looks along +y; along a 40-frame loop (0.3 m apart) consecutive views turn by at most 11.4°, never by the
+    paper loop's 90° at the corners."""
+    poses = nominal_trajectory(SQUARE, 0.0, TrajectoryConfig(n_frames=4, margin=0.5, facing="centre"))
+    np.testing.assert_allclose(_forward(poses), [[0, 1, 0], [-1, 0, 0], [0, -1, 0], [1, 0, 0]], atol=1e-12)
+    n = 40
+    centre_view = _forward(nominal_trajectory(SQUARE, 0.0, TrajectoryConfig(n_frames=n, margin=0.5, facing="centre")))
+    paper_view = _forward(nominal_trajectory(SQUARE, 0.0, TrajectoryConfig(n_frames=n, margin=0.5)))
+
+    def turns(forward):  # degrees between consecutive frames, around the loop
+        cos = np.einsum("ij,ij->i", forward, np.roll(forward, -1, axis=0))
+        return np.degrees(np.arccos(np.clip(cos, -1, 1)))
+
+    assert turns(paper_view).max() == pytest.approx(90.0) and (turns(paper_view) < 1e-6).sum() == n - 4
+    # most at mid-side, nearest the centre: frames 0.15 m either side of (2, 0.5) turn by 2 atan(0.15 / 1.5) = 11.4°
+    assert turns(centre_view).max() == pytest.approx(np.degrees(2 * np.arctan(0.15 / 1.5)), abs=1e-6)
+    assert turns(centre_view).sum() == pytest.approx(360.0)
+    sample = sample_trajectory(SQUARE, 0.0, 3.0, [], dataclasses.replace(PATHS["robot"], n_frames=n, margin=0.5),
+                               np.random.default_rng(0))
+    assert turns(_forward(sample)).max() < 20.0  # 2 cm / 0.02 rad noise keeps the views overlapping
 
 
 def _arc_length(xy: np.ndarray, rect) -> np.ndarray:
@@ -174,7 +200,7 @@ def test_rectangle_path_tangents():
 
 
 def test_invalid_inputs_raise():
-    with pytest.raises(ValueError, match="facing must be 'inward' or 'outward'"):
+    with pytest.raises(ValueError, match="facing must be one of inward, outward, centre"):
         TrajectoryConfig(facing="sideways")
     with pytest.raises(ValueError, match="n_frames must be >= 1"):
         TrajectoryConfig(n_frames=0)

@@ -29,6 +29,8 @@ class CyclesSettings:
         threads: CPU threads (Cycles ``threads_mode='FIXED'``).
         device: ``auto`` (GPU when Blender finds one), ``cpu`` or ``gpu``.
         ambient: world (environment) strength of the spotlight-only render; 0 = darkness besides the spotlight.
+        motion_blur: Cycles camera motion blur in the spotlight-only render, on when :func:`render_pair` is given
+            the poses at shutter open and close (the ground truth stays sharp).
     """
 
     width: int = 320
@@ -39,6 +41,7 @@ class CyclesSettings:
     threads: int = 2
     device: str = "auto"
     ambient: float = 0.0
+    motion_blur: bool = False
 
 
 def _select_device(settings: CyclesSettings) -> str:
@@ -162,8 +165,60 @@ def _render_exr(workdir: Path, name: str) -> dict[str, np.ndarray]:
         path.unlink(missing_ok=True)
 
 
+def _place(built: BuiltScene, c2w: np.ndarray) -> None:
+    """Camera at ``c2w`` (4, 4), Blender axes, and the camera-mounted spotlight with it."""
+    built.camera.matrix_world = Matrix(c2w.tolist())
+    built.spotlight.matrix_world = Matrix((c2w @ built.spot_local).tolist())
+
+
+@contextlib.contextmanager
+def _camera_motion(built: BuiltScene, shutter: tuple[np.ndarray, np.ndarray, np.ndarray]):
+    """Key the camera and the spotlight at shutter open, mid-exposure and close (frames 0, 1, 2; linear
+    interpolation), with the scene at frame 1 and Cycles' motion blur over frames 0-2; everything undone after."""
+    scene = bpy.context.scene
+    objects = (built.camera, built.spotlight)
+    old_modes = [obj.rotation_mode for obj in objects]
+    old_frame = scene.frame_current
+    try:
+        for obj in objects:
+            obj.rotation_mode = "QUATERNION"
+        for frame, c2w in enumerate(shutter):
+            scene.frame_set(frame)
+            _place(built, np.asarray(c2w, dtype=np.float64))
+            for obj in objects:
+                obj.keyframe_insert("location", frame=frame)
+                obj.keyframe_insert("rotation_quaternion", frame=frame)
+        for obj in objects:
+            for curve in _fcurves(obj):
+                for key in curve.keyframe_points:
+                    key.interpolation = "LINEAR"
+        scene.frame_set(1)
+        scene.render.use_motion_blur = True
+        scene.render.motion_blur_shutter = 2.0  # frames 0..2: open .. close
+        yield
+    finally:
+        scene.render.use_motion_blur = False
+        for obj, mode in zip(objects, old_modes):
+            obj.animation_data_clear()
+            obj.rotation_mode = mode
+        scene.frame_set(old_frame)
+
+
+def _fcurves(obj) -> list:
+    """The F-curves of ``obj``'s action (Blender 5 keeps them in the action's layered channelbags)."""
+    action = obj.animation_data.action
+    curves = list(getattr(action, "fcurves", []) or [])
+    if not curves:
+        for layer in getattr(action, "layers", []):
+            for strip in layer.strips:
+                for bag in strip.channelbags:
+                    curves.extend(bag.fcurves)
+    return curves
+
+
 def render_pair(built: BuiltScene, c2w_blender: np.ndarray, settings: CyclesSettings, seed: int,
-                workdir: Path | None = None) -> RenderedPair:
+                workdir: Path | None = None,
+                shutter: tuple[np.ndarray, np.ndarray] | None = None) -> RenderedPair:
     """Render one camera pose in both lighting modes.
 
     Args:
@@ -174,28 +229,37 @@ def render_pair(built: BuiltScene, c2w_blender: np.ndarray, settings: CyclesSett
         workdir: an existing folder for Blender's EXR of each render (read back and deleted at once). The dataset
             renderer passes a scratch folder inside the dataset, which the next run removes if this process is
             killed; None: a temporary folder in the system's temporary directory.
+        shutter: (4, 4) camera-to-world poses at shutter open and close (Blender axes): the spotlight-only render
+            is motion-blurred along open → ``c2w_blender`` → close when ``settings.motion_blur``; the ground truth,
+            depth and normals are the sharp render's at ``c2w_blender``.
     """
     scene = bpy.context.scene
     c2w = np.asarray(c2w_blender, dtype=np.float64)
-    built.camera.matrix_world = Matrix(c2w.tolist())
-    built.spotlight.matrix_world = Matrix((c2w @ built.spot_local).tolist())
+    _place(built, c2w)
     scene.cycles.seed = int(seed) % (2**31 - 1)
+    blurred = settings.motion_blur and shutter is not None
     with contextlib.ExitStack() as stack:
         if workdir is None:
             work = Path(stack.enter_context(tempfile.TemporaryDirectory(prefix="spotless-render-")))
         else:
             work = Path(workdir)
         _set_mode(built, "uneven", settings)
-        spot = _render_exr(work, "uneven")
+        if blurred:
+            with _camera_motion(built, (shutter[0], c2w, shutter[1])):
+                spot = _render_exr(work, "uneven")
+            _place(built, c2w)
+        else:
+            spot = _render_exr(work, "uneven")
         _set_mode(built, "gt", settings)
         gt = _render_exr(work, "gt")
     combined = (".Combined.R", ".Combined.G", ".Combined.B")
-    depth = blender_depth_to_planar(_channels(spot, (".Depth.Z",), work))
+    sharp = gt if blurred else spot  # the geometry passes of a sharp render (identical in both when nothing moves)
+    depth = blender_depth_to_planar(_channels(sharp, (".Depth.Z",), work))
     return RenderedPair(
         uneven=_channels(spot, combined, work).astype(np.float32),
         gt=_channels(gt, combined, work).astype(np.float32),
         depth=depth,
-        normal=_channels(spot, (".Normal.X", ".Normal.Y", ".Normal.Z"), work).astype(np.float32),
+        normal=_channels(sharp, (".Normal.X", ".Normal.Y", ".Normal.Z"), work).astype(np.float32),
     )
 
 
