@@ -283,6 +283,32 @@ def test_held_out_score_on_all_and_on_the_darkest_pixels():
         held_out_score(_FixedRenders([pred]), one_view, seen, [0], dark_quantile=0.0)
 
 
+def test_a_held_out_frame_of_unknown_exposure_is_scored_after_its_own_gain():
+    """Three views of 1 x 4 pixels; view 2 is held out and its camera recorded it 2.5x brighter (auto-exposure). With
+    the exposure unknown its render is scaled by the least-squares gain of its unclipped pixels first (2.5 exactly:
+    the score is perfect); recorded exposures, or a fitted frame, keep the camera's own gain."""
+    from spotlessgs.models.photometric import PhotometricCamera
+    from spotlessgs.training.validation import frame_gain
+
+    render = torch.tensor([0.1, 0.2, 0.3, 0.5]).reshape(1, 4, 1).expand(1, 4, 3).clone()
+    observed = (2.5 * render).clamp(max=1.0)  # the last pixel clips at 1.0 and is left out of the gain
+    views = Cameras(torch.eye(4)[None].repeat(3, 1, 1), Intrinsics(4.0, 4.0, 2.0, 0.5, 4, 1))
+    for k in range(3):
+        views.c2w[k, 0, 3] = k  # _FixedRenders picks the image by the pose's x
+    images = torch.stack([render, render, observed])
+    radius = torch.zeros(1, 4)
+    learned = PhotometricCamera(3, [0, 1], radius, vignetting=False)
+    assert learned.exposure_unknown(2) and not learned.exposure_unknown(0)
+    assert frame_gain(render, observed) == pytest.approx(2.5)
+    assert math.isinf(held_out_score(_FixedRenders([render] * 3), views, images, [2], photometric=learned).psnr)
+    recorded = PhotometricCamera(3, [0, 1], radius, vignetting=False, log_gain_prior=torch.zeros(3))
+    assert not recorded.exposure_unknown(2)
+    at_reference = held_out_score(_FixedRenders([render] * 3), views, images, [2], photometric=recorded).psnr
+    expected = ((render - observed) ** 2).mean()
+    assert at_reference == pytest.approx(-10 * math.log10(float(expected)))
+    assert frame_gain(torch.zeros(1, 4, 3), observed) == 1.0  # a black render: no gain to take
+
+
 # ---- run folders ------------------------------------------------------------------------------------------------
 
 

@@ -54,6 +54,7 @@ class PhotometricCamera(nn.Module):
         if start.shape != (num_views,) or not torch.isfinite(start).all():
             raise ValueError(f"PhotometricCamera: log_gain_prior must be {num_views} finite values")
         self.log_gain = nn.Parameter(start.clone()) if exposure else None
+        self.exposure_known = log_gain_prior is not None  # from the dataset, so not part of the state dict
         self.coefficients = nn.Parameter(torch.zeros(3)) if vignetting else None
         self.register_buffer("fitted", torch.as_tensor(list(fitted), dtype=torch.long))
         is_fitted = torch.zeros(num_views, dtype=torch.bool)
@@ -71,6 +72,11 @@ class PhotometricCamera(nn.Module):
         if self.log_gain is None:
             return torch.zeros_like(self.start)
         return torch.where(self.is_fitted, self.log_gain - self.log_gain[self.fitted].mean(), self.start)
+
+    def exposure_unknown(self, view: int) -> bool:
+        """True for a frame whose exposure is learned but was neither fitted nor recorded (a held-out frame of an
+        auto-exposure camera without exposure records): its gain can only come from its own pixels."""
+        return self.log_gain is not None and not self.exposure_known and not bool(self.is_fitted[view])
 
     def gains(self) -> torch.Tensor:
         """(V,) exposure of every frame relative to the fitted frames' (geometric) mean."""
