@@ -30,7 +30,8 @@ from spotlessgs.io.errors import InputError
 from spotlessgs.io.images import read_image, write_png
 from spotlessgs.io.ply import write_point_cloud
 from spotlessgs.io.provenance import provenance
-from spotlessgs.prepare.images import SUMMARY_FILE, brighten
+from spotlessgs.prepare.images import NOISE_SAMPLE, SUMMARY_FILE, brighten, brightening_blur
+from spotlessgs.training.validation import evenly_spaced
 
 POINTS_FILE = "sfm_points.ply"
 
@@ -67,19 +68,25 @@ def add_sfm_points(
     train = list(dataset.split.train)
     names = []
     step(f"brightened copies of {len(train)} training frames")
+
+    def frame(k: int) -> np.ndarray:
+        image = read_image(dataset.image_paths[k])
+        if dataset.meta.get("linear_images"):
+            image = linear_to_srgb(np.clip(image, 0.0, 1.0)).astype(np.float32)
+        return image
+
+    noise, blur = brightening_blur([frame(k) for k in evenly_spaced(train, NOISE_SAMPLE)])
     for k in train:
         name = f"{k:05d}.png"
         if not (copies / name).is_file():
-            image = read_image(dataset.image_paths[k])
-            if dataset.meta.get("linear_images"):
-                image = linear_to_srgb(np.clip(image, 0.0, 1.0)).astype(np.float32)
-            write_png(copies / name, brighten(image))
+            write_png(copies / name, brighten(frame(k), blur))
         names.append(name)
     config = SfmConfig(matcher=matcher, num_threads=threads, seed=seed)
     result = triangulate_known_poses(copies, names, dataset.c2w_opencv[train], dataset.intrinsics, work / "colmap",
                                      config, progress=step)
     model = result.models[0]
     summary = {"file": POINTS_FILE, "points": result.points3d, "frames": len(names), "matcher": matcher,
+               "brightening": {"noise_level": noise, "blur_sigma_px": blur},
                "reprojection_error_px": result.reprojection_error_px,
                "observations_per_image": result.observations_per_image,
                "provenance": provenance(seed=seed, extra_packages=("pycolmap",))}
