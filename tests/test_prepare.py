@@ -116,3 +116,18 @@ def test_the_darkgs_layout_trains_on_its_linear_raw_frames(room, tmp_path):
     (folder / "raw" / names[5]).unlink()
     with pytest.raises(InputError, match=rf"raw: no linear frame\(s\) for the registered image {names[5]}"):
         read_dataset(folder)
+
+
+@pytest.mark.parametrize("model, hint", [("SIMPLE_RADIAL", "PINHOLE"), ("OPENCV", "SIMPLE_RADIAL")])
+def test_a_lens_that_cannot_be_used_names_a_simpler_model(room, tmp_path, monkeypatch, model, hint):
+    """When the estimated lens folds the image, the error names a camera model with fewer lens parameters than the
+    one asked for (never the same one), and the summary keeps the error."""
+    import spotlessgs.prepare.images as prepare_module
+
+    def folded(_out):
+        raise InputError("cameras.bin: COLMAP camera 1: the opencv distortion [-0.3, 0, 0, 0] cannot be inverted")
+
+    monkeypatch.setattr(prepare_module, "read_dataset", folded)
+    with pytest.raises(InputError, match=f"estimated a {model} camera that cannot be used .* such as {hint}$"):
+        prepare_images(room / "images", tmp_path / "data", camera_model=model)
+    assert "cannot be inverted" in json.loads((tmp_path / "data" / SUMMARY_FILE).read_text())["error"]

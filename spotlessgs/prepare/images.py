@@ -153,7 +153,8 @@ def prepare_images(
             summary["error"] = str(exc)
             write_json(out / SUMMARY_FILE, summary)
             raise InputError(f"{images_dir}: structure from motion estimated a {camera_model} camera that cannot be "
-                             f"used ({exc}); try a simpler --camera-model such as SIMPLE_RADIAL") from None
+                             f"used ({exc}); try a simpler --camera-model such as {_simpler_model(camera_model)}"
+                             ) from None
         if truth is not None:
             summary["pose_error"] = pose_error(out, Path(truth))
     write_json(out / SUMMARY_FILE, summary)
@@ -166,6 +167,11 @@ def prepare_images(
     if summary["registered"] < MIN_REGISTERED_SHARE * len(names):
         log.warning("%s: only %.0f%% of the frames registered", images_dir, 100 * summary["registered"] / len(names))
     return summary
+
+
+def _simpler_model(camera_model: str) -> str:
+    """A camera model with fewer lens parameters than ``camera_model`` (for the hint of a lens that folds)."""
+    return "SIMPLE_RADIAL" if camera_model in ("RADIAL", "OPENCV", "FULL_OPENCV", "OPENCV_FISHEYE") else "PINHOLE"
 
 
 def _largest_model(sparse: Path) -> Path | None:
