@@ -5,7 +5,8 @@ Output folder (the dataset contract, see ``docs/dataset.md``)::
     OUT/plan.json            settings fingerprint + poses (written first; a rerun with other settings is refused)
     OUT/images/frame_00042.png  spotlight-only (uneven) input, 8-bit sRGB
     OUT/gt/frame_00042.png      lamps-on ground truth, 8-bit sRGB
-    OUT/exr/frame_00042.exr     linear uneven.RGB, gt.RGB, depth.Z (planar, m), normal.XYZ (world)
+    OUT/exr/frame_00042.exr     linear uneven.RGB, gt.RGB, depth.Z (planar, m), normal.XYZ (world), albedo.RGB,
+                                emission.RGB (the ground truth's glowing surfaces)
     OUT/points3d.ply            initial coloured point cloud back-projected from depth
     OUT/sparse/0/*.txt          COLMAP text model (true poses)
     OUT/transforms.json         nerfstudio-compatible + our "spotless" block (written last: the dataset is complete)
@@ -589,7 +590,7 @@ def _render_frames(conn, out_dir: Path, config: RenderConfig, execution: Executi
                                         workdir=scratch, shutter=shutter)
             paths = frame_paths(out_dir, k)
             write_frame_exr(paths["exr"], FrameEXR(uneven=pair.uneven, gt=pair.gt, depth=pair.depth,
-                                                   normal=pair.normal))
+                                                   normal=pair.normal, albedo=pair.albedo, emission=pair.emission))
             write_png(paths["gt"], linear_to_srgb(pair.gt))
             write_png(paths["image"], linear_to_srgb(pair.uneven))
             conn.send(("frame", k, frame_check(pair.uneven, pair.gt, pair.depth)))

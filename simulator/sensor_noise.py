@@ -267,7 +267,9 @@ def add_sensor_noise_to_dataset(data: str | Path, out: str | Path, noise: Sensor
                 # depth and normals: nearest samples (an interpolated depth at an edge is a surface nobody sees)
                 write_frame_exr(out / frame.exr_file_path, FrameEXR(
                     uneven=linear, gt=gt, depth=remap_nearest(rendered.depth, *lens_maps),
-                    normal=remap_nearest(rendered.normal, *lens_maps)))
+                    normal=remap_nearest(rendered.normal, *lens_maps),
+                    albedo=None if rendered.albedo is None else remap(rendered.albedo, *lens_maps),
+                    emission=None if rendered.emission is None else remap(rendered.emission, *lens_maps)))
                 if frame.gt_file_path is not None:
                     write_png(out / frame.gt_file_path, linear_to_srgb(np.clip(gt, 0, 1)))
             if gains is not None:

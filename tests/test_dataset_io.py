@@ -391,6 +391,21 @@ def test_frame_exr_round_trip_and_errors(tmp_path):
         read_frame_exr(tmp_path / "partial.exr")
     with pytest.raises(ValueError, match=r"FrameEXR: gt must have shape \(4, 5, 3\)"):
         FrameEXR(frame.uneven, frame.gt[:, :4], depth, normal)
+    assert back.albedo is None and back.emission is None and back.emitters() is None  # a file from before the passes
+    # the albedo and emission passes round-trip; emitters: pixels at least half emitted light
+    gt = np.full((h, w, 3), 0.5, np.float32)
+    emission = np.zeros((h, w, 3), np.float32)
+    emission[0, 0] = 3.0  # a lamp brighter than the (denoised) ground truth
+    emission[1, 1] = 0.25  # exactly half
+    emission[3, 4] = 0.2  # bounce-lit surface with a faint glow
+    passes = FrameEXR(frame.uneven, gt, depth, normal, albedo=np.full((h, w, 3), 0.3, np.float32), emission=emission)
+    write_frame_exr(tmp_path / "passes.exr", passes)
+    again = read_frame_exr(tmp_path / "passes.exr")
+    np.testing.assert_array_equal(again.albedo, passes.albedo)
+    np.testing.assert_array_equal(again.emission, emission)
+    assert sorted(zip(*np.nonzero(again.emitters()))) == [(0, 0), (1, 1)]
+    with pytest.raises(ValueError, match=r"FrameEXR: albedo must have shape \(4, 5, 3\)"):
+        FrameEXR(frame.uneven, gt, depth, normal, albedo=np.zeros((h, w), np.float32))
 
 
 def test_blender_depth_background_becomes_inf():

@@ -184,8 +184,9 @@ def _look_at_blender(eye, target) -> np.ndarray:
     return c2w
 
 
-def _floor_radiance_from_two_directions(lambertian: bool) -> tuple[float, float]:
-    """Lamp-lit radiance of one floor point seen from straight above and from a grazing 20 deg elevation.
+def _floor_radiance_from_two_directions(lambertian: bool) -> tuple[float, float, np.ndarray]:
+    """Lamp-lit radiance of one floor point seen from straight above and from a grazing 20 deg elevation, and the
+    albedo (diffuse colour) pass at that point seen from above.
 
     The floor is a glossy metal (roughness 0.3, metallic 1) and there is no bounce light, so only the material model
     decides whether the two radiances agree.
@@ -210,20 +211,42 @@ def _floor_radiance_from_two_directions(lambertian: bool) -> tuple[float, float]
     built = scene_builder.build_scene(scene, SpotlightConfig(), 0.0, Intrinsics.from_fov(30.0, 24, 18),
                                       lambertian=lambertian)
     target = np.array([0.4, 0.0, 0.0])
-    radiance = []
+    radiance, albedo = [], []
     for eye in (target + [0.0, 0.0, 2.0], target + 2.0 * np.array([np.cos(np.radians(20)), 0.0,
                                                                     np.sin(np.radians(20))])):
         pair = renderer.render_pair(built, _look_at_blender(eye, target), settings, seed=0)
         radiance.append(float(pair.gt[7:11, 10:14].mean()))  # the pixels around the image centre = the target
-    return radiance[0], radiance[1]
+        albedo.append(pair.albedo[7:11, 10:14].reshape(-1, 3).mean(0))
+    return radiance[0], radiance[1], albedo[0]
 
 
 def test_lambertian_option_makes_radiance_independent_of_the_view_direction():
     """An ideal diffuse reflector has the same radiance in every direction; Blender's metal does not."""
-    top, grazing = _floor_radiance_from_two_directions(lambertian=True)
+    top, grazing, albedo = _floor_radiance_from_two_directions(lambertian=True)
     assert top > 0.05 and abs(grazing / top - 1.0) < 0.05, (top, grazing)
-    top, grazing = _floor_radiance_from_two_directions(lambertian=False)
+    # the albedo pass is the base colour 0.6 of the (now diffuse) floor; a metal has no diffuse colour
+    np.testing.assert_allclose(albedo, 0.6, atol=0.01)
+    top, grazing, albedo = _floor_radiance_from_two_directions(lambertian=False)
     assert abs(grazing / top - 1.0) > 0.3, (top, grazing)
+    np.testing.assert_allclose(albedo, 0.0, atol=0.01)
+
+
+def test_every_frame_stores_the_albedo_and_the_glowing_lamps_of_the_ground_truth(dataset):
+    """The EXR of each frame holds the albedo pass (in [0, 1]) and the ground truth's emission; the lamps it marks
+    (FrameEXR.emitters) cover 0.5-10 % of a frame of the bedroom and are the brightest part of its ground truth."""
+    from spotlessgs.io.exr import read_frame_exr
+
+    shares = []
+    for path in sorted((dataset / "exr").glob("*.exr")):
+        frame = read_frame_exr(path)
+        assert frame.albedo is not None and frame.emission is not None
+        assert frame.albedo.min() >= 0.0 and frame.albedo.max() <= 1.0 + 1e-6
+        lamps = frame.emitters()
+        shares.append(float(lamps.mean()))
+        if lamps.any():
+            luminance = frame.gt.mean(-1)
+            assert np.median(luminance[lamps]) > 2.0 * np.percentile(luminance[~lamps], 90)
+    assert 0.005 < np.mean(shares) < 0.10, shares
 
 
 # ---------------------------------------------------------------------------------------------------------------------

@@ -103,6 +103,8 @@ def configure(settings: CyclesSettings) -> str:
     layer = scene.view_layers[0]
     layer.use_pass_z = True
     layer.use_pass_normal = True
+    layer.use_pass_diffuse_color = True  # the albedo (diffuse colour) of what each pixel sees
+    layer.use_pass_emit = True  # the light that visible surfaces emit (the glowing lamps of the ground truth)
     img = scene.render.image_settings
     img.media_type = "MULTI_LAYER_IMAGE"
     img.file_format = "OPEN_EXR_MULTILAYER"
@@ -137,12 +139,17 @@ class RenderedPair:
         gt: (H, W, 3) lamps-on render, linear RGB.
         depth: (H, W) planar depth along the optical axis (metres), inf where nothing was hit.
         normal: (H, W, 3) world-space normals.
+        albedo: (H, W, 3) diffuse colour of the visible surfaces (Cycles' Diffuse Color pass: the Principled BSDF's base
+            colour scaled by its diffuse share, so a metal's is dark), linear.
+        emission: (H, W, 3) linear radiance emitted by the visible surfaces in the ground truth (Cycles' Emission pass).
     """
 
     uneven: np.ndarray
     gt: np.ndarray
     depth: np.ndarray
     normal: np.ndarray
+    albedo: np.ndarray
+    emission: np.ndarray
 
 
 def _channels(chans: dict[str, np.ndarray], suffixes: tuple[str, ...], path: Path) -> np.ndarray:
@@ -231,7 +238,7 @@ def render_pair(built: BuiltScene, c2w_blender: np.ndarray, settings: CyclesSett
             killed; None: a temporary folder in the system's temporary directory.
         shutter: (4, 4) camera-to-world poses at shutter open and close (Blender axes): the spotlight-only render
             is motion-blurred along open → ``c2w_blender`` → close when ``settings.motion_blur``; the ground truth,
-            depth and normals are the sharp render's at ``c2w_blender``.
+            depth, normals, albedo and emission are the sharp render's at ``c2w_blender``.
     """
     scene = bpy.context.scene
     c2w = np.asarray(c2w_blender, dtype=np.float64)
@@ -260,6 +267,8 @@ def render_pair(built: BuiltScene, c2w_blender: np.ndarray, settings: CyclesSett
         gt=_channels(gt, combined, work).astype(np.float32),
         depth=depth,
         normal=_channels(sharp, (".Normal.X", ".Normal.Y", ".Normal.Z"), work).astype(np.float32),
+        albedo=_channels(gt, (".Diffuse Color.R", ".Diffuse Color.G", ".Diffuse Color.B"), work).astype(np.float32),
+        emission=_channels(gt, (".Emission.R", ".Emission.G", ".Emission.B"), work).astype(np.float32),
     )
 
 

@@ -8,7 +8,9 @@ that does not already start with ``"<part name>."`` is prefixed with it, so ever
 
 The dataset's per-frame EXR holds linear renders and geometry of one view (see ``docs/dataset.md``):
 ``uneven.R/G/B`` (linear spotlight-only render), ``gt.R/G/B`` (linear ground truth), ``depth.Z`` (planar depth along the
-optical axis in metres, inf for background) and ``normal.X/Y/Z`` (world-space unit normals).
+optical axis in metres, inf for background) and ``normal.X/Y/Z`` (world-space unit normals); datasets rendered from
+2026-11-24 on also ``albedo.R/G/B`` (the diffuse colour of the visible surfaces) and ``emission.R/G/B`` (the radiance
+that visible surfaces emit in the ground truth: its glowing lamps).
 """
 
 from __future__ import annotations
@@ -34,6 +36,11 @@ UNEVEN_CHANNELS = ("uneven.R", "uneven.G", "uneven.B")
 GT_CHANNELS = ("gt.R", "gt.G", "gt.B")
 DEPTH_CHANNEL = "depth.Z"
 NORMAL_CHANNELS = ("normal.X", "normal.Y", "normal.Z")
+ALBEDO_CHANNELS = ("albedo.R", "albedo.G", "albedo.B")
+EMISSION_CHANNELS = ("emission.R", "emission.G", "emission.B")
+# A pixel shows an emitter when the emitted radiance is at least this share of its ground-truth radiance (the lamp
+# surfaces; anti-aliased edge pixels that are mostly lamp count too).
+EMITTER_SHARE = 0.5
 # Blender's Cycles depth pass stores 1e10 where a ray hit nothing (measured with bpy 5.0.1); the dataset stores inf.
 BLENDER_BACKGROUND_DEPTH = 1.0e10
 
@@ -129,27 +136,43 @@ class FrameEXR:
         gt: (H, W, 3) float32 linear evenly lit ground truth.
         depth: (H, W) float32 planar depth along the optical axis, metres; inf where no surface was hit.
         normal: (H, W, 3) float32 world-space unit normals (zero where no surface was hit).
+        albedo: (H, W, 3) float32 linear diffuse colour of the visible surfaces, or None (datasets rendered before
+            2026-11-24).
+        emission: (H, W, 3) float32 linear radiance emitted by the visible surfaces in the ground truth, or None.
     """
 
     uneven: np.ndarray
     gt: np.ndarray
     depth: np.ndarray
     normal: np.ndarray
+    albedo: np.ndarray | None = None
+    emission: np.ndarray | None = None
 
     def __post_init__(self) -> None:
         if self.depth.ndim != 2:
             raise ValueError(f"FrameEXR: depth must be (H, W), got shape {self.depth.shape}")
         expected = self.depth.shape + (3,)
-        for name in ("uneven", "gt", "normal"):
-            shape = getattr(self, name).shape
-            if shape != expected:
-                raise ValueError(f"FrameEXR: {name} must have shape {expected} (from depth), got {shape}")
+        for name in ("uneven", "gt", "normal", "albedo", "emission"):
+            value = getattr(self, name)
+            if value is not None and value.shape != expected:
+                raise ValueError(f"FrameEXR: {name} must have shape {expected} (from depth), got {value.shape}")
+
+    def emitters(self) -> np.ndarray | None:
+        """(H, W) bool: pixels whose ground-truth radiance is at least EMITTER_SHARE emitted light (the lamps), or
+        None when the frame has no emission pass."""
+        if self.emission is None:
+            return None
+        emitted, total = self.emission.sum(-1), self.gt.sum(-1)
+        return (emitted > 0) & (emitted >= EMITTER_SHARE * total)
 
 
 def write_frame_exr(path: str | os.PathLike, frame: FrameEXR, compression: str = "zip") -> None:
     """Write a :class:`FrameEXR` with the dataset's channel names, 32-bit float, atomically."""
     channels: dict[str, np.ndarray] = {}
-    for names, image in ((UNEVEN_CHANNELS, frame.uneven), (GT_CHANNELS, frame.gt), (NORMAL_CHANNELS, frame.normal)):
+    for names, image in ((UNEVEN_CHANNELS, frame.uneven), (GT_CHANNELS, frame.gt), (NORMAL_CHANNELS, frame.normal),
+                         (ALBEDO_CHANNELS, frame.albedo), (EMISSION_CHANNELS, frame.emission)):
+        if image is None:
+            continue
         for k, name in enumerate(names):
             channels[name] = image[:, :, k]
     channels[DEPTH_CHANNEL] = frame.depth
@@ -167,9 +190,14 @@ def read_frame_exr(path: str | os.PathLike) -> FrameEXR:
     def stack(names: tuple[str, ...]) -> np.ndarray:
         return np.stack([channels[n] for n in names], axis=-1)
 
+    def optional(names: tuple[str, ...]) -> np.ndarray | None:
+        return stack(names) if all(n in channels for n in names) else None
+
     return FrameEXR(
         uneven=stack(UNEVEN_CHANNELS),
         gt=stack(GT_CHANNELS),
         depth=channels[DEPTH_CHANNEL],
         normal=stack(NORMAL_CHANNELS),
+        albedo=optional(ALBEDO_CHANNELS),
+        emission=optional(EMISSION_CHANNELS),
     )
