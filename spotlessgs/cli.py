@@ -11,7 +11,7 @@ import click
 
 from spotlessgs.clitools import SafeGroup
 
-from evaluation.cli import eval_command, sfm_rings_command
+from evaluation.cli import ceiling_command, eval_command, sfm_rings_command
 from spotlessgs.baselines2d.cli import baseline2d
 from spotlessgs.experiments.cli import benchmark
 from spotlessgs.experiments.reproduce.cli import reproduce
@@ -209,6 +209,7 @@ def export(run_dir, out_path, l0, data_dir):
 
 main.add_command(eval_command, name="eval")
 main.add_command(sfm_rings_command)
+main.add_command(ceiling_command)
 main.add_command(baseline2d)
 main.add_command(reproduce)
 main.add_command(benchmark)
