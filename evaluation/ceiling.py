@@ -1,12 +1,17 @@
 """The relighting ceiling: what the best relighting of the form albedo × light can score against the ground truth.
 
 SpotlessGS relights as albedo × BRDF × (L0 + L_lf); the lamps-on ground truth also holds what no such relighting
-produces (glowing lamp surfaces, lamp fall-off and shadows, a warm tint). The first oracle takes the renderer's own
-albedo (the diffuse colour pass in each frame's EXR, :class:`spotlessgs.io.exr.FrameEXR`) and one best gain for the
-whole sequence: the aligned metrics of :func:`evaluation.runner.score_pairs` apply exactly that gain, so the oracle
-is scored like every method, on the same test views.
+produces (glowing lamp surfaces, lamp fall-off and shadows, a warm tint). Two oracles use the renderer's own albedo
+(the diffuse colour pass in each frame's EXR, :class:`spotlessgs.io.exr.FrameEXR`), scored like every method on the
+same test views:
 
-    spotless ceiling DATA --out CEILING     # writes CEILING/pred (albedo) and CEILING/gt, then scores them
+* ``albedo``: the albedo and one best gain for the whole sequence: the aligned metrics of
+  :func:`evaluation.runner.score_pairs` apply exactly that gain;
+* ``albedo-sh``: the albedo times the best light per surface normal, ``a · max(0, cᵀY(n))`` with real SH of degree
+  3 (the form of the relighting's L0 + L_lf), ``c`` fitted per colour channel by least squares against the linear
+  ground truth over every test pixel that is not an emitter (:meth:`FrameEXR.emitters`).
+
+    spotless ceiling DATA --out CEILING     # CEILING/albedo, CEILING/albedo-sh, CEILING/gt and their scores
 """
 
 from __future__ import annotations
@@ -15,6 +20,7 @@ import shutil
 from pathlib import Path
 
 import numpy as np
+import torch
 
 from evaluation.dataset import read_dataset
 from evaluation.runner import EvalConfig, evaluate_folders, scored_test_frames
@@ -24,11 +30,50 @@ from spotlessgs.io.errors import InputError
 from spotlessgs.io.exr import read_frame_exr
 from spotlessgs.io.images import write_png
 from spotlessgs.io.paths import refuse_overlap
+from spotlessgs.models.sh import sh_basis
+
+#: SH degree of the oracle's light per normal (the relighting's low-frequency light uses up to 3).
+ORACLE_SH_DEGREE = 3
+#: The oracles, in the order they are scored: folder name -> what it is.
+ORACLES = {"albedo": "true albedo x one gain", "albedo-sh": "true albedo x best light per normal (SH 3)"}
 
 
-def write_albedo_oracle(data_dir: str | Path, out: str | Path) -> tuple[Path, Path]:
-    """``out/pred``: the albedo of every scored test view of the dataset (sRGB PNGs named as the inputs), and
-    ``out/gt``: their ground truths (copies), so that ``spotless eval --pred out/pred --gt out/gt`` scores the oracle.
+def _test_frames(data_dir: Path):
+    """(frame, FrameEXR with albedo) of every scored test view; InputError naming the file where a pass is missing."""
+    out = []
+    for frame in scored_test_frames(read_dataset(data_dir)):
+        if frame.depth_path is None:
+            raise InputError(f"{data_dir}: test view {frame.name} has no EXR (exr_file_path); the ceiling needs the "
+                             "renderer's albedo pass")
+        exr = read_frame_exr(frame.depth_path)
+        if exr.albedo is None:
+            raise InputError(f"{frame.depth_path}: no albedo pass (albedo.R/G/B); render the dataset again with "
+                             "spotless-sim render (datasets from 2026-11-24 on have it)")
+        out.append((frame, exr))
+    return out
+
+
+def fit_light_per_normal(frames, degree: int = ORACLE_SH_DEGREE) -> np.ndarray:
+    """(3, (degree+1)²) SH coefficients ``c`` of the light per normal minimising Σ (a · cᵀY(n) − g)² per channel
+    over the pixels of ``frames`` (FrameEXRs) that show a surface (finite depth, unit normal) and no emitter."""
+    rows, targets = [], []
+    for exr in frames:
+        use = np.isfinite(exr.depth) & (np.linalg.norm(exr.normal, axis=-1) > 0.5)
+        lamps = exr.emitters()
+        if lamps is not None:
+            use &= ~lamps
+        normals = exr.normal[use] / np.linalg.norm(exr.normal[use], axis=-1, keepdims=True)
+        rows.append((exr.albedo[use], sh_basis(torch.from_numpy(normals).double(), degree).numpy()))
+        targets.append(exr.gt[use])
+    albedo = np.concatenate([a for a, _ in rows]).astype(np.float64)
+    basis = np.concatenate([b for _, b in rows])
+    gt = np.concatenate(targets).astype(np.float64)
+    return np.stack([np.linalg.lstsq(albedo[:, ch, None] * basis, gt[:, ch], rcond=None)[0] for ch in range(3)])
+
+
+def write_oracles(data_dir: str | Path, out: str | Path) -> dict[str, Path]:
+    """Each oracle's images of every scored test view (sRGB PNGs named as the inputs) in ``out/<oracle>`` and their
+    ground truths (copies) in ``out/gt``; returns the folders by name (:data:`ORACLES` and ``gt``).
 
     Raises:
         InputError: a test view has no EXR, or its EXR has no albedo pass (rendered before 2026-11-24: render the
@@ -36,24 +81,23 @@ def write_albedo_oracle(data_dir: str | Path, out: str | Path) -> tuple[Path, Pa
     """
     data_dir, out = Path(data_dir), Path(out)
     refuse_overlap(out, {"DATA": data_dir}, "--out")
-    data = read_dataset(data_dir)
-    pred_dir, gt_dir = out / "pred", out / "gt"
-    for frame in scored_test_frames(data):
-        if frame.depth_path is None:
-            raise InputError(f"{data_dir}: test view {frame.name} has no EXR (exr_file_path); the ceiling needs the "
-                             "renderer's albedo pass")
-        albedo = read_frame_exr(frame.depth_path).albedo
-        if albedo is None:
-            raise InputError(f"{frame.depth_path}: no albedo pass (albedo.R/G/B); render the dataset again with "
-                             "spotless-sim render (datasets from 2026-11-24 on have it)")
-        write_png(pred_dir / frame.name, linear_to_srgb(np.clip(albedo, 0.0, 1.0)))
-        with atomic_path(gt_dir / frame.name) as tmp:
+    frames = _test_frames(data_dir)
+    coefficients = fit_light_per_normal([exr for _, exr in frames])
+    folders = {name: out / name for name in (*ORACLES, "gt")}
+    for frame, exr in frames:
+        normals = exr.normal / np.maximum(np.linalg.norm(exr.normal, axis=-1, keepdims=True), 1e-12)
+        basis = sh_basis(torch.from_numpy(normals.astype(np.float64)), ORACLE_SH_DEGREE).numpy()
+        light = np.maximum(basis @ coefficients.T, 0.0)  # (H, W, 3)
+        write_png(folders["albedo"] / frame.name, linear_to_srgb(np.clip(exr.albedo, 0.0, 1.0)))
+        write_png(folders["albedo-sh"] / frame.name, linear_to_srgb(np.clip(exr.albedo * light, 0.0, 1.0)))
+        with atomic_path(folders["gt"] / frame.name) as tmp:
             shutil.copy2(frame.gt_path, tmp)
-    return pred_dir, gt_dir
+    return folders
 
 
-def albedo_ceiling(data_dir: str | Path, out: str | Path, config: EvalConfig = EvalConfig()) -> dict:
-    """Write the albedo oracle of ``data_dir`` into ``out`` and score it (results in ``out/eval``): its aligned
-    metrics are albedo × one best gain against the ground truth, on the test views."""
-    pred_dir, gt_dir = write_albedo_oracle(data_dir, out)
-    return evaluate_folders(pred_dir, gt_dir, config, out_dir=Path(out) / "eval")
+def ceiling(data_dir: str | Path, out: str | Path, config: EvalConfig = EvalConfig()) -> dict[str, dict]:
+    """Write the oracles of ``data_dir`` into ``out`` and score each against the ground truth (results in
+    ``out/eval-<oracle>``); returns the results by oracle name."""
+    folders = write_oracles(data_dir, out)
+    return {name: evaluate_folders(folders[name], folders["gt"], config, out_dir=Path(out) / f"eval-{name}")
+            for name in ORACLES}

@@ -85,17 +85,19 @@ def sfm_rings_command(runs: dict[str, Path], bins: int) -> None:
 @click.command("ceiling", context_settings={"help_option_names": ["-h", "--help"]})
 @click.argument("data", type=click.Path(exists=True, file_okay=False, path_type=Path))
 @click.option("--out", "out_dir", required=True, type=click.Path(file_okay=False, path_type=Path),
-              help="Folder for the oracle's images (pred/, gt/) and its scores (eval/).")
+              help="Folder for the oracles' images (albedo/, albedo-sh/, gt/) and their scores (eval-*/).")
 @click.option("--no-lpips", is_flag=True, help="Skip LPIPS.")
 @click.option("--threads", type=click.IntRange(min=1), default=None, help="CPU threads for the metrics.")
 @click.option("--quiet", is_flag=True, help="No progress bars.")
 def ceiling_command(data: Path, out_dir: Path, no_lpips: bool, threads: int | None, quiet: bool) -> None:
-    """The relighting ceiling of a rendered dataset: its test views' albedo (the renderer's diffuse colour pass)
-    scored against the ground truth like a method; the aligned figures are albedo × one best gain."""
-    from evaluation.ceiling import albedo_ceiling  # deferred: the evaluation library, kept out of `spotless --help`
+    """The relighting ceiling of a rendered dataset: its test views' true albedo (the renderer's diffuse colour
+    pass) × one best gain, and × the best light per surface normal (SH 3 fitted to the ground truth), each scored
+    against the ground truth like a method."""
+    from evaluation.ceiling import ORACLES, ceiling  # deferred: the evaluation library, kept out of `spotless --help`
     from evaluation.report import markdown_report
     from evaluation.runner import EvalConfig
 
     config = EvalConfig(lpips=not no_lpips, num_threads=threads, progress=not quiet)
-    click.echo(markdown_report(albedo_ceiling(data, out_dir, config)))
-    click.echo(f"results written to {out_dir / 'eval'}")
+    for name, results in ceiling(data, out_dir, config).items():
+        click.echo(f"## {name}: {ORACLES[name]}\n\n{markdown_report(results)}")
+    click.echo(f"results written to {out_dir}/eval-*")

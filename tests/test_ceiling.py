@@ -17,17 +17,21 @@ from spotlessgs.io.images import read_image, write_png
 from spotlessgs.io.transforms import DatasetMeta, FrameRecord, write_transforms
 
 
-def _dataset(root, with_albedo=True, frames=12):
-    """``frames`` views of 16 x 12 pixels (test views 0 and 11): each frame's ground truth is its albedo (random
-    colours) times 0.5, lit evenly; the input is a dimmer copy."""
+def _dataset(root, with_albedo=True, frames=12, light_per_normal=False):
+    """``frames`` views of 16 x 12 pixels (test views 0 and 11) with random unit normals: each frame's ground truth is
+    its albedo (random colours) times 0.5, or with ``light_per_normal`` times a light that depends on the normal,
+    (0.5 + 0.3 n_z, 0.4, 0.6 - 0.2 n_x) per channel; the input is a dimmer copy."""
     rng = np.random.default_rng(1)
     records = []
     for k in range(frames):
         name = f"frame_{k:05d}"
         albedo = rng.uniform(0.05, 0.95, (12, 16, 3)).astype(np.float32)
-        gt = 0.5 * albedo
+        normal = rng.normal(size=(12, 16, 3))
+        normal = (normal / np.linalg.norm(normal, axis=-1, keepdims=True)).astype(np.float32)
+        light = np.stack([0.5 + 0.3 * normal[..., 2], np.full((12, 16), 0.4), 0.6 - 0.2 * normal[..., 0]], -1)
+        gt = (albedo * (light if light_per_normal else 0.5)).astype(np.float32)
         write_frame_exr(root / "exr" / f"{name}.exr", FrameEXR(
-            uneven=0.2 * gt, gt=gt, depth=np.ones((12, 16), np.float32), normal=np.zeros((12, 16, 3), np.float32),
+            uneven=0.2 * gt, gt=gt, depth=np.ones((12, 16), np.float32), normal=normal,
             albedo=albedo if with_albedo else None))
         write_png(root / "images" / f"{name}.png", linear_to_srgb(0.2 * gt))
         write_png(root / "gt" / f"{name}.png", linear_to_srgb(gt))
@@ -39,25 +43,46 @@ def _dataset(root, with_albedo=True, frames=12):
 
 
 def test_albedo_times_one_gain_is_scored_on_the_test_views(tmp_path):
-    """The ground truth is exactly albedo x 0.5: the oracle's aligned gain is 0.5 and its aligned PSNR is limited only
-    by the 8-bit images; without the gain (plain PSNR) it is far lower."""
+    """The ground truth is exactly albedo x 0.5: the albedo oracle's aligned gain is 0.5 and its aligned PSNR is
+    limited only by the 8-bit images; without the gain (plain PSNR) it is far lower."""
     data = _dataset(tmp_path / "data")
     result = CliRunner().invoke(main, ["ceiling", str(data), "--out", str(tmp_path / "ceiling"), "--no-lpips",
                                        "--quiet"])
     assert result.exit_code == 0, result.output + repr(result.exception)
-    scores = json.loads((tmp_path / "ceiling" / "eval" / "results.json").read_text())
-    assert sorted(p.name for p in (tmp_path / "ceiling" / "pred").iterdir()) == ["frame_00000.png", "frame_00011.png"]
+    scores = json.loads((tmp_path / "ceiling" / "eval-albedo" / "results.json").read_text())
+    assert sorted(p.name for p in (tmp_path / "ceiling" / "albedo").iterdir()) == ["frame_00000.png",
+                                                                                   "frame_00011.png"]
     assert scores["exposure_gain"] == pytest.approx(0.5, rel=0.01)
     assert scores["psnr_aligned"] > 40.0 and scores["psnr"] < scores["psnr_aligned"] - 10.0
     np.testing.assert_array_equal(read_image(tmp_path / "ceiling" / "gt" / "frame_00011.png"),
                                   read_image(data / "gt" / "frame_00011.png"))
 
 
+def test_the_light_per_normal_is_fitted_and_explains_a_normal_dependent_ground_truth(tmp_path):
+    """A light linear in the normal (SH degree 1) lies in the oracle's SH-3 span: its coefficients come back exactly
+    and the albedo-sh oracle reproduces the ground truth, while albedo x one gain cannot."""
+    from evaluation.ceiling import ceiling, fit_light_per_normal
+    from evaluation.runner import EvalConfig
+    from spotlessgs.io.exr import read_frame_exr
+
+    data = _dataset(tmp_path / "data", light_per_normal=True)
+    frames = [read_frame_exr(data / "exr" / f"frame_{k:05d}.exr") for k in (0, 11)]
+    c = fit_light_per_normal(frames)
+    y00, y1 = 0.28209479177387814, 0.4886025119029199  # SH constants: Y_0^0, and Y_1^m = -/+ y1 * (y, z, x)
+    np.testing.assert_allclose(c[:, 0], np.array([0.5, 0.4, 0.6]) / y00, atol=1e-4)
+    np.testing.assert_allclose(c[0, 2], 0.3 / y1, atol=1e-4)  # n_z in the red channel
+    np.testing.assert_allclose(c[2, 3], 0.2 / y1, atol=1e-4)  # -0.2 n_x in the blue channel (Y_1^1 = -y1 x)
+    np.testing.assert_allclose(c[:, 4:], 0.0, atol=1e-4)
+    scores = ceiling(data, tmp_path / "ceiling", EvalConfig(lpips=False, temporal=False, progress=False))
+    assert scores["albedo-sh"]["psnr_aligned"] > 40.0
+    assert scores["albedo"]["psnr_aligned"] < scores["albedo-sh"]["psnr_aligned"] - 10.0
+
+
 def test_a_dataset_without_the_albedo_pass_is_refused_naming_the_file(tmp_path):
-    from evaluation.ceiling import write_albedo_oracle
+    from evaluation.ceiling import write_oracles
 
     data = _dataset(tmp_path / "old", with_albedo=False)
     with pytest.raises(InputError, match=r"frame_00000.exr: no albedo pass .* render the dataset again"):
-        write_albedo_oracle(data, tmp_path / "ceiling")
+        write_oracles(data, tmp_path / "ceiling")
     result = CliRunner().invoke(main, ["ceiling", str(data), "--out", str(tmp_path / "c2"), "--quiet"])
     assert result.exit_code != 0 and "no albedo pass" in result.output
