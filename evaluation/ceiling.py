@@ -11,11 +11,12 @@ same test views:
   3 (the form of the relighting's L0 + L_lf), ``c`` fitted per colour channel by least squares against the linear
   ground truth over every test pixel that is not an emitter (:meth:`FrameEXR.emitters`).
 
-    spotless ceiling DATA --out CEILING     # CEILING/albedo, CEILING/albedo-sh, CEILING/gt and their scores
+    spotless ceiling DATA --out CEILING     # CEILING/albedo, CEILING/albedo-sh, CEILING/gt, CEILING/eval-*
 """
 
 from __future__ import annotations
 
+import dataclasses
 import shutil
 from pathlib import Path
 
@@ -23,7 +24,9 @@ import numpy as np
 import torch
 
 from evaluation.dataset import read_dataset
-from evaluation.runner import EvalConfig, evaluate_folders, scored_test_frames
+from evaluation.folders import ImagePair
+from evaluation.report import write_markdown, write_results_json
+from evaluation.runner import EvalConfig, score_pairs, scored_test_frames
 from spotlessgs.io.atomic import atomic_path
 from spotlessgs.io.colorspace import linear_to_srgb
 from spotlessgs.io.errors import InputError
@@ -71,9 +74,10 @@ def fit_light_per_normal(frames, degree: int = ORACLE_SH_DEGREE) -> np.ndarray:
     return np.stack([np.linalg.lstsq(albedo[:, ch, None] * basis, gt[:, ch], rcond=None)[0] for ch in range(3)])
 
 
-def write_oracles(data_dir: str | Path, out: str | Path) -> dict[str, Path]:
+def write_oracles(data_dir: str | Path, out: str | Path) -> list[ImagePair]:
     """Each oracle's images of every scored test view (sRGB PNGs named as the inputs) in ``out/<oracle>`` and their
-    ground truths (copies) in ``out/gt``; returns the folders by name (:data:`ORACLES` and ``gt``).
+    ground truths (copies) in ``out/gt``; returns the image pairs of the first oracle (the others: the same names in
+    their folders), each with its frame's EXR (for the lamp-masked metrics).
 
     Raises:
         InputError: a test view has no EXR, or its EXR has no albedo pass (rendered before 2026-11-24: render the
@@ -83,21 +87,30 @@ def write_oracles(data_dir: str | Path, out: str | Path) -> dict[str, Path]:
     refuse_overlap(out, {"DATA": data_dir}, "--out")
     frames = _test_frames(data_dir)
     coefficients = fit_light_per_normal([exr for _, exr in frames])
-    folders = {name: out / name for name in (*ORACLES, "gt")}
+    pairs = []
     for frame, exr in frames:
         normals = exr.normal / np.maximum(np.linalg.norm(exr.normal, axis=-1, keepdims=True), 1e-12)
         basis = sh_basis(torch.from_numpy(normals.astype(np.float64)), ORACLE_SH_DEGREE).numpy()
         light = np.maximum(basis @ coefficients.T, 0.0)  # (H, W, 3)
-        write_png(folders["albedo"] / frame.name, linear_to_srgb(np.clip(exr.albedo, 0.0, 1.0)))
-        write_png(folders["albedo-sh"] / frame.name, linear_to_srgb(np.clip(exr.albedo * light, 0.0, 1.0)))
-        with atomic_path(folders["gt"] / frame.name) as tmp:
+        write_png(out / "albedo" / frame.name, linear_to_srgb(np.clip(exr.albedo, 0.0, 1.0)))
+        write_png(out / "albedo-sh" / frame.name, linear_to_srgb(np.clip(exr.albedo * light, 0.0, 1.0)))
+        with atomic_path(out / "gt" / frame.name) as tmp:
             shutil.copy2(frame.gt_path, tmp)
-    return folders
+        pairs.append(ImagePair(frame.name, out / "albedo" / frame.name, out / "gt" / frame.name, frame.depth_path))
+    return pairs
 
 
 def ceiling(data_dir: str | Path, out: str | Path, config: EvalConfig = EvalConfig()) -> dict[str, dict]:
-    """Write the oracles of ``data_dir`` into ``out`` and score each against the ground truth (results in
-    ``out/eval-<oracle>``); returns the results by oracle name."""
-    folders = write_oracles(data_dir, out)
-    return {name: evaluate_folders(folders[name], folders["gt"], config, out_dir=Path(out) / f"eval-{name}")
-            for name in ORACLES}
+    """Write the oracles of ``data_dir`` into ``out`` and score each against the ground truth like a method's test
+    views (image metrics, aligned, and without the lamps where the EXRs have an emission pass; results in
+    ``out/eval-<oracle>/results.json`` and ``.md``); returns the results by oracle name."""
+    out = Path(out)
+    pairs = write_oracles(data_dir, out)
+    results = {}
+    for name in ORACLES:
+        oracle = [dataclasses.replace(p, pred=out / name / p.name) for p in pairs]
+        results[name] = {"mode": "ceiling", "oracle": name, "what": ORACLES[name], "data": str(data_dir),
+                         **score_pairs(oracle, config, name)}
+        write_results_json(out / f"eval-{name}" / "results.json", results[name])
+        write_markdown(out / f"eval-{name}" / "results.md", results[name], f"Ceiling: {ORACLES[name]}")
+    return results

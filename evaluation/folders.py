@@ -17,6 +17,9 @@ class ImagePair:
     name: str  # file name shared by both images, e.g. "frame_00000.png"
     pred: Path  # path of the predicted (e.g. relit) image
     gt: Path  # path of the reference (ground-truth) image
+    # the frame's EXR (spotlessgs.io.exr), whose emission pass marks the ground truth's lamps: the *_masked metrics
+    # leave them out; None (or an EXR without the pass): no masked metrics
+    exr: Path | None = None
 
 
 def image_names(folder: str | os.PathLike) -> list[str]:

@@ -135,7 +135,9 @@ class LPIPS(nn.Module):
                 x = F.max_pool2d(x, kernel_size=3, stride=2)
         return taps
 
-    def forward(self, pred: Tensor, gt: Tensor) -> Tensor:
+    def forward(self, pred: Tensor, gt: Tensor, mask: Tensor | None = None) -> Tensor:
+        """(B,) distances; with ``mask`` (B, H, W) bool each layer's distance map is averaged over the mask's share of
+        each of its cells (area-resampled) instead of over every cell: the distance of the masked-in pixels."""
         pred, gt = _checked(pred, gt)
         if pred.shape[1] != 3:
             raise ValueError(f"LPIPS needs 3-channel images, got {pred.shape[1]} channels")
@@ -148,7 +150,11 @@ class LPIPS(nn.Module):
             f = f / (f.pow(2).sum(dim=1, keepdim=True).sqrt() + 1e-10)
             fa, fb = f.chunk(2, dim=0)
             d = F.conv2d((fa - fb).pow(2), getattr(self, f"lin{i}_weight"))
-            total = total + d.mean(dim=(1, 2, 3))
+            if mask is None:
+                total = total + d.mean(dim=(1, 2, 3))
+            else:
+                weight = F.interpolate(mask[:, None].to(d.dtype), size=d.shape[-2:], mode="area")
+                total = total + (d * weight).sum(dim=(1, 2, 3)) / weight.sum(dim=(1, 2, 3)).clamp_min(1e-12)
         return total.to(dtype)
 
 
@@ -159,13 +165,14 @@ def default_lpips() -> LPIPS:
 
 
 @torch.no_grad()
-def lpips(pred: Tensor, gt: Tensor, batch_size: int = 8) -> Tensor:
+def lpips(pred: Tensor, gt: Tensor, batch_size: int = 8, mask: Tensor | None = None) -> Tensor:
     """LPIPS (AlexNet, v0.1) per image, in batches to bound memory.
 
     Args:
         pred: (B, 3, H, W) or (3, H, W), sRGB in [0, 1].
         gt: same shape as ``pred``.
         batch_size: images per forward pass.
+        mask: (B, H, W) or (H, W) bool: score only these pixels (:meth:`LPIPS.forward`); None: every pixel.
 
     Returns:
         (B,) LPIPS distance per image (0 for identical images; lower is better).
@@ -173,7 +180,14 @@ def lpips(pred: Tensor, gt: Tensor, batch_size: int = 8) -> Tensor:
     if batch_size < 1:
         raise ValueError(f"batch_size must be positive, got {batch_size}")
     pred, gt = _checked(pred, gt)
+    if mask is not None:
+        mask = mask.reshape(-1, *mask.shape[-2:]).expand(len(pred), -1, -1)
+        if mask.shape[-2:] != pred.shape[-2:]:
+            raise ValueError(f"mask shape {tuple(mask.shape[-2:])} does not match image size {tuple(pred.shape[-2:])}")
+        if not bool(mask.reshape(len(mask), -1).any(1).all()):
+            raise ValueError("the mask selects no pixel of an image")
     model = default_lpips()
     if model.shift.device != pred.device:
         model.to(pred.device)  # the shared model follows the inputs (CPU by default)
-    return torch.cat([model(pred[i : i + batch_size], gt[i : i + batch_size]) for i in range(0, len(pred), batch_size)])
+    return torch.cat([model(pred[i : i + batch_size], gt[i : i + batch_size],
+                            None if mask is None else mask[i : i + batch_size]) for i in range(0, len(pred), batch_size)])

@@ -17,6 +17,10 @@ IMAGE_COLUMNS: tuple[tuple[str, str, str], ...] = (
     ("psnr_aligned", "PSNR al. ↑", "{:.2f}"),
     ("ssim_aligned", "SSIM al. ↑", "{:.4f}"),
     ("lpips_aligned", "LPIPS al. ↓", "{:.4f}"),
+    # the same with the ground truth's lamps left out (datasets with an emission pass; evaluation.runner.score_pairs)
+    ("psnr_aligned_masked", "PSNR al. no lamps ↑", "{:.2f}"),
+    ("ssim_aligned_masked", "SSIM al. no lamps ↑", "{:.4f}"),
+    ("lpips_aligned_masked", "LPIPS al. no lamps ↓", "{:.4f}"),
     ("tmp_psnr", "tPSNR ↑", "{:.2f}"),
     ("tmp_ssim", "tSSIM ↑", "{:.4f}"),
     ("tmp_psnr_warped", "tPSNR warp ↑", "{:.2f}"),

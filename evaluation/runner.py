@@ -39,6 +39,7 @@ from evaluation.sfm import SfmConfig, SfmResult, run_sfm
 from evaluation.temporal import PosedFrame, sequence_flicker, temporal_scores, warped_temporal_scores
 from spotlessgs.io.cameras import Intrinsics, opengl_to_opencv_c2w
 from spotlessgs.io.errors import InputError
+from spotlessgs.io.exr import read_emitters
 from spotlessgs.io.folder_lock import folder_lock
 from spotlessgs.io.images import list_image_files, read_image
 from spotlessgs.io.paths import refuse_overlap
@@ -47,7 +48,7 @@ from spotlessgs.manifest import (
     MANIFEST_NAME, checkpoint_step, current_checkpoint, dataset_record, hash_frames, manifest_path, manifest_sha256,
     read_manifest, sha256_file, verify_frames, write_manifest,
 )
-from spotlessgs.metrics import psnr, ssim
+from spotlessgs.metrics import masked_psnr, masked_ssim, psnr, ssim
 from spotlessgs.training.checkpoint import read_run_info, resolve_data_dir
 
 log = logging.getLogger(__name__)
@@ -126,7 +127,11 @@ def score_pairs(pairs: Sequence[ImagePair], config: EvalConfig = EvalConfig(), l
 
     Returns:
         dict with the mean metrics (``psnr``, ``ssim``, ``lpips``, ``*_aligned``), ``exposure_gain``,
-        ``num_images`` and ``per_image`` (a list of per-image dicts with ``name`` and the same metric keys).
+        ``num_images`` and ``per_image`` (a list of per-image dicts with ``name`` and the same metric keys). When
+        every pair's EXR has an emission pass, also ``*_masked`` and ``*_aligned_masked``: the same metrics over the
+        pixels that show no lamp of the ground truth (:meth:`spotlessgs.io.exr.FrameEXR.emitters`), the aligned ones
+        after a gain fitted on those pixels only (``exposure_gain_masked``); LPIPS averages its distance maps over
+        them (:func:`evaluation.lpips.lpips` ``mask``).
 
     Raises:
         ValueError: no pairs, or a pair whose images differ in size.
@@ -134,7 +139,7 @@ def score_pairs(pairs: Sequence[ImagePair], config: EvalConfig = EvalConfig(), l
     if not pairs:
         raise ValueError("no image pairs to score")
     per_image: list[dict] = [{"name": p.name} for p in pairs]
-    acc = GainAccumulator()
+    acc, acc_masked = GainAccumulator(), GainAccumulator()
 
     def score(pred: torch.Tensor, gt: torch.Tensor, row: dict, suffix: str) -> None:
         row["psnr" + suffix] = float(psnr(pred, gt)[0])
@@ -142,23 +147,54 @@ def score_pairs(pairs: Sequence[ImagePair], config: EvalConfig = EvalConfig(), l
         if config.lpips:
             row["lpips" + suffix] = float(lpips(pred, gt)[0])
 
+    def score_masked(pred: torch.Tensor, gt: torch.Tensor, keep: torch.Tensor, row: dict, suffix: str) -> None:
+        row["psnr" + suffix + "_masked"] = masked_psnr(pred, gt, keep)
+        row["ssim" + suffix + "_masked"] = masked_ssim(pred, gt, keep)
+        if config.lpips:
+            row["lpips" + suffix + "_masked"] = float(lpips(pred, gt, mask=keep)[0])
+
     with _torch_threads(config.num_threads), torch.no_grad():
         for pair, row in _bar(list(zip(pairs, per_image)), config, f"{label}", total=len(pairs)):
             pred, gt = _load_pair(pair)
             score(pred, gt, row, "")
             acc.add(pred, gt)
-        gain = None
+            keep = _non_emitters(pair, gt)
+            if keep is not None:
+                score_masked(pred, gt, keep, row, "")
+                acc_masked.add(pred[:, keep], gt[:, keep])
+        gain = gain_masked = None
         if config.aligned:
             gain = acc.gain()
+            gain_masked = acc_masked.gain() if acc_masked.count else None
             for pair, row in _bar(list(zip(pairs, per_image)), config, f"{label} (aligned)", total=len(pairs)):
                 pred, gt = _load_pair(pair)
                 score(apply_gain(pred, gain), gt, row, "_aligned")
-    keys = [k for k in per_image[0] if k != "name"]
+                keep = _non_emitters(pair, gt)
+                if keep is not None and gain_masked is not None:
+                    score_masked(apply_gain(pred, gain_masked), gt, keep, row, "_aligned")
+    keys = [k for k in per_image[0] if k != "name" and all(k in row for row in per_image)]
     out: dict = {k: float(np.mean([row[k] for row in per_image])) for k in keys}
     out["exposure_gain"] = gain
+    if gain_masked is not None:
+        out["exposure_gain_masked"] = gain_masked
     out["num_images"] = len(pairs)
     out["per_image"] = per_image
     return out
+
+
+def _non_emitters(pair: ImagePair, gt: torch.Tensor) -> torch.Tensor | None:
+    """(H, W) bool: the pixels of ``pair`` that show no lamp of the ground truth (its EXR's emission pass), or None
+    when the pair has no EXR, the EXR no emission pass (or it is a depth-only file), or every pixel is a lamp."""
+    if pair.exr is None:
+        return None
+    emitters = read_emitters(pair.exr)
+    if emitters is None:
+        return None
+    if emitters.shape != tuple(gt.shape[-2:]):
+        raise ValueError(f"{pair.exr}: EXR is {emitters.shape[1]}x{emitters.shape[0]}, the images of {pair.name} "
+                         f"{gt.shape[-1]}x{gt.shape[-2]}")
+    keep = torch.from_numpy(~emitters)
+    return keep if bool(keep.any()) else None
 
 
 
@@ -458,7 +494,8 @@ def score_inputs(data: DatasetViews, config: EvalConfig, sfm_dir: Path) -> tuple
     """
     test = scored_test_frames(data)
     folder = _common_folder(data) if config.sfm else None  # before any work: a clear error, early
-    scores = score_pairs([ImagePair(f.name, f.input_path, f.gt_path) for f in test], config, "input vs gt")
+    scores = score_pairs([ImagePair(f.name, f.input_path, f.gt_path, f.depth_path) for f in test], config,
+                         "input vs gt")
     if config.temporal:
         scores.update(temporal_block([f.input_path for f in data.frames], config, "input", data))
         if len(data.frames) > 1 and all(f.gt_path is not None and f.gt_path.is_file() for f in data.frames):
@@ -553,7 +590,7 @@ def _evaluate_run_locked(run: Path, data_root: Path, relit_dir: Path, out: Path,
         raise FileNotFoundError(f"{relit_dir}: missing relit images for {len(missing)} view(s), e.g. {missing[:3]}"
                                 + hint)
     test = scored_test_frames(data)
-    relit_pairs = [ImagePair(f.name, relit_dir / f.name, f.gt_path) for f in test]
+    relit_pairs = [ImagePair(f.name, relit_dir / f.name, f.gt_path, f.depth_path) for f in test]
 
     results: dict = {"mode": "run", "run_dir": str(run), "data_dir": str(data.root),
                      "test_views": [f.name for f in test], "relit_manifest": relit_manifest}

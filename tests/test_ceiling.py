@@ -73,7 +73,7 @@ def test_the_light_per_normal_is_fitted_and_explains_a_normal_dependent_ground_t
     np.testing.assert_allclose(c[0, 2], 0.3 / y1, atol=1e-4)  # n_z in the red channel
     np.testing.assert_allclose(c[2, 3], 0.2 / y1, atol=1e-4)  # -0.2 n_x in the blue channel (Y_1^1 = -y1 x)
     np.testing.assert_allclose(c[:, 4:], 0.0, atol=1e-4)
-    scores = ceiling(data, tmp_path / "ceiling", EvalConfig(lpips=False, temporal=False, progress=False))
+    scores = ceiling(data, tmp_path / "ceiling", EvalConfig(lpips=False, progress=False))
     assert scores["albedo-sh"]["psnr_aligned"] > 40.0
     assert scores["albedo"]["psnr_aligned"] < scores["albedo-sh"]["psnr_aligned"] - 10.0
 
@@ -86,3 +86,33 @@ def test_a_dataset_without_the_albedo_pass_is_refused_naming_the_file(tmp_path):
         write_oracles(data, tmp_path / "ceiling")
     result = CliRunner().invoke(main, ["ceiling", str(data), "--out", str(tmp_path / "c2"), "--quiet"])
     assert result.exit_code != 0 and "no albedo pass" in result.output
+
+
+def test_lamp_masked_metrics_leave_out_the_pixels_that_the_emission_pass_marks(tmp_path):
+    """A prediction that is exact except on the ground truth's lamp (a 4 x 4 block whose EXR emission is its whole
+    radiance): the plain metrics see the error, the *_masked ones do not (PSNR inf, SSIM 1 where the window avoids
+    the lamp, LPIPS lower); a pair without EXR gets no masked keys."""
+    from evaluation.folders import ImagePair
+    from evaluation.runner import EvalConfig, score_pairs
+
+    rng = np.random.default_rng(3)
+    gt_lin = rng.uniform(0.1, 0.6, (32, 48, 3)).astype(np.float32)
+    emission = np.zeros_like(gt_lin)
+    gt_lin[4:8, 4:8] = 0.95
+    emission[4:8, 4:8] = 0.95
+    pred_lin = gt_lin.copy()
+    pred_lin[4:8, 4:8] = 0.05  # the relit image has no glowing lamp
+    write_frame_exr(tmp_path / "f.exr", FrameEXR(uneven=gt_lin, gt=gt_lin, depth=np.ones((32, 48), np.float32),
+                                                 normal=np.zeros((32, 48, 3), np.float32), emission=emission))
+    write_png(tmp_path / "pred.png", linear_to_srgb(pred_lin))
+    write_png(tmp_path / "gt.png", linear_to_srgb(gt_lin))
+    config = EvalConfig(temporal=False, progress=False)
+    scores = score_pairs([ImagePair("f.png", tmp_path / "pred.png", tmp_path / "gt.png", tmp_path / "f.exr")], config)
+    assert scores["psnr"] < 25.0 and scores["psnr_masked"] == float("inf")
+    assert scores["ssim_masked"] == pytest.approx(1.0) and scores["ssim"] < 0.99
+    # LPIPS's deep layers see the lamp from every cell of these small images: masked, it drops only a little
+    assert scores["lpips_masked"] < scores["lpips"]
+    assert scores["exposure_gain_masked"] == pytest.approx(1.0, abs=1e-6)
+    assert scores["psnr_aligned_masked"] == float("inf")
+    plain = score_pairs([ImagePair("f.png", tmp_path / "pred.png", tmp_path / "gt.png")], config)
+    assert not any(k.endswith("_masked") for k in plain) and plain["psnr"] == scores["psnr"]

@@ -160,10 +160,23 @@ class FrameEXR:
     def emitters(self) -> np.ndarray | None:
         """(H, W) bool: pixels whose ground-truth radiance is at least EMITTER_SHARE emitted light (the lamps), or
         None when the frame has no emission pass."""
-        if self.emission is None:
-            return None
-        emitted, total = self.emission.sum(-1), self.gt.sum(-1)
-        return (emitted > 0) & (emitted >= EMITTER_SHARE * total)
+        return None if self.emission is None else emitter_mask(self.emission, self.gt)
+
+
+def emitter_mask(emission: np.ndarray, gt: np.ndarray) -> np.ndarray:
+    """(H, W) bool from (H, W, 3) emission and ground truth: pixels that are at least EMITTER_SHARE emitted light."""
+    emitted, total = emission.sum(-1), gt.sum(-1)
+    return (emitted > 0) & (emitted >= EMITTER_SHARE * total)
+
+
+def read_emitters(path: str | os.PathLike) -> np.ndarray | None:
+    """The lamps (:func:`emitter_mask`) of an EXR holding the ground truth and its emission pass; None for any other
+    EXR (one from before the pass, a depth-only file)."""
+    channels = read_exr(path)
+    if not all(name in channels for name in (*EMISSION_CHANNELS, *GT_CHANNELS)):
+        return None
+    return emitter_mask(np.stack([channels[n] for n in EMISSION_CHANNELS], -1),
+                        np.stack([channels[n] for n in GT_CHANNELS], -1))
 
 
 def write_frame_exr(path: str | os.PathLike, frame: FrameEXR, compression: str = "zip") -> None:
