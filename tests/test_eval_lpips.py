@@ -106,3 +106,21 @@ def test_input_errors():
         lpips(torch.rand(3, 40, 40), torch.rand(3, 40, 41))
     with pytest.raises(ValueError, match="batch_size must be positive"):
         lpips(torch.rand(3, 40, 40), torch.rand(3, 40, 40), batch_size=0)
+
+
+def test_a_mask_scores_only_its_pixels():
+    """A full mask gives plain LPIPS; where the two images agree on the right half, the right-half mask scores far
+    less than the left half's; masks of the wrong size or without a pixel are refused."""
+    g = torch.Generator().manual_seed(0)
+    a, b = torch.rand(3, 64, 64, generator=g), torch.rand(3, 64, 64, generator=g)
+    full = torch.ones(64, 64, dtype=torch.bool)
+    assert float(lpips(a, b, mask=full)[0]) == pytest.approx(float(lpips(a, b)[0]), rel=1e-6)
+    c = b.clone()
+    c[:, :, 32:] = a[:, :, 32:]
+    right, left = torch.zeros(64, 64, dtype=torch.bool), torch.zeros(64, 64, dtype=torch.bool)
+    right[:, 40:], left[:, :24] = True, True
+    assert float(lpips(c, a, mask=right)[0]) < 0.5 * float(lpips(c, a, mask=left)[0])
+    with pytest.raises(ValueError, match="does not match image size"):
+        lpips(a, b, mask=full[:32])
+    with pytest.raises(ValueError, match="selects no pixel"):
+        lpips(a, b, mask=torch.zeros(64, 64, dtype=torch.bool))
