@@ -21,7 +21,7 @@ from spotlessgs.experiments.reproduce.stages import marker_path
 
 pytestmark = [pytest.mark.blender]
 
-TABLE_KEYS = ["table1", "table2", "table3", "table4", "runtime", "robot"]
+TABLE_KEYS = ["table1", "table2", "table3", "table4", "runtime", "robot", "ceiling"]
 
 
 @pytest.fixture(scope="module")
@@ -40,7 +40,7 @@ def _ours(table: dict) -> list[list]:
 
 def test_report_has_every_table_with_finite_numbers(tiny_run):
     out, seconds, output = tiny_run
-    assert "ran 31 stage(s), skipped 0" in output
+    assert "ran 35 stage(s), skipped 0" in output
     report = (out / "REPORT.md").read_text()
     for heading in ("### Table I —", "### Table II —", "### Table III —", "### Table IV —", "### Runtime",
                     "## Agreement with the paper's ordering"):
@@ -190,6 +190,25 @@ def test_robot_camera_copy_starts_from_triangulated_points_and_is_set_against_th
     assert "### Robot camera — what each method loses against the ideal input" in (out / "REPORT.md").read_text()
 
 
+def test_every_dataset_is_set_against_its_relighting_ceiling(tiny_run):
+    """Each dataset's ceiling oracles (the renderer's albedo × one gain and × the best light per normal) and every
+    method, with and without the lamps, and each row's distance to the SH oracle; the acceptance claim per dataset."""
+    out, _, _ = tiny_run
+    results = json.loads((out / "results.json").read_text())
+    table = results["tables"]["ceiling"]
+    below = table["columns"].index("Below the ceiling (dB), no lamps")
+    for ds in ("bedroom-uneven", "bedroom-saturated", "bedroom-uneven-noisy", "bedroom-robot"):
+        rows = {r[1]: r for r in table["rows"] if r[0] == ds}
+        sh, gain = rows["Ceiling: true albedo × best light per normal"], rows["Ceiling: true albedo × one gain"]
+        assert sh[below] == 0.0 and all(isinstance(v, float) and math.isfinite(v) for v in sh[2:] + gain[2:])
+        spotless = rows["SpotlessGS (ours)"]
+        assert spotless[below] == pytest.approx(sh[5] - spotless[5])
+        assert (out / "ceiling" / ds / "eval-albedo-sh" / "results.json").is_file()
+    claims = {a["claim"]: a for a in results["agreement"]}
+    claim = next(c for c in claims if c.startswith("Ceiling on bedroom-uneven: SpotlessGS within 1.5 dB"))
+    assert claims[claim]["status"] in ("agrees", "disagrees") and "dB below" in claims[claim]["text"]
+
+
 def test_figures_exist(tiny_run):
     out, _, _ = tiny_run
     from PIL import Image
@@ -205,7 +224,7 @@ def test_rerun_skips_everything_and_redoes_an_interrupted_stage(tiny_run):
     config = preset("tiny")
     start = time.perf_counter()
     again = reproduce(config, out, jobs=2)
-    assert again.ran == [] and len(again.skipped) == 31 and time.perf_counter() - start < 5.0
+    assert again.ran == [] and len(again.skipped) == 35 and time.perf_counter() - start < 5.0
 
     # Interrupt one training stage: its marker is gone and a half-written file is left in its run folder.
     stage = "train/bedroom-uneven/3dgs"

@@ -97,6 +97,7 @@ def test_collect_reads_what_each_run_needed(auto_run, tmp_path):
                      {"result": json.loads(json.dumps(result)), "seconds": 1.0, "peak_rss_mb": 1.0})
     inputs = {"psnr": 8.5, "ssim": 0.25, "psnr_aligned": 9.5, "ssim_aligned": 0.3}
     write_marker(tmp_path, "eval-inputs/bedroom-uneven", {"result": {"metrics": inputs}, "seconds": 1.0})
+    write_marker(tmp_path, "ceiling/bedroom-uneven", {"result": {"skipped": "no albedo pass"}, "seconds": 1.0})
     collected = collect(tmp_path, config)
     assert collected["datasets"]["bedroom-uneven"]["input"] == inputs
     methods = collected["datasets"]["bedroom-uneven"]["methods"]

@@ -18,7 +18,8 @@ from spotlessgs.experiments.reproduce.stages import (
     Stage, StageGraph, is_done, marker_path, read_marker, resolve, write_marker,
 )
 from spotlessgs.experiments.reproduce.tables import (
-    GT_SFM_LABEL, all_tables, agreement_notes, best_darkgs, check_at_least, check_auto_vs_spotless, check_order, check_sfm,
+    GT_SFM_LABEL, all_tables, agreement_notes, best_darkgs, ceiling_table, check_at_least, check_auto_vs_spotless,
+    check_order, check_sfm,
     format_cell, model_chosen_cell, model_summary, runtime_table, table1, table2, table3, table4,
 )
 from spotlessgs.experiments.reproduce.tasks import curve_milestones
@@ -181,8 +182,8 @@ def test_pipeline_graph_shape(tmp_path):
     names = set(graph.stages)
     # 2 renders + 7 trainings and 1 inputs' evaluation per dataset (2 datasets), 2 GAN renders, the GAN, 3 baselines
     # on the uneven set, the sensor-noise and the robot-camera copies each with its SpotlessGS run and inputs'
-    # evaluation, report
-    assert len(names) == 2 + 14 + 2 + 2 + 1 + 3 + 3 + 3 + 1
+    # evaluation, one relighting ceiling per dataset (4), report
+    assert len(names) == 2 + 14 + 2 + 2 + 1 + 3 + 3 + 3 + 4 + 1
     noise = graph["noise/bedroom-uneven-noisy"]
     assert noise.function == "spotlessgs.experiments.reproduce.tasks:add_noise_copy" and not noise.clean_on_retry
     assert noise.deps == ("render/bedroom-uneven",)
@@ -190,11 +191,15 @@ def test_pipeline_graph_shape(tmp_path):
                             "out_dir": str(tmp_path / "datasets" / "bedroom-uneven-noisy"), "shot": 0.002,
                             "read": 0.004, "seed": 0}
     assert sorted(n for n in names if "uneven-noisy" in n) == [
-        "eval-inputs/bedroom-uneven-noisy", "noise/bedroom-uneven-noisy", "train/bedroom-uneven-noisy/spotless"]
+        "ceiling/bedroom-uneven-noisy", "eval-inputs/bedroom-uneven-noisy", "noise/bedroom-uneven-noisy",
+        "train/bedroom-uneven-noisy/spotless"]
+    ceiling = graph["ceiling/bedroom-robot"]  # the relighting ceiling after its dataset only
+    assert ceiling.function == "spotlessgs.experiments.reproduce.tasks:evaluate_ceiling"
+    assert ceiling.deps == ("robot/bedroom-robot",) and ceiling.output == tmp_path / "ceiling" / "bedroom-robot"
     assert graph["train/bedroom-uneven-noisy/spotless"].deps == ("noise/bedroom-uneven-noisy",)
     assert graph["eval-inputs/bedroom-uneven-noisy"].deps == ("noise/bedroom-uneven-noisy",)
-    assert len(build_graph(preset("tiny", sensor_noise=None), tmp_path).stages) == len(names) - 3
-    assert len(build_graph(preset("tiny", robot_camera=False), tmp_path).stages) == len(names) - 3
+    assert len(build_graph(preset("tiny", sensor_noise=None), tmp_path).stages) == len(names) - 4
+    assert len(build_graph(preset("tiny", robot_camera=False), tmp_path).stages) == len(names) - 4
     robot = graph["robot/bedroom-robot"]
     assert robot.function == "spotlessgs.experiments.reproduce.tasks:robot_camera_copy" and not robot.clean_on_retry
     assert robot.deps == ("render/bedroom-uneven",)
@@ -653,6 +658,9 @@ def test_report_errors_name_the_missing_piece(tmp_path):
     with pytest.raises(FileNotFoundError, match="stage 'eval-inputs/bedroom-uneven' has not finished"):
         collect(tmp_path, preset("tiny", baselines=()))
     write_marker(tmp_path, "eval-inputs/bedroom-uneven", {"result": {"metrics": {"psnr": 9.0}}})
+    with pytest.raises(FileNotFoundError, match="stage 'ceiling/bedroom-uneven' has not finished"):
+        collect(tmp_path, preset("tiny", baselines=()))
+    write_marker(tmp_path, "ceiling/bedroom-uneven", {"result": {"skipped": "no albedo pass"}})
     with pytest.raises(FileNotFoundError, match="stage 'train/bedroom-uneven/3dgs' has not finished"):
         collect(tmp_path, preset("tiny", baselines=()))
 
@@ -670,6 +678,9 @@ def test_collect_reads_the_inputs_once_per_dataset_from_their_stage(tmp_path):
         write_marker(tmp_path, f"eval-inputs/{ds}", {"result": {"metrics": _metrics(psnr, 0.5, 0.5,
                                                                                      _sfm(1.0, 350.0, 11))},
                                                       "seconds": 2.0, "peak_rss_mb": 1.0})
+        ceiling = ({"metrics": {"albedo-sh": {"psnr_aligned_masked": 21.0}, "albedo": {"psnr_aligned_masked": 20.0}}}
+                   if variant == "uneven" else {"skipped": "no albedo pass"})  # a dataset from before the passes
+        write_marker(tmp_path, f"ceiling/{ds}", {"result": ceiling, "seconds": 1.0, "peak_rss_mb": 1.0})
         for method in config.methods:
             write_marker(tmp_path, f"train/{ds}/{method}", {"result": {k: v for k, v in hand["methods"][method].items()
                                                                       if k != "decisions"},
@@ -681,6 +692,8 @@ def test_collect_reads_the_inputs_once_per_dataset_from_their_stage(tmp_path):
                                               "seconds": 1.0, "peak_rss_mb": 1.0})
     write_marker(tmp_path, f"eval-inputs/{noisy}", {"result": {"metrics": _metrics(5.0, sfm=_sfm(0.4, 50.0, 3))},
                                                     "seconds": 2.0, "peak_rss_mb": 1.0})
+    write_marker(tmp_path, f"ceiling/{noisy}", {"result": {"skipped": "no albedo pass"}, "seconds": 1.0,
+                                                "peak_rss_mb": 1.0})
     write_marker(tmp_path, f"train/{noisy}/spotless", {"result": {k: v for k, v in hand["methods"]["spotless"].items()
                                                                  if k != "decisions"},
                                                        "seconds": 1.0, "peak_rss_mb": 1.0})
@@ -703,6 +716,14 @@ def test_collect_reads_the_inputs_once_per_dataset_from_their_stage(tmp_path):
     notes = {n.claim: n for n in agreement_notes(collected)}
     beats = notes["Acceptance on bedroom-saturated: SpotlessGS beats Original on aligned metrics"]
     assert beats.status == "agrees" and "psnr_aligned 16.500 vs 7.000" in beats.text
+    # the ceiling: only the dataset whose renders have the passes; SpotlessGS has no lamp-masked figures here
+    assert collected["datasets"]["bedroom-saturated"]["ceiling"] == {}
+    rows = [r for r in ceiling_table(collected).rows]
+    assert {r[0] for r in rows} == {"bedroom-uneven"} and rows[0][1].startswith("Ceiling") and rows[0][-1] == 0.0
+    assert rows[1][-1] == pytest.approx(1.0)  # albedo × one gain: 1 dB below the SH oracle
+    ceiling_note = next(n for c, n in notes.items() if c.startswith("Ceiling on bedroom-uneven"))
+    assert ceiling_note.status == "unknown"
+    assert "ceiling" in [t.key for t in all_tables(collected)]
 
 
 @pytest.mark.parametrize("name", ["tiny", "quick", "paper"])

@@ -29,6 +29,8 @@ NOISY_VARIANT = "uneven-noisy"
 ROBOT_VARIANT = "robot"
 # The stage that scores a dataset's inputs once for every method (its folder: OUT/inputs/<dataset>).
 INPUTS_STAGE = "eval-inputs"
+# Stage name prefix of the relighting ceiling of each dataset (tasks.evaluate_ceiling).
+CEILING_STAGE = "ceiling"
 # Room kinds shipped under scenes/<kind>/house.json.
 SHIPPED_ROOMS: tuple[str, ...] = ("bedroom", "living_room", "office", "storage_room", "corridor")
 # The default location of the shipped rooms (the repository's scenes/ folder).

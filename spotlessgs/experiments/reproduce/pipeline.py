@@ -8,6 +8,7 @@ Output folder layout::
     OUT/datasets/<room>-robot/            the uneven dataset through a robot camera, sparse start (config.robot_*)
     OUT/datasets/gan-<room>/              other rooms' renders for the Cycle-GAN
     OUT/inputs/<room>-<variant>/          the uneven inputs' evaluation, once per dataset (results.json, sfm/)
+    OUT/ceiling/<room>-<variant>/         the relighting ceiling's oracles and their scores (evaluation.ceiling)
     OUT/runs/<room>-<variant>/<method>/   training runs (+ relit/, eval/ without the inputs, curve/; auto:
                                           model_selection.json, selection/ and gaussian_budget.json)
     OUT/cyclegan/                         the Cycle-GAN checkpoint
@@ -25,7 +26,7 @@ from spotlessgs.io.atomic import write_json
 from spotlessgs.io.folder_lock import folder_lock
 from spotlessgs.io.paths import refuse_overlap
 from spotlessgs.experiments.reproduce.config import (
-    INPUTS_STAGE, NOISY_VARIANT, ROBOT_VARIANT, ReproduceConfig, dataset_id,
+    CEILING_STAGE, INPUTS_STAGE, NOISY_VARIANT, ROBOT_VARIANT, ReproduceConfig, dataset_id,
 )
 from spotlessgs.experiments.reproduce.executor import RunReport, execute
 from spotlessgs.experiments.reproduce.stages import Stage, StageGraph
@@ -110,6 +111,12 @@ def build_graph(config: ReproduceConfig, out: Path) -> StageGraph:
             f"{INPUTS_STAGE}/{ds}", f"{TASKS}:evaluate_inputs", deps=(dataset_stage(variant, ds),),
             output=out / "inputs" / ds,
             kwargs={"data_dir": str(out / "datasets" / ds), "out_dir": str(out / "inputs" / ds), **common}))
+    for room, variant in config.all_datasets():
+        ds = dataset_id(room, variant)
+        stages.append(Stage(
+            f"{CEILING_STAGE}/{ds}", f"{TASKS}:evaluate_ceiling", deps=(dataset_stage(variant, ds),),
+            output=out / "ceiling" / ds,
+            kwargs={"data_dir": str(out / "datasets" / ds), "out_dir": str(out / "ceiling" / ds), **common}))
     for room, variant in config.datasets():
         if variant not in config.baseline_variants:
             continue

@@ -11,7 +11,7 @@ from spotlessgs.io.atomic import write_json, write_text
 from spotlessgs.io.provenance import provenance
 from spotlessgs.experiments.reproduce import paper
 from spotlessgs.experiments.reproduce.config import (
-    INPUTS_STAGE, NOISY_VARIANT, ROBOT_VARIANT, ReproduceConfig, dataset_id,
+    CEILING_STAGE, INPUTS_STAGE, NOISY_VARIANT, ROBOT_VARIANT, ReproduceConfig, dataset_id,
 )
 from spotlessgs.experiments.reproduce.figures import qualitative_grid, speed_error_plot
 from spotlessgs.experiments.reproduce.stages import MARKER_DIR, read_marker
@@ -47,7 +47,8 @@ def collect(out: Path, config: ReproduceConfig) -> dict[str, Any]:
     for room, variant in config.all_datasets():
         ds = dataset_id(room, variant)
         entry: dict[str, Any] = {"room": room, "variant": variant, "methods": {}, "baselines2d": {},
-                                 "input": read_marker(out, f"{INPUTS_STAGE}/{ds}")["result"]["metrics"]}
+                                 "input": read_marker(out, f"{INPUTS_STAGE}/{ds}")["result"]["metrics"],
+                                 "ceiling": read_marker(out, f"{CEILING_STAGE}/{ds}")["result"].get("metrics", {})}
         if variant == NOISY_VARIANT:
             entry["sensor_noise"] = read_marker(out, f"noise/{ds}")["result"]
         if variant == ROBOT_VARIANT:

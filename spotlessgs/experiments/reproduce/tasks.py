@@ -20,6 +20,7 @@ from pathlib import Path
 from typing import Any, Sequence
 
 import spotlessgs
+from evaluation.ceiling import ceiling
 from evaluation.dataset import read_dataset
 from evaluation.folders import ImagePair
 from evaluation.report import write_results_json
@@ -162,6 +163,25 @@ def evaluate_inputs(data_dir: str, out_dir: str, sfm: bool, sfm_matcher: str, lp
     write_results_json(out / "results.json", results)
     metrics = {k: v for k, v in compact_metrics(results).items() if k not in ("mode", "data_dir")}
     return {"metrics": to_jsonable(metrics)}
+
+
+def evaluate_ceiling(data_dir: str, out_dir: str, sfm: bool, sfm_matcher: str, lpips: bool, seed: int,
+                     threads: int) -> dict[str, Any]:
+    """The relighting ceiling of a dataset (:func:`evaluation.ceiling.ceiling`: the true albedo × one gain and × the
+    best light per normal, scored like the methods' test views) into ``out_dir``.
+
+    Returns:
+        ``{"metrics": {oracle: results without per-image lists}}``, or ``{"skipped": reason}`` for a dataset whose
+        EXRs have no albedo pass (rendered before 2026-11-24).
+    """
+    del sfm, sfm_matcher, seed  # the oracles are images of the test views: no SfM, nothing random
+    config = EvalConfig(lpips=lpips, temporal=False, num_threads=threads, progress=False)
+    try:
+        results = ceiling(data_dir, out_dir, config)
+    except InputError as exc:
+        return {"skipped": str(exc)}
+    return {"metrics": to_jsonable({name: {k: v for k, v in compact_metrics(r).items() if k not in ("mode", "data")}
+                                    for name, r in results.items()})}
 
 
 def curve_milestones(iterations: int, fractions: Sequence[float]) -> list[int]:
