@@ -189,10 +189,14 @@ def _camera_motion(built: BuiltScene, shutter: tuple[np.ndarray, np.ndarray, np.
     try:
         for obj in objects:
             obj.rotation_mode = "QUATERNION"
+        previous = [None] * len(objects)
         for frame, c2w in enumerate(shutter):
             scene.frame_set(frame)
             _place(built, np.asarray(c2w, dtype=np.float64))
-            for obj in objects:
+            for k, obj in enumerate(objects):
+                if previous[k] is not None and previous[k].dot(obj.rotation_quaternion) < 0:
+                    obj.rotation_quaternion.negate()  # the same rotation: interpolate along the short way
+                previous[k] = obj.rotation_quaternion.copy()
                 obj.keyframe_insert("location", frame=frame)
                 obj.keyframe_insert("rotation_quaternion", frame=frame)
         for obj in objects:
