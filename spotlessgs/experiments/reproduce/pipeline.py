@@ -105,18 +105,14 @@ def build_graph(config: ReproduceConfig, out: Path) -> StageGraph:
                         "train_preset": config.train_preset, "iterations": config.train_iterations,
                         "image_width": config.train_width, "curve_fractions": tuple(config.curve_fractions),
                         **selection, **common}))
-    for room, variant in config.all_datasets():
-        ds = dataset_id(room, variant)
-        stages.append(Stage(
-            f"{INPUTS_STAGE}/{ds}", f"{TASKS}:evaluate_inputs", deps=(dataset_stage(variant, ds),),
-            output=out / "inputs" / ds,
-            kwargs={"data_dir": str(out / "datasets" / ds), "out_dir": str(out / "inputs" / ds), **common}))
-    for room, variant in config.all_datasets():
-        ds = dataset_id(room, variant)
-        stages.append(Stage(
-            f"{CEILING_STAGE}/{ds}", f"{TASKS}:evaluate_ceiling", deps=(dataset_stage(variant, ds),),
-            output=out / "ceiling" / ds,
-            kwargs={"data_dir": str(out / "datasets" / ds), "out_dir": str(out / "ceiling" / ds), **common}))
+    # once per dataset, after its dataset only: the inputs' evaluation, then the relighting ceiling
+    for prefix, task, folder in ((INPUTS_STAGE, "evaluate_inputs", "inputs"),
+                                 (CEILING_STAGE, "evaluate_ceiling", "ceiling")):
+        for room, variant in config.all_datasets():
+            ds = dataset_id(room, variant)
+            stages.append(Stage(
+                f"{prefix}/{ds}", f"{TASKS}:{task}", deps=(dataset_stage(variant, ds),), output=out / folder / ds,
+                kwargs={"data_dir": str(out / "datasets" / ds), "out_dir": str(out / folder / ds), **common}))
     for room, variant in config.datasets():
         if variant not in config.baseline_variants:
             continue
