@@ -123,7 +123,8 @@ def score_pairs(pairs: Sequence[ImagePair], config: EvalConfig = EvalConfig(), l
     """Per-image and mean PSNR, SSIM, LPIPS and their exposure-aligned variants.
 
     Images are streamed (two passes when ``config.aligned``: the gain needs the whole sequence first), so memory
-    does not grow with the number of images.
+    does not grow with the number of images beyond the lamp masks (one bool per pixel, for pairs with an EXR), which
+    are read once and kept for the second pass.
 
     Returns:
         dict with the mean metrics (``psnr``, ``ssim``, ``lpips``, ``*_aligned``), ``exposure_gain``,
@@ -153,12 +154,14 @@ def score_pairs(pairs: Sequence[ImagePair], config: EvalConfig = EvalConfig(), l
         if config.lpips:
             row["lpips" + suffix + "_masked"] = float(lpips(pred, gt, mask=keep)[0])
 
+    keeps: list[torch.Tensor | None] = []  # each pair's lamp-free pixels, read from its EXR once
     with _torch_threads(config.num_threads), torch.no_grad():
         for pair, row in _bar(list(zip(pairs, per_image)), config, f"{label}", total=len(pairs)):
             pred, gt = _load_pair(pair)
             score(pred, gt, row, "")
             acc.add(pred, gt)
             keep = _non_emitters(pair, gt)
+            keeps.append(keep)
             if keep is not None:
                 score_masked(pred, gt, keep, row, "")
                 acc_masked.add(pred[:, keep], gt[:, keep])
@@ -166,10 +169,10 @@ def score_pairs(pairs: Sequence[ImagePair], config: EvalConfig = EvalConfig(), l
         if config.aligned:
             gain = acc.gain()
             gain_masked = acc_masked.gain() if acc_masked.count else None
-            for pair, row in _bar(list(zip(pairs, per_image)), config, f"{label} (aligned)", total=len(pairs)):
+            for pair, row, keep in _bar(list(zip(pairs, per_image, keeps)), config, f"{label} (aligned)",
+                                        total=len(pairs)):
                 pred, gt = _load_pair(pair)
                 score(apply_gain(pred, gain), gt, row, "_aligned")
-                keep = _non_emitters(pair, gt)
                 if keep is not None and gain_masked is not None:
                     score_masked(apply_gain(pred, gain_masked), gt, keep, row, "_aligned")
     keys = [k for k in per_image[0] if k != "name" and all(k in row for row in per_image)]
