@@ -56,21 +56,28 @@ def _test_frames(data_dir: Path):
     return out
 
 
-def fit_light_per_normal(frames, degree: int = ORACLE_SH_DEGREE) -> np.ndarray:
-    """(3, (degree+1)²) SH coefficients ``c`` of the light per normal minimising Σ (a · cᵀY(n) − g)² per channel
-    over the pixels of ``frames`` (FrameEXRs) that show a surface (finite depth, unit normal) and no emitter."""
-    rows, targets = [], []
-    for exr in frames:
-        use = np.isfinite(exr.depth) & (np.linalg.norm(exr.normal, axis=-1) > 0.5)
+def normal_basis(exr, degree: int = ORACLE_SH_DEGREE) -> tuple[np.ndarray, np.ndarray]:
+    """(H, W, (degree+1)²) real SH basis of a FrameEXR's unit normals, and the (H, W) bool pixels that show a surface
+    (finite depth, a normal of unit length)."""
+    length = np.linalg.norm(exr.normal, axis=-1, keepdims=True)
+    normals = exr.normal / np.maximum(length, 1e-12)
+    basis = sh_basis(torch.from_numpy(normals.astype(np.float64)), degree).numpy()
+    return basis, np.isfinite(exr.depth) & (length[..., 0] > 0.5)
+
+
+def fit_light_per_normal(frames, bases) -> np.ndarray:
+    """(3, B) SH coefficients ``c`` of the light per normal minimising Σ (a · cᵀY(n) − g)² per channel over the
+    pixels of ``frames`` (FrameEXRs) that show a surface and no emitter; ``bases``: each frame's
+    :func:`normal_basis`."""
+    albedo, basis, gt = [], [], []
+    for exr, (frame_basis, surface) in zip(frames, bases):
         lamps = exr.emitters()
-        if lamps is not None:
-            use &= ~lamps
-        normals = exr.normal[use] / np.linalg.norm(exr.normal[use], axis=-1, keepdims=True)
-        rows.append((exr.albedo[use], sh_basis(torch.from_numpy(normals).double(), degree).numpy()))
-        targets.append(exr.gt[use])
-    albedo = np.concatenate([a for a, _ in rows]).astype(np.float64)
-    basis = np.concatenate([b for _, b in rows])
-    gt = np.concatenate(targets).astype(np.float64)
+        use = surface if lamps is None else surface & ~lamps
+        albedo.append(exr.albedo[use])
+        basis.append(frame_basis[use])
+        gt.append(exr.gt[use])
+    albedo, gt = np.concatenate(albedo).astype(np.float64), np.concatenate(gt).astype(np.float64)
+    basis = np.concatenate(basis)
     return np.stack([np.linalg.lstsq(albedo[:, ch, None] * basis, gt[:, ch], rcond=None)[0] for ch in range(3)])
 
 
@@ -86,11 +93,10 @@ def write_oracles(data_dir: str | Path, out: str | Path) -> list[ImagePair]:
     data_dir, out = Path(data_dir), Path(out)
     refuse_overlap(out, {"DATA": data_dir}, "--out")
     frames = _test_frames(data_dir)
-    coefficients = fit_light_per_normal([exr for _, exr in frames])
+    bases = [normal_basis(exr) for _, exr in frames]
+    coefficients = fit_light_per_normal([exr for _, exr in frames], bases)
     pairs = []
-    for frame, exr in frames:
-        normals = exr.normal / np.maximum(np.linalg.norm(exr.normal, axis=-1, keepdims=True), 1e-12)
-        basis = sh_basis(torch.from_numpy(normals.astype(np.float64)), ORACLE_SH_DEGREE).numpy()
+    for (frame, exr), (basis, _surface) in zip(frames, bases):
         light = np.maximum(basis @ coefficients.T, 0.0)  # (H, W, 3)
         write_png(out / "albedo" / frame.name, linear_to_srgb(np.clip(exr.albedo, 0.0, 1.0)))
         write_png(out / "albedo-sh" / frame.name, linear_to_srgb(np.clip(exr.albedo * light, 0.0, 1.0)))

@@ -61,13 +61,13 @@ def test_albedo_times_one_gain_is_scored_on_the_test_views(tmp_path):
 def test_the_light_per_normal_is_fitted_and_explains_a_normal_dependent_ground_truth(tmp_path):
     """A light linear in the normal (SH degree 1) lies in the oracle's SH-3 span: its coefficients come back exactly
     and the albedo-sh oracle reproduces the ground truth, while albedo x one gain cannot."""
-    from evaluation.ceiling import ceiling, fit_light_per_normal
+    from evaluation.ceiling import ceiling, fit_light_per_normal, normal_basis
     from evaluation.runner import EvalConfig
     from spotlessgs.io.exr import read_frame_exr
 
     data = _dataset(tmp_path / "data", light_per_normal=True)
     frames = [read_frame_exr(data / "exr" / f"frame_{k:05d}.exr") for k in (0, 11)]
-    c = fit_light_per_normal(frames)
+    c = fit_light_per_normal(frames, [normal_basis(f) for f in frames])
     y00, y1 = 0.28209479177387814, 0.4886025119029199  # SH constants: Y_0^0, and Y_1^m = -/+ y1 * (y, z, x)
     np.testing.assert_allclose(c[:, 0], np.array([0.5, 0.4, 0.6]) / y00, atol=1e-4)
     np.testing.assert_allclose(c[0, 2], 0.3 / y1, atol=1e-4)  # n_z in the red channel
