@@ -189,5 +189,6 @@ def lpips(pred: Tensor, gt: Tensor, batch_size: int = 8, mask: Tensor | None = N
     model = default_lpips()
     if model.shift.device != pred.device:
         model.to(pred.device)  # the shared model follows the inputs (CPU by default)
+    batches = range(0, len(pred), batch_size)
     return torch.cat([model(pred[i : i + batch_size], gt[i : i + batch_size],
-                            None if mask is None else mask[i : i + batch_size]) for i in range(0, len(pred), batch_size)])
+                            None if mask is None else mask[i : i + batch_size]) for i in batches])

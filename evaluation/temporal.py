@@ -204,7 +204,8 @@ class PosedFrame:
     c2w: Tensor  # (4, 4) camera-to-world, OpenCV axes
 
 
-def warped_temporal_scores(frames: Iterable[PosedFrame], K: Tensor | Intrinsics, min_valid_fraction: float = 0.05) -> TemporalScores:
+def warped_temporal_scores(frames: Iterable[PosedFrame], K: Tensor | Intrinsics,
+                           min_valid_fraction: float = 0.05) -> TemporalScores:
     """PSNR and SSIM between frame t and frame t+1 warped into frame t, on valid pixels only.
 
     Args:

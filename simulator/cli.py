@@ -71,7 +71,8 @@ def main(verbose: bool) -> None:
 @click.option("--device", default="auto", show_default=True, type=click.Choice(["auto", "cpu", "gpu"]))
 @click.option("-q", "--quiet", is_flag=True, help="No progress bar, and no messages from Blender's device probing.")
 def render(scene_path, out_dir, future_dir, texture_dir, allow_missing, room, frames, width, height, h_fov_deg, samples,
-           no_denoise, bounces, ambient, lambertian, motion_blur, camera_path, seed, preset, shard, threads, device, quiet):
+           no_denoise, bounces, ambient, lambertian, motion_blur, camera_path, seed, preset, shard, threads, device,
+           quiet):
     """Render the spotlight-only and the evenly lit image of every pose of a room's camera loop.
 
     Ctrl-C (or SIGTERM) stops within a second or two (exit 130 / 143) and keeps every finished frame: rerun the same

@@ -9,12 +9,12 @@ parametrisation of Brooks et al. 2019, "Unprocessing images for learned raw deno
     y = x + n,   n ~ N(0, shot · x + read²),   then clipped to [0, 1], sRGB-encoded and quantised to 8 bits
 
 to the spotlight-only images of a dataset. :func:`add_sensor_noise_to_dataset` derives a noisy copy of a finished
-dataset from its linear renders (``exr/``), so the same renders can be used clean and noisy: the copy's ``images/``
-are noisy, everything else (ground truth, EXRs, poses, point cloud, transforms.json) is copied unchanged, and
+dataset from its linear renders (``exr/``), so the same renders can be used clean and noisy: the copy's ``images/`` are
+noisy, everything else (ground truth, EXRs, poses, point cloud, transforms.json) is copied unchanged, and
 ``sensor_noise.json`` records the parameters (a copy through a lens resamples the ground truth and the EXRs through it:
-the renders and the ground truth bilinearly, depth and normals by nearest sample). Noise of frame k comes from its own generator (seed, frame index), so a
-rerun writes the same bytes and an interrupted run resumes frame by frame; the temporary files a killed run left
-(``.<name>.partial-*``) are removed when the next run starts.
+the renders and the ground truth bilinearly, depth and normals by nearest sample). Noise of frame k comes from its own
+generator (seed, frame index), so a rerun writes the same bytes and an interrupted run resumes frame by frame; the
+temporary files a killed run left (``.<name>.partial-*``) are removed when the next run starts.
 
 With :class:`CameraEffects` the copy also gets a robot camera's photometric effects, applied to the linear render
 before the noise: a sensitivity (the scene is darker than the render) and an auto-exposure gain per frame (the camera scales each frame so that its mean linear brightness

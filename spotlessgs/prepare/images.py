@@ -2,11 +2,10 @@
 
 Dark spotlit frames starve feature detectors, so structure from motion runs on brightened copies (a light blur against
 the sensor noise, then CLAHE on the lightness, ``spotlessgs.baselines2d.clahe``, as DarkGS brightens its frames for
-COLMAP) while the dataset keeps the
-original frames for training. The camera (model given, intrinsics estimated by bundle adjustment unless given) and
-the poses come from pycolmap's incremental mapper (``evaluation.sfm.run_sfm``, sequential matching for video order).
-The largest model becomes ``DATA/sparse/0``; every frame it does not register is named in the summary and in a
-warning, never dropped silently.
+COLMAP) while the dataset keeps the original frames for training. The camera (model given, intrinsics estimated by
+bundle adjustment unless given) and the poses come from pycolmap's incremental mapper (``evaluation.sfm.run_sfm``,
+sequential matching for video order). The largest model becomes ``DATA/sparse/0``; every frame it does not register is
+named in the summary and in a warning, never dropped silently.
 
     DATA/images/          the original frames (copied)
     DATA/sparse/0/        the COLMAP model of the registered frames (binary)
@@ -143,7 +142,8 @@ def prepare_images(
     summary: dict[str, Any] = {
         "images": str(images_dir.resolve()), "frames": len(names), "registered": len(names) - len(missing),
         "not_registered": missing, "camera_model": camera_model if intrinsics is None else "given",
-        "matcher": matcher, "brightening": {"noise_level": noise, "blur_sigma_px": blur}, "sfm": result.summary(), "provenance": provenance(seed=seed, extra_packages=("pycolmap",)),
+        "matcher": matcher, "brightening": {"noise_level": noise, "blur_sigma_px": blur}, "sfm": result.summary(),
+        "provenance": provenance(seed=seed, extra_packages=("pycolmap",)),
     }
     if model_dir is not None:
         _write_dataset(frames, sfm_names, model_dir, out)

@@ -5,12 +5,12 @@ schedule and the same ``max_gaussians`` cap) with two additions, both at densifi
 
 1. **Growth stop.** Before densifying, the validation PSNR (held-out training views under the learned spotlight) is
    measured. Growth (clone/split) stops for good once ``patience`` consecutive checks bring no gain of at least
-   ``min_gain_db`` over the best earlier value. The checks (and the contribution pruning below) start at
-   ``judge_from``: a sparse start densifies from the first densification step to reach a usable density, and judging
-   that phase stopped a robot-camera run at 424 Gaussians (its 652 SfM points pruned faster than they grew, so the
-   validation PSNR fell and the plateau rule fired at step 400; 216 Gaussians at the end, 0.84 dB below SpotlessGS). An opacity reset lowers every opacity and so the PSNR for a while:
-   the history restarts after each reset. After a growth stop there are no more opacity resets (nothing would
-   regrow what the pruning of the faint Gaussians removes).
+   ``min_gain_db`` over the best earlier value. The checks (and the contribution pruning below) start at ``judge_from``:
+   a sparse start densifies from the first densification step to reach a usable density, and judging that phase stopped
+   a robot-camera run at 424 Gaussians (its 652 SfM points pruned faster than they grew, so the validation PSNR fell and
+   the plateau rule fired at step 400; 216 Gaussians at the end, 0.84 dB below SpotlessGS). An opacity reset lowers
+   every opacity and so the PSNR for a while: the history restarts after each reset. After a growth stop there are no
+   more opacity resets (nothing would regrow what the pruning of the faint Gaussians removes).
 2. **Contribution pruning.** Each Gaussian's total blending weight Σ_views Σ_pixels α T over (a subset of) the fitted
    views is computed (:func:`~spotlessgs.training.validation.gaussian_contributions`). The Gaussians are sorted by it
    and the least-contributing ones are pruned as long as their summed weight stays within ``prune_fraction`` of the

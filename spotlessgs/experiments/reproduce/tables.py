@@ -389,7 +389,8 @@ def robot_table(collected: dict) -> Table:
 CEILING_WITHIN_DB = 1.5  # issue 18's acceptance: SpotlessGS within this of the ceiling (aligned, lamps left out)
 #: The relighting ceiling's oracles (evaluation.ceiling.ORACLES) as table rows, the one the methods are measured to
 #: first.
-CEILING_ROWS = {"albedo-sh": "Ceiling: true albedo × best light per normal", "albedo": "Ceiling: true albedo × one gain"}
+CEILING_ROWS = {"albedo-sh": "Ceiling: true albedo × best light per normal",
+                "albedo": "Ceiling: true albedo × one gain"}
 CEILING_KEYS = ["psnr_aligned", "ssim_aligned", "lpips_aligned", "psnr_aligned_masked", "ssim_aligned_masked",
                 "lpips_aligned_masked"]
 
