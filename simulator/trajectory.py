@@ -43,7 +43,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from simulator.free_space import FreeSpace, floor_polygon_shape
-from spotlessgs.io.cameras import axis_angle_to_matrix
+from spotlessgs.io.cameras import axis_angle_to_matrix, interpolate_pose
 
 log = logging.getLogger(__name__)
 
@@ -418,17 +418,6 @@ def sample_trajectory(
         position, rotvec = placed
         out[i, :3, 3] = position
         out[i, :3, :3] = poses[i, :3, :3] @ axis_angle_to_matrix(rotvec)
-    return out
-
-
-def interpolate_pose(a: np.ndarray, b: np.ndarray, t: float) -> np.ndarray:
-    """The (4, 4) rigid pose a fraction ``t`` in [0, 1] of the way from ``a`` to ``b`` (camera-to-world): the
-    centre moves on the straight line, the rotation on the shortest arc (slerp)."""
-    from scipy.spatial.transform import Rotation, Slerp
-
-    out = np.eye(4)
-    out[:3, :3] = Slerp([0.0, 1.0], Rotation.from_matrix(np.stack([a[:3, :3], b[:3, :3]])))([t]).as_matrix()[0]
-    out[:3, 3] = (1.0 - t) * a[:3, 3] + t * b[:3, 3]
     return out
 
 

@@ -233,3 +233,14 @@ def quaternion_wxyz_to_matrix(quat: np.ndarray) -> np.ndarray:
         ],
         axis=-1,
     ).reshape(quat.shape[:-1] + (3, 3))
+
+
+def interpolate_pose(a: np.ndarray, b: np.ndarray, t: float) -> np.ndarray:
+    """The (4, 4) rigid pose a fraction ``t`` in [0, 1] of the way from ``a`` to ``b`` (camera-to-world, any axis
+    convention shared by both): the centre moves on the straight line, the rotation on the shortest arc (slerp)."""
+    from scipy.spatial.transform import Rotation, Slerp
+
+    out = np.eye(4)
+    out[:3, :3] = Slerp([0.0, 1.0], Rotation.from_matrix(np.stack([a[:3, :3], b[:3, :3]])))([t]).as_matrix()[0]
+    out[:3, 3] = (1.0 - t) * a[:3, 3] + t * b[:3, 3]
+    return out

@@ -20,9 +20,9 @@ import cv2
 import numpy as np
 from rosbags.highlevel import AnyReader
 from rosbags.typesys import Stores, get_typestore
-from scipy.spatial.transform import Rotation, Slerp
+from scipy.spatial.transform import Rotation
 
-from spotlessgs.io.cameras import Intrinsics
+from spotlessgs.io.cameras import Intrinsics, interpolate_pose
 from spotlessgs.io.errors import InputError
 
 IMAGE_TYPES = ("sensor_msgs/msg/Image", "sensor_msgs/msg/CompressedImage")
@@ -203,10 +203,13 @@ def _interpolate(records, stamp: int) -> np.ndarray | None:
     i = int(np.clip(np.searchsorted(times, stamp, side="right") - 1, 0, len(times) - 2))
     span = times[i + 1] - times[i]
     w = 0.0 if span == 0 else (stamp - times[i]) / span
-    rotation = Slerp([0.0, 1.0], Rotation.from_quat([records[i][2], records[i + 1][2]]))([w])[0]
-    c2w = np.eye(4)
-    c2w[:3, :3] = rotation.as_matrix()
-    c2w[:3, 3] = (1 - w) * records[i][1] + w * records[i + 1][1]
+    ends = []
+    for _stamp, position, quaternion in (records[i], records[i + 1]):
+        end = np.eye(4)
+        end[:3, :3] = Rotation.from_quat(quaternion).as_matrix()
+        end[:3, 3] = position
+        ends.append(end)
+    c2w = interpolate_pose(ends[0], ends[1], w)
     if not math.isfinite(float(c2w.sum())):
         return None
     return c2w
