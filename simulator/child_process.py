@@ -4,9 +4,10 @@ Cycles catches the ``KeyboardInterrupt`` raised inside its render callback and c
 main process cannot be stopped with Ctrl-C. :func:`simulator.render_pipeline.render_dataset` therefore runs Blender
 in a child process that it can kill; the helpers here prepare such a child:
 
-* :func:`die_with_parent`: the kernel kills the child when its parent dies, however the parent dies (also SIGKILL);
-* :func:`drop_blender_script_paths`: a parent that imported bpy hands Blender's script folders to a spawned child,
-  where they would shadow the compiled module;
+* :func:`spotlessgs.io.processes.die_with_parent`: the kernel kills the child when its parent dies, however the parent
+  dies (also SIGKILL);
+* :func:`spotlessgs.io.processes.drop_blender_script_paths`: a parent that imported bpy hands Blender's script folders
+  to a spawned child, where they would shadow the compiled module;
 * :func:`silenced_output`: Blender's C code prints straight to file descriptors 1 and 2 (Cycles' GPU probing, for
   instance), which ``sys.stdout`` redirection does not catch.
 """
@@ -15,40 +16,8 @@ from __future__ import annotations
 
 import contextlib
 import os
-import signal
 import sys
-from pathlib import Path
 from typing import Iterator
-
-
-def drop_blender_script_paths() -> None:
-    """Remove Blender's script folders from ``sys.path``.
-
-    A parent that has imported bpy has ``.../bpy/<version>/scripts/...`` on its path, and a spawned child inherits it:
-    there ``import bpy`` would find the pure-Python ``scripts/modules/bpy`` package before the compiled module and
-    fail with "No module named '_bpy'". The child's own ``import bpy`` puts the folders back in the right order.
-    """
-    sys.path[:] = [p for p in sys.path if not ("bpy" in Path(p).parts and "scripts" in Path(p).parts)]
-
-
-def die_with_parent(signum: int = signal.SIGKILL, parent_pid: int | None = None) -> bool:
-    """Linux: ask the kernel to send ``signum`` to this process when its parent dies (``prctl(PR_SET_PDEATHSIG)``).
-
-    When ``parent_pid`` is given and the parent is already gone (it died before this call), the signal is sent at
-    once. Returns False where the call is not available (not Linux).
-    """
-    try:
-        import ctypes
-
-        libc = ctypes.CDLL("libc.so.6", use_errno=True)
-        pr_set_pdeathsig = 1
-        if libc.prctl(pr_set_pdeathsig, int(signum), 0, 0, 0) != 0:
-            return False
-    except (OSError, AttributeError):
-        return False
-    if parent_pid is not None and os.getppid() != parent_pid:
-        os.kill(os.getpid(), signum)
-    return True
 
 
 def _flush_c_streams() -> None:

@@ -117,6 +117,66 @@ def generate(kind, out_dir, seed):
     click.echo(f"wrote {path}")
 
 
+@main.command("render-many")
+@click.option("--scenes", "scene_patterns", required=True, multiple=True,
+              help="House files: a glob ('scenes/*/house.json'), a path, a comma-separated list of either, or a .txt "
+                   "file with one per line (repeat the option to add more).")
+@click.option("--out", "out_dir", required=True, type=click.Path(file_okay=False, path_type=Path),
+              help="Root folder: one dataset ROOT/<room>-<variant> per room and variant, and ROOT/render_many.json "
+                   "(rerun the same command to resume).")
+@click.option("--variants", default="uneven", show_default=True,
+              help="Comma-separated spotlight presets to render each room with (uneven, saturated).")
+@click.option("--frames", default=120, show_default=True, type=click.IntRange(2, 100_000), help="Poses on the loop.")
+@click.option("--width", default=320, show_default=True, type=click.IntRange(8, 8192))
+@click.option("--height", default=240, show_default=True, type=click.IntRange(8, 8192))
+@click.option("--samples", default=32, show_default=True, type=click.IntRange(1, 100_000),
+              help="Cycles samples per pixel.")
+@click.option("--path", "camera_path", default="paper", show_default=True, type=click.Choice(["paper", "robot"]),
+              help="Camera loop (as for `render`).")
+@click.option("--seed", default=0, show_default=True, type=int)
+@click.option("--frames-per-task", default=20, show_default=True, type=click.IntRange(1),
+              help="Consecutive frames rendered by one task (one Blender process).")
+@click.option("--executor", default="local", show_default=True, type=click.Choice(["local", "ray"]),
+              help="local: worker processes on this machine; ray: tasks on a Ray cluster whose nodes all see --out at "
+                   "the same path (pip install 'spotlessgs[cluster]'; docs/cluster.md).")
+@click.option("--jobs", default=1, show_default=True, type=click.IntRange(1),
+              help="local executor: tasks run in parallel.")
+@click.option("--ray-address", default="auto", show_default=True,
+              help="--executor ray: auto, HOST:PORT of the head node, or local (a private Ray instance here).")
+@click.option("--threads", type=click.IntRange(1), default=None,
+              help="Render threads per task (default: cores // jobs locally, 1 on Ray, where a task asks for as many "
+                   "CPUs).")
+@click.option("-q", "--quiet", is_flag=True, help="No progress bar.")
+def render_many(scene_patterns, out_dir, variants, frames, width, height, samples, camera_path, seed, frames_per_task,
+                executor, jobs, ray_address, threads, quiet):
+    """Render many rooms and spotlight variants as one resumable job, split into frame ranges, on this machine or a
+    Ray cluster; a failed task is reported with its error and the others still finish."""
+    from simulator.render_many import SUMMARY_FILE, find_scenes, render_many as run_many
+    from simulator.lighting import SPOTLIGHT_PRESETS
+    from spotlessgs.jobs import ExecutorSpec
+
+    names = [v.strip() for v in variants.split(",") if v.strip()]
+    unknown = [v for v in names if v not in SPOTLIGHT_PRESETS]
+    if not names or unknown:
+        raise click.BadParameter(f"unknown variant(s) {unknown or names}; choose from {sorted(SPOTLIGHT_PRESETS)}",
+                                 param_hint="--variants")
+    settings = {"frames": frames, "width": width, "height": height, "samples": samples, "seed": seed,
+                "path": camera_path}
+    spec = ExecutorSpec(kind=executor, jobs=jobs, threads=threads,
+                        ray_address=None if ray_address == "local" else ray_address)
+    summary = run_many(find_scenes(scene_patterns), names, out_dir, settings, frames_per_task, spec,
+                       progress=not quiet)
+    for dataset in summary["datasets"]:
+        state = "complete" if dataset["complete"] else "INCOMPLETE"
+        click.echo(f"{dataset['dataset']}: {dataset['done']}/{dataset['frames']} frames ({dataset['rendered_now']} "
+                   f"rendered now, {dataset['done_before']} before), {state}")
+        for name, error in dataset["failed"].items():
+            click.echo(f"  failed {name}: {error}")
+    if summary["failed"]:
+        raise RuntimeError(f"{out_dir / SUMMARY_FILE}: {len(summary['failed'])} task(s) failed (listed above); rerun "
+                           "the same command to retry them")
+
+
 @main.command("add-noise")
 @click.option("--data", "data_dir", required=True, type=click.Path(exists=True, file_okay=False, path_type=Path),
               help="A finished dataset with linear renders (exr/).")

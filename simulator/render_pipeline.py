@@ -13,7 +13,9 @@ Output folder (the dataset contract, see ``docs/dataset.md``)::
 
 Every file is written atomically; a frame counts as done when its three files exist, so rerunning the same command
 resumes where it stopped. ``shard=(i, n)`` renders frames ``k`` with ``k % n == i`` so n jobs can share a scene; the
-job that finds every frame done writes the dataset-level files.
+job that finds every frame done writes the dataset-level files. ``frame_range=(a, b)`` renders frames ``a <= k < b``
+and never writes the dataset-level files: ``spotless-sim render-many`` (:mod:`simulator.render_many`) splits datasets
+into such ranges and finishes each dataset with a whole-dataset call once its ranges are done.
 
 Blender runs in a child process (see :func:`render_dataset`): Cycles swallows Ctrl-C, so the parent, which stays
 responsive, kills the child on SIGINT / SIGTERM, removes the temporary files, and stops within a second; the finished
@@ -25,6 +27,7 @@ from __future__ import annotations
 
 import contextlib
 import dataclasses
+import json
 import logging
 import multiprocessing
 import os
@@ -39,7 +42,7 @@ from typing import Any, Iterable
 
 import numpy as np
 
-from simulator.child_process import die_with_parent, drop_blender_script_paths, silenced_output
+from simulator.child_process import silenced_output
 from simulator.front3d import LoadOptions, load_house
 from simulator.lighting import SPOTLIGHT_PRESETS, GroundTruthLighting, SpotlightConfig, with_ground_truth_lighting
 from simulator.pointcloud import backproject_depth, merge_point_clouds
@@ -53,6 +56,7 @@ from spotlessgs.io.exr import FrameEXR, read_frame_exr, write_frame_exr
 from spotlessgs.io.folder_lock import folder_lock
 from spotlessgs.io.images import read_image, write_png
 from spotlessgs.io.paths import refuse_overlap
+from spotlessgs.io.processes import die_with_parent, drop_blender_script_paths
 from spotlessgs.io.ply import write_point_cloud
 from spotlessgs.io.provenance import package_version, provenance
 from spotlessgs.io.seeding import numpy_rng, stage_seed
@@ -130,6 +134,8 @@ class ExecutionOptions:
 
     Attributes:
         shard: (index, count): render only frames k with k % count == index.
+        frame_range: (start, stop): render only frames start <= k < stop, and leave the dataset-level files to a
+            whole-dataset call (None: the shard's frames).
         threads: CPU threads for Cycles.
         device: ``auto``, ``cpu`` or ``gpu``.
         progress: show a progress bar.
@@ -138,10 +144,64 @@ class ExecutionOptions:
     """
 
     shard: tuple[int, int] = (0, 1)
+    frame_range: tuple[int, int] | None = None
     threads: int = 2
     device: str = "auto"
     progress: bool = True
     quiet: bool = False
+
+    @property
+    def part(self) -> "FramePart":
+        """The frames this job renders."""
+        return FramePart(self.shard, self.frame_range)
+
+
+@dataclass(frozen=True)
+class FramePart:
+    """Which frames of a dataset one render job renders: all of them (the job owns the folder), a shard
+    (``k % count == index``) or a range (``start <= k < stop``). Shards and ranges share the folder with the jobs of
+    the other parts, so each cleans up only after itself."""
+
+    shard: tuple[int, int] = (0, 1)
+    frame_range: tuple[int, int] | None = None
+
+    def __post_init__(self) -> None:
+        index, count = self.shard
+        if not (count >= 1 and 0 <= index < count):
+            raise ValueError(f"shard {index}/{count} is invalid: need 0 <= I < N")
+        if self.frame_range is not None:
+            if count != 1:
+                raise ValueError("a frame range and a shard cannot be combined")
+            start, stop = self.frame_range
+            if not 0 <= start < stop:
+                raise ValueError(f"frame range {start}-{stop} is invalid: need 0 <= start < stop")
+
+    @property
+    def owns_folder(self) -> bool:
+        """True for the job that renders every frame (it alone may remove every leftover and finish the dataset)."""
+        return self.shard == (0, 1) and self.frame_range is None
+
+    @property
+    def label(self) -> str:
+        """A name for the part's scratch folder and lock: ``0of1``, ``2of4``, ``frames-10-20``."""
+        if self.frame_range is not None:
+            return f"frames-{self.frame_range[0]}-{self.frame_range[1]}"
+        return f"{self.shard[0]}of{self.shard[1]}"
+
+    def frames(self, count: int) -> list[int]:
+        """The part's frames of a dataset of ``count`` frames (ValueError for a range beyond the last frame)."""
+        if self.frame_range is not None:
+            start, stop = self.frame_range
+            if stop > count:
+                raise ValueError(f"frame range {start}-{stop} is beyond the dataset's {count} frames")
+            return list(range(start, stop))
+        index, n = self.shard
+        return [k for k in range(count) if k % n == index]
+
+
+def _as_part(part: "FramePart | tuple[int, int]") -> FramePart:
+    """A FramePart from itself or a shard tuple."""
+    return part if isinstance(part, FramePart) else FramePart(shard=tuple(part))
 
 
 class DatasetFolderError(RuntimeError):
@@ -240,22 +300,25 @@ def light_truth(spot: SpotlightConfig) -> LightTruth:
 # ---------------------------------------------------------------------------------------------------------------------
 # What a killed render leaves behind
 
-#: Name prefix of the renderer's scratch folders inside a dataset (``.render-scratch-<i>of<n>``, one per shard).
+#: Name prefix of the renderer's scratch folders inside a dataset (``.render-scratch-<label>``, one per FramePart).
 SCRATCH_PREFIX = ".render-scratch"
 _FRAME_PARTIAL = re.compile(r"^\.frame_(\d+)\.")
 
 
-def scratch_dir(out_dir: str | Path, shard: tuple[int, int] = (0, 1)) -> Path:
-    """The renderer's scratch folder of ``shard`` inside the dataset (Blender writes the EXR of each render there)."""
-    return Path(out_dir) / f"{SCRATCH_PREFIX}-{shard[0]}of{shard[1]}"
+def scratch_dir(out_dir: str | Path, part: FramePart | tuple[int, int] = (0, 1)) -> Path:
+    """The renderer's scratch folder of ``part`` (a FramePart or a shard) inside the dataset (Blender writes the EXR
+    of each render there)."""
+    return Path(out_dir) / f"{SCRATCH_PREFIX}-{_as_part(part).label}"
 
 
-def remove_leftovers(out_dir: str | Path, shard: tuple[int, int] = (0, 1), frames: Iterable[int] = ()) -> list[Path]:
+def remove_leftovers(out_dir: str | Path, part: FramePart | tuple[int, int] = (0, 1),
+                     frames: Iterable[int] = ()) -> list[Path]:
     """Remove what a killed render left in ``out_dir``: temporary files of atomic writes and scratch folders.
 
-    An unsharded render (``shard == (0, 1)``) owns the folder: every ``.partial-`` file and every scratch folder
-    goes. A shard shares the folder with other shards that may be running, so it removes only the temporary files of
-    its own ``frames`` and its own scratch folder (leftovers of the dataset-level files wait for an unsharded run).
+    A render of every frame (``part`` (0, 1)) owns the folder: every ``.partial-`` file and every scratch folder
+    goes. A shard or frame range shares the folder with other parts that may be running, so it removes only the
+    temporary files of its own ``frames`` and its own scratch folder (leftovers of the dataset-level files wait for a
+    whole-dataset run).
 
     Returns:
         the removed files and folders.
@@ -264,7 +327,8 @@ def remove_leftovers(out_dir: str | Path, shard: tuple[int, int] = (0, 1), frame
     if not out_dir.is_dir():
         return []
     removed: list[Path] = []
-    if shard[1] == 1:
+    part = _as_part(part)
+    if part.owns_folder:
         removed += remove_partial_files(out_dir)
         scratch = [p for p in out_dir.glob(f"{SCRATCH_PREFIX}*") if p.is_dir() and not p.is_symlink()]
     else:
@@ -277,7 +341,7 @@ def remove_leftovers(out_dir: str | Path, shard: tuple[int, int] = (0, 1), frame
                     with contextlib.suppress(FileNotFoundError):
                         path.unlink()
                         removed.append(path)
-        own = scratch_dir(out_dir, shard)
+        own = scratch_dir(out_dir, part)
         scratch = [own] if own.is_dir() and not own.is_symlink() else []
     for folder in scratch:
         shutil.rmtree(folder, ignore_errors=True)
@@ -417,36 +481,40 @@ def render_dataset(
         finished now).
     """
     scene_path, out_dir = Path(scene_path), Path(out_dir)
-    shard_index, shard_count = execution.shard
-    if not (shard_count >= 1 and 0 <= shard_index < shard_count):
-        raise ValueError(f"shard {shard_index}/{shard_count} is invalid: need 0 <= I < N")
+    part = execution.part  # checks the shard and the frame range
     refuse_overlap(out_dir, render_inputs(scene_path, load), "--out")
     scene, room, objects, poses = plan_poses(scene_path, config, load)
+    part.frames(len(poses))  # a range beyond the last frame is refused before anything is written
     check_scene(scene_path, room, objects, scene.lights, config)
-    with _render_lock(out_dir, execution.shard):
+    with _render_lock(out_dir, part):
         return _render_planned(scene_path, out_dir, config, execution, scene, room, objects, poses)
 
 
 @contextlib.contextmanager
-def _render_lock(out_dir: Path, shard: tuple[int, int]):
-    """An unsharded render holds ``OUT/.lock`` alone; a shard holds it shared with the other shards, and its own
-    ``OUT/.lock-shard-I-of-N`` alone (the same shard twice, or a whole render beside shards, is refused)."""
-    index, count = shard
-    command = "spotless-sim render" + (f" --shard {index}/{count}" if count > 1 else "")
+def _render_lock(out_dir: Path, part: FramePart):
+    """A render of every frame holds ``OUT/.lock`` alone; a shard or frame range holds it shared with the other
+    parts, and its own ``OUT/.lock-shard-I-of-N`` or ``OUT/.lock-frames-A-B`` alone (the same part twice, or a whole
+    render beside parts, is refused)."""
+    index, count = part.shard
+    if part.frame_range is not None:
+        command, own = f"spotless-sim render-many (frames {part.label[7:]})", f".lock-{part.label}"
+    else:
+        command = "spotless-sim render" + (f" --shard {index}/{count}" if count > 1 else "")
+        own = f".lock-shard-{index}-of-{count}"
     with contextlib.ExitStack() as stack:
-        stack.enter_context(folder_lock(out_dir, command, shared=count > 1))
-        if count > 1:
-            stack.enter_context(folder_lock(out_dir, command, name=f".lock-shard-{index}-of-{count}"))
+        stack.enter_context(folder_lock(out_dir, command, shared=not part.owns_folder))
+        if not part.owns_folder:
+            stack.enter_context(folder_lock(out_dir, command, name=own))
         yield
 
 
 def _render_planned(scene_path: Path, out_dir: Path, config: RenderConfig, execution: ExecutionOptions, scene, room,
                     objects, poses: np.ndarray) -> dict[str, Any]:
     """:func:`render_dataset` once the room is checked and ``out_dir`` is locked."""
-    shard_index, shard_count = execution.shard
+    part = execution.part
     _prepare_plan(out_dir, scene_path, config, poses)  # first: a folder of another dataset is left untouched
-    mine = [k for k in range(len(poses)) if k % shard_count == shard_index]
-    remove_leftovers(out_dir, execution.shard, mine)
+    mine = part.frames(len(poses))
+    remove_leftovers(out_dir, part, mine)
 
     todo = [k for k in mine if not frame_done(out_dir, k)]
     summary: dict[str, Any] = {"rendered": 0, "skipped": len(mine) - len(todo), "seconds_per_frame": None}
@@ -458,15 +526,36 @@ def _render_planned(scene_path: Path, out_dir: Path, config: RenderConfig, execu
         device, blender, checks = result.device, result.blender, result.checks
         summary["rendered"] = len(checks)
         summary["seconds_per_frame"] = result.seconds_per_frame
+        if not part.owns_folder:  # the job that finishes the dataset may render nothing itself: it reads these
+            write_json(out_dir / PARTS_DIR / f"{part.label}.json", {"device": device, "blender": blender})
     complete = all(frame_done(out_dir, k) for k in range(len(poses)))
     summary["complete"] = complete
     report, total = dark_frames(checks), len(checks)
-    if complete and (summary["rendered"] > 0 or not (out_dir / "transforms.json").is_file()):
+    finishes = part.frame_range is None  # a range leaves the dataset-level files to a whole-dataset call
+    if finishes and complete and (summary["rendered"] > 0 or not (out_dir / "transforms.json").is_file()):
+        if summary["rendered"] == 0:
+            device, blender = parts_device(out_dir)
         report = finalize_dataset(out_dir, scene, room, poses, config, device=device, blender=blender)
         total = len(poses)
     warn_dark_frames(report, out_dir, total)
     summary["dark_frames"] = report
     return summary
+
+
+#: Where the jobs that render a shard or a frame range record their render device and Blender version.
+PARTS_DIR = ".render-parts"
+
+
+def parts_device(out_dir: Path) -> tuple[str, str | None]:
+    """The render device and Blender version that the shards' or frame ranges' jobs recorded (devices that differ
+    between parts joined with ``+``); ``("n/a", None)`` when none recorded one."""
+    records = []
+    for path in sorted((out_dir / PARTS_DIR).glob("*.json")):
+        with contextlib.suppress(OSError, ValueError):
+            records.append(json.loads(path.read_text(encoding="utf-8")))
+    devices = sorted({str(r.get("device")) for r in records if r.get("device")})
+    blenders = sorted({str(r.get("blender")) for r in records if r.get("blender")})
+    return ("+".join(devices) or "n/a"), ("+".join(blenders) or None)
 
 
 class RenderProcessError(RuntimeError):
@@ -581,7 +670,7 @@ def _render_frames(conn, out_dir: Path, config: RenderConfig, execution: Executi
         built = scene_builder.build_scene(room_scene, config.spotlight, config.ground_truth.ceiling_glow,
                                           config.intrinsics(), lambertian=config.lambertian)
     conn.send(("ready", device, renderer.blender_version()))
-    scratch = scratch_dir(out_dir, execution.shard)
+    scratch = scratch_dir(out_dir, execution.part)
     scratch.mkdir(parents=True, exist_ok=True)
     try:
         for k in todo:
@@ -692,7 +781,7 @@ def _render_in_child(out_dir: Path, config: RenderConfig, execution: ExecutionOp
             process.join(timeout=0.2)
     except BaseException:
         _stop(process)
-        remove_leftovers(out_dir, execution.shard, todo)
+        remove_leftovers(out_dir, execution.part, todo)
         raise
     finally:
         bar.close()
@@ -701,10 +790,10 @@ def _render_in_child(out_dir: Path, config: RenderConfig, execution: ExecutionOp
         result.seconds_per_frame = (last - started) / len(result.checks)
     if failure is not None:
         payload, type_name, message_text, text = failure
-        remove_leftovers(out_dir, execution.shard, todo)
+        remove_leftovers(out_dir, execution.part, todo)
         raise _rebuilt(payload, type_name, message_text) from _ChildTraceback(text)
     if not finished:
-        remove_leftovers(out_dir, execution.shard, todo)
+        remove_leftovers(out_dir, execution.part, todo)
         raise RenderProcessError(
             f"{out_dir}: the Blender render process stopped unexpectedly ({_describe_exit(process.exitcode)}) after "
             f"{len(result.checks)} of {len(todo)} frame(s); the finished frames are kept: rerun the same command "

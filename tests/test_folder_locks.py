@@ -67,17 +67,32 @@ def test_a_reader_of_an_unwritable_folder_without_a_lock_file_takes_no_lock(tmp_
 
 
 def test_render_shards_run_side_by_side_but_not_twice_nor_beside_a_whole_render(tmp_path):
-    from simulator.render_pipeline import _render_lock
+    from simulator.render_pipeline import FramePart, _render_lock
 
     with held_by_another_process(tmp_path, "shard 0", shared=True):
         with held_by_another_process(tmp_path, "shard 0", name=".lock-shard-0-of-2"):
-            with _render_lock(tmp_path, (1, 2)):  # another shard: fine
+            with _render_lock(tmp_path, FramePart((1, 2))):  # another shard: fine
                 pass
             with pytest.raises(FolderLockedError, match="shard 0"):  # the same shard again
-                with _render_lock(tmp_path, (0, 2)):
+                with _render_lock(tmp_path, FramePart((0, 2))):
                     pass
             with pytest.raises(FolderLockedError):  # the whole render beside the shards
-                with _render_lock(tmp_path, (0, 1)):
+                with _render_lock(tmp_path, FramePart((0, 1))):
+                    pass
+
+
+def test_render_many_frame_ranges_run_side_by_side_but_not_twice(tmp_path):
+    from simulator.render_pipeline import FramePart, _render_lock
+
+    with held_by_another_process(tmp_path, "frames 0-10", shared=True):
+        with held_by_another_process(tmp_path, "frames 0-10", name=".lock-frames-0-10"):
+            with _render_lock(tmp_path, FramePart(frame_range=(10, 20))):  # another range: fine
+                pass
+            with pytest.raises(FolderLockedError, match="frames 0-10"):  # the same range again
+                with _render_lock(tmp_path, FramePart(frame_range=(0, 10))):
+                    pass
+            with pytest.raises(FolderLockedError):  # the dataset's finishing render beside a running range
+                with _render_lock(tmp_path, FramePart()):
                     pass
 
 

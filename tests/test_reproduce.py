@@ -17,7 +17,7 @@ from click.testing import CliRunner
 from spotlessgs.cli import main
 from spotlessgs.experiments.reproduce.config import preset
 from spotlessgs.experiments.reproduce.pipeline import reproduce
-from spotlessgs.experiments.reproduce.stages import marker_path
+from spotlessgs.jobs.graph import marker_path
 
 pytestmark = [pytest.mark.blender]
 

@@ -14,7 +14,7 @@ from spotlessgs.io.atomic import write_json
 from spotlessgs.experiments.reproduce.config import preset
 from spotlessgs.experiments.reproduce.pipeline import check_or_record_config
 from spotlessgs.experiments.reproduce.report import collect
-from spotlessgs.experiments.reproduce.stages import write_marker
+from spotlessgs.jobs.graph import write_marker
 from spotlessgs.experiments.reproduce.tables import runtime_table, table1
 from spotlessgs.experiments.reproduce.tasks import method_spec, train_method
 from spotlessgs.training.selection import SELECTION_FILE, run_decisions

@@ -12,9 +12,10 @@ import pytest
 
 from spotlessgs.io.atomic import write_json
 from spotlessgs.experiments.reproduce.config import ReproduceConfig, preset
-from spotlessgs.experiments.reproduce.executor import StageFailedError, execute, threads_per_job
+from spotlessgs.jobs.local import execute_local as execute, threads_per_job
+from spotlessgs.jobs.plan import StageFailedError
 from spotlessgs.experiments.reproduce.pipeline import build_graph, check_or_record_config
-from spotlessgs.experiments.reproduce.stages import (
+from spotlessgs.jobs.graph import (
     Stage, StageGraph, is_done, marker_path, read_marker, resolve, write_marker,
 )
 from spotlessgs.experiments.reproduce.tables import (
@@ -226,7 +227,9 @@ def test_pipeline_graph_shape(tmp_path):
     assert (no_sfm.kwargs["sfm"], no_sfm.kwargs["lpips"], no_sfm.kwargs["seed"]) == (False, False, 4)
     auto = graph["train/bedroom-uneven/auto"]
     assert auto.kwargs["variant"] == "auto" and auto.kwargs["selection_min_proxy_iterations"] == 20
-    assert auto.output == tmp_path / "runs" / "bedroom-uneven" / "auto" and auto.clean_on_retry
+    # a training stage resumes from its checkpoint (a retry on another Ray worker continues it) and can use a GPU
+    assert auto.output == tmp_path / "runs" / "bedroom-uneven" / "auto" and not auto.clean_on_retry
+    assert auto.resources.gpu and not graph["render/bedroom-uneven"].resources.gpu
     assert "selection_min_proxy_iterations" not in graph["train/bedroom-uneven/spotless"].kwargs
     assert graph["train/bedroom-saturated/spotless"].deps == ("render/bedroom-saturated",)
     assert set(graph["baseline2d/bedroom-uneven/cyclegan"].deps) == {"render/bedroom-uneven", "cyclegan/train"}
@@ -235,7 +238,8 @@ def test_pipeline_graph_shape(tmp_path):
     assert set(graph["report"].deps) == names - {"report"}
     order = graph.order
     assert order.index("render/bedroom-uneven") < order.index("train/bedroom-uneven/3dgs") < order.index("report")
-    assert not graph["render/bedroom-uneven"].clean_on_retry and graph["train/bedroom-uneven/3dgs"].clean_on_retry
+    assert not graph["render/bedroom-uneven"].clean_on_retry and not graph["train/bedroom-uneven/3dgs"].clean_on_retry
+    assert graph["baseline2d/bedroom-uneven/clahe"].clean_on_retry
 
 
 # ---------------------------------------------------------------------------------------------------------------------
@@ -768,8 +772,8 @@ def test_workers_die_with_the_parent(tmp_path):
 
     script = (
         "import sys; sys.path[:0] = sys.argv[1:3]\n"
-        "from spotlessgs.experiments.reproduce.executor import execute\n"
-        "from spotlessgs.experiments.reproduce.stages import Stage, StageGraph\n"
+        "from spotlessgs.jobs.local import execute_local as execute\n"
+        "from spotlessgs.jobs.graph import Stage, StageGraph\n"
         "if __name__ == '__main__':\n"
         "    execute(StageGraph([Stage('s', 'test_reproduce_units:sleep_forever', {'path': sys.argv[3]})]), "
         "sys.argv[4], jobs=1)\n"
@@ -795,7 +799,7 @@ def test_workers_drop_blender_script_paths_inherited_from_the_parent(monkeypatch
     compiled bpy module ("No module named '_bpy'"); the worker initialiser removes them and nothing else."""
     import sys
 
-    from spotlessgs.experiments.reproduce.executor import _drop_blender_script_paths
+    from spotlessgs.io.processes import drop_blender_script_paths as _drop_blender_script_paths
 
     fake = ["/x/site-packages/bpy/5.0/scripts/modules", "/x/site-packages/bpy/5.0/scripts/startup"]
     keep = ["/x/site-packages", "/work/bpy-notes", "/x/scripts"]
@@ -814,8 +818,8 @@ def test_a_stopped_pipeline_stops_its_workers_without_a_traceback(tmp_path, sign
     script = (
         "import sys; sys.path[:0] = sys.argv[1:3]\n"
         "from spotlessgs.io.signals import raise_on_sigterm\n"
-        "from spotlessgs.experiments.reproduce.executor import execute\n"
-        "from spotlessgs.experiments.reproduce.stages import Stage, StageGraph\n"
+        "from spotlessgs.jobs.local import execute_local as execute\n"
+        "from spotlessgs.jobs.graph import Stage, StageGraph\n"
         "if __name__ == '__main__':\n"
         "    raise_on_sigterm()\n"
         "    try:\n"

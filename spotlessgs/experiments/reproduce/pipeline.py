@@ -28,8 +28,7 @@ from spotlessgs.io.paths import refuse_overlap
 from spotlessgs.experiments.reproduce.config import (
     CEILING_STAGE, INPUTS_STAGE, NOISY_VARIANT, ROBOT_VARIANT, ReproduceConfig, dataset_id,
 )
-from spotlessgs.experiments.reproduce.executor import RunReport, execute
-from spotlessgs.experiments.reproduce.stages import Stage, StageGraph
+from spotlessgs.jobs import ExecutorSpec, RunReport, Stage, StageGraph, StageResources, execute
 from spotlessgs.run import AUTO
 
 CONFIG_FILE = "reproduce.json"
@@ -101,6 +100,7 @@ def build_graph(config: ReproduceConfig, out: Path) -> StageGraph:
                          if method == AUTO else {})
             stages.append(Stage(
                 f"train/{ds}/{method}", f"{TASKS}:train_method", deps=(dataset_stage(variant, ds),), output=run_dir,
+                clean_on_retry=False, resources=StageResources(gpu=True),  # resumes from its checkpoint
                 kwargs={"data_dir": str(out / "datasets" / ds), "run_dir": str(run_dir), "variant": method,
                         "train_preset": config.train_preset, "iterations": config.train_iterations,
                         "image_width": config.train_width, "curve_fractions": tuple(config.curve_fractions),
@@ -145,17 +145,19 @@ def check_or_record_config(config: ReproduceConfig, out: Path) -> None:
     write_json(path, wanted)
 
 
-def reproduce(config: ReproduceConfig, out: str | Path, jobs: int = 1) -> RunReport:
-    """Run (or resume) every stage for ``config`` in ``out`` with up to ``jobs`` stages at once.
+def reproduce(config: ReproduceConfig, out: str | Path, jobs: int = 1,
+              executor: ExecutorSpec | None = None) -> RunReport:
+    """Run (or resume) every stage for ``config`` in ``out`` with up to ``jobs`` stages at once on this machine, or
+    with ``executor`` (e.g. on a Ray cluster: ``ExecutorSpec("ray", ray_address="auto")``).
 
     Raises:
         ValueError: ``out`` was made with other settings; FileNotFoundError: a shipped room is missing;
         spotlessgs.io.errors.FolderLockedError: another process is running a reproduction into ``out``;
-        spotlessgs.experiments.reproduce.executor.StageFailedError: a stage raised (the others keep their results).
+        spotlessgs.jobs.StageFailedError: a stage raised (the others keep their results).
     """
     out = Path(out)
     refuse_overlap(out, {"--scenes-dir": config.scenes_dir}, "--out")
     graph = build_graph(config, out)  # checks the rooms exist before anything is written
     with folder_lock(out, "spotless reproduce"):  # a second reproduce into OUT would delete the stages this one runs
         check_or_record_config(config, out)
-        return execute(graph, out, jobs=jobs)
+        return execute(graph, out, executor if executor is not None else ExecutorSpec(jobs=jobs))

@@ -14,7 +14,7 @@ from spotlessgs.experiments.reproduce.config import (
     CEILING_STAGE, INPUTS_STAGE, NOISY_VARIANT, ROBOT_VARIANT, ReproduceConfig, dataset_id,
 )
 from spotlessgs.experiments.reproduce.figures import qualitative_grid, speed_error_plot
-from spotlessgs.experiments.reproduce.stages import MARKER_DIR, read_marker
+from spotlessgs.jobs.graph import MARKER_DIR, read_marker
 from spotlessgs.experiments.reproduce.tables import Agreement, Table, agreement_notes, all_tables
 from spotlessgs.training.selection import run_decisions
 

@@ -36,9 +36,11 @@ from spotlessgs.io.atomic import to_jsonable, write_json
 from spotlessgs.io.cameras import opengl_to_opencv_c2w
 from spotlessgs.io.dataset import read_dataset as read_dataset_description
 from spotlessgs.io.errors import InputError
+from spotlessgs.io.json_files import read_json
 from spotlessgs.io.provenance import provenance
 from spotlessgs.prepare import SUMMARY_FILE, add_sfm_points
 from spotlessgs.run import AUTO, Run, RunSpec, given_overrides, train
+from spotlessgs.training.checkpoint import existing_checkpoint, load_checkpoint
 from spotlessgs.training.selection import SelectionConfig
 
 # Keys of an evaluation result that hold per-image lists, configs or provenance (kept in the per-stage JSON only).
@@ -217,6 +219,20 @@ def selection_summary(decision: dict[str, Any]) -> dict[str, Any]:
             "low_frequency_light": decision["low_frequency_light"], "seconds": decision["seconds"]}
 
 
+#: The file in which a training stage keeps its curve points and training time between attempts (RUN/curve/).
+CURVE_PROGRESS = "progress.json"
+
+
+def _checkpoint_step(run: Path) -> int | None:
+    """The step of the run's latest checkpoint, None when it has none (or it cannot be read: it is redone)."""
+    if existing_checkpoint(run) is None:
+        return None
+    try:
+        return int(load_checkpoint(run)["step"])
+    except (InputError, OSError, KeyError, ValueError):
+        return None
+
+
 def train_method(data_dir: str, run_dir: str, variant: str, train_preset: str, iterations: int | None,
                  image_width: int | None, curve_fractions: Sequence[float], sfm: bool, sfm_matcher: str, lpips: bool,
                  seed: int, threads: int, selection_min_proxy_iterations: int | None = None) -> dict[str, Any]:
@@ -226,12 +242,18 @@ def train_method(data_dir: str, run_dir: str, variant: str, train_preset: str, i
     model with the Gaussian budget; its curve has the same milestones, each point's
     training time counting the selection first (the curve starts at the selection's cost).
 
+    Resumable: an attempt that was interrupted (its worker or node died) left its checkpoint and the curve points it
+    scored (``RUN/curve/progress.json``, written after each milestone); the next attempt continues training from the
+    checkpoint and keeps those points, so the result equals an uninterrupted run's (training time aside: the killed
+    attempt's time is lost).
+
     Returns:
         ``metrics`` (evaluate_run's results without per-image lists, and without the inputs' ``input`` block: see
         :func:`evaluate_inputs`), ``train`` (steps, seconds: the sum of the
         training loops' wall time plus, for ``auto``, the selection's wall time ``selection_seconds``; ms_per_step of
-        the training loops alone, gaussians, peak_rss_mb of the process while training), ``selection`` (``auto``
-        only, see :func:`selection_summary`), ``relight`` (render_run's summary of all views + ``peak_rss_mb`` and
+        the training loops alone, gaussians, peak_rss_mb of the process while training, ``resumed_from_step``: the
+        checkpoint this attempt started from, None for a fresh start), ``selection`` (``auto`` only, see
+        :func:`selection_summary`), ``relight`` (render_run's summary of all views + ``peak_rss_mb`` and
         ``baseline_rss_mb`` of the fresh process that loaded the model and rendered them), ``curve`` (one point per
         milestone: step, train_seconds, psnr/ssim raw and aligned on the test views).
     """
@@ -240,8 +262,11 @@ def train_method(data_dir: str, run_dir: str, variant: str, train_preset: str, i
                        selection_min_proxy_iterations)
     config = spec.train_config()
     milestones = curve_milestones(config.iterations, curve_fractions)
-    curve: list[dict[str, Any]] = []
-    loop_seconds = 0.0
+    resumed_from = _checkpoint_step(run)
+    progress_file = run / "curve" / CURVE_PROGRESS
+    progress = read_json(progress_file, "a training stage's curve progress") if resumed_from is not None and progress_file.is_file() else {}
+    curve: list[dict[str, Any]] = list(progress.get("points", []))
+    loop_seconds = float(progress.get("loop_seconds", 0.0))
     selection, selection_seconds = None, 0.0
     result = None
     for step in milestones:
@@ -251,10 +276,11 @@ def train_method(data_dir: str, run_dir: str, variant: str, train_preset: str, i
         if selection is None and trained.decision is not None:
             selection = selection_summary(trained.decision)
             selection_seconds = selection["seconds"]
-        if step < config.iterations:
+        if step < config.iterations and not any(point["step"] == step for point in curve):
             scores = trained.score_views(run / "curve" / f"step_{step:06d}", "test", threads)
             curve.append({"step": step, "train_seconds": selection_seconds + loop_seconds,
                           **{k: scores[k] for k in ("psnr", "ssim", "psnr_aligned", "ssim_aligned")}})
+        write_json(progress_file, {"points": curve, "loop_seconds": loop_seconds})
     train_peak = peak_rss_mb()
     summary = Run.load(run).summary
 
@@ -275,7 +301,7 @@ def train_method(data_dir: str, run_dir: str, variant: str, train_preset: str, i
                   "ms_per_step": 1000.0 * loop_seconds / max(config.iterations, 1),
                   "num_gaussians": summary["num_gaussians"],
                   "test_psnr_reconstruction": summary["test_psnr_reconstruction"], "device": summary["device"],
-                  "peak_rss_mb": train_peak},
+                  "peak_rss_mb": train_peak, "resumed_from_step": resumed_from},
         "relight": relit,
         "curve": curve,
     }

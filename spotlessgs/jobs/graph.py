@@ -1,7 +1,7 @@
-"""A small DAG of named stages, each with an output folder and an atomic done-marker.
+"""A small DAG of named stages, each with an output folder, its resource needs and an atomic done-marker.
 
-A stage is a module-level function (so that a 'spawn' worker can import it) called with keyword arguments; it returns
-a JSON-able summary. The marker ``ROOT/.stages/<name>.json`` (written atomically after the function returned) holds
+A stage is a module-level function (so that a 'spawn' worker or a Ray worker can import it) called with keyword
+arguments; it returns a JSON-able summary. The marker ``ROOT/.stages/<name>.json`` (written atomically after the function returned) holds
 that summary plus the stage's wall time and peak resident memory. A stage with a marker is done and is skipped; a
 stage without one that left an output folder behind was interrupted: with ``clean_on_retry`` its folder is deleted and
 it starts from scratch, otherwise the function is trusted to resume (the simulator's renders skip finished frames).
@@ -24,6 +24,23 @@ _NAME = re.compile(r"^[A-Za-z0-9_.+\-/]+$")
 
 
 @dataclass(frozen=True)
+class StageResources:
+    """What one stage needs of a machine, declared to a cluster scheduler (the Ray executor; the local executor
+    gives every stage the same number of threads and ignores the rest).
+
+    ``memory_mb`` is the stage's expected peak resident memory (None: not declared); ``gpu`` True marks a stage that
+    can use a GPU (training): on a cluster that has GPUs it asks for one, so that it lands on a GPU node.
+    """
+
+    memory_mb: int | None = None
+    gpu: bool = False
+
+    def __post_init__(self) -> None:
+        if self.memory_mb is not None and self.memory_mb <= 0:
+            raise ValueError(f"StageResources.memory_mb must be positive, got {self.memory_mb}")
+
+
+@dataclass(frozen=True)
 class Stage:
     """One unit of work of the pipeline."""
 
@@ -33,6 +50,7 @@ class Stage:
     deps: tuple[str, ...] = ()  # names of the stages that must be done first
     output: Path | None = None  # the folder this stage writes (deleted before a retry when clean_on_retry)
     clean_on_retry: bool = True  # False: the function resumes partial output itself
+    resources: StageResources = field(default_factory=StageResources)
 
     def __post_init__(self) -> None:
         if not _NAME.match(self.name) or ".." in self.name or self.name.startswith("/"):

@@ -1,0 +1,193 @@
+"""Run a :class:`~spotlessgs.jobs.graph.StageGraph` on a Ray cluster (``pip install 'spotlessgs[cluster]'``).
+
+Every unfinished stage becomes one Ray task, submitted at once in dependency order: a stage's dependencies are passed
+to its task as object refs, so Ray starts it when they have finished and never if one of them failed. Each task
+declares what it needs: ``threads`` CPUs, the stage's expected peak memory and, for a stage that can use a GPU
+(training) on a cluster that has GPUs, one GPU. A task runs in a fresh worker process that exits after it
+(``max_calls=1``; see :mod:`spotlessgs.jobs.worker`), with the thread environment set by its ``runtime_env``.
+
+Faults: a worker or node that dies while a stage runs makes Ray run the task again elsewhere (``max_retries``); the
+stage then resumes from what it wrote (renders skip finished frames, training continues from its checkpoint) or,
+when it cannot resume (``clean_on_retry``), starts again from scratch. An exception raised by the stage itself is not
+retried: the stage is reported failed with its error, its dependents blocked, and everything else still runs. The
+driver waits on the tasks' results (``ray.wait``), not on files; Ctrl-C or SIGTERM cancels every task, and a rerun
+skips the stages that have their done-markers.
+
+The output folder must be on a filesystem that every node sees at the same path (NFS, Lustre, ...): the stages read
+their inputs from it and write their outputs and done-markers to it.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, Callable
+
+from spotlessgs.io.signals import deferred_interrupts
+from spotlessgs.jobs.graph import Stage, StageGraph
+from spotlessgs.jobs.plan import RunReport, plan_run
+from spotlessgs.jobs.worker import prepare_worker, run_stage, thread_environment
+
+log = logging.getLogger(__name__)
+
+#: The message when Ray is not installed.
+RAY_MISSING = "the Ray executor needs Ray: pip install 'spotlessgs[cluster]' (or pip install 'ray[default]')"
+# How long one wait for a finished task lasts before the driver looks for Ctrl-C / SIGTERM (seconds).
+_WAIT_SECONDS = 0.5
+
+
+@dataclass(frozen=True)
+class RayOptions:
+    """How to use the cluster.
+
+    Attributes:
+        address: the cluster to join: ``auto`` (the one this machine belongs to, or ``$RAY_ADDRESS``), ``HOST:PORT``
+            of its head node, or None to start a private single-machine Ray instance for this execution.
+        threads: CPU threads of every stage, and the CPUs its task asks for (results depend on the thread count:
+            docs/results.md, "Determinism").
+        max_retries: how often a stage whose worker or node died is run again.
+    """
+
+    address: str | None = "auto"
+    threads: int = 1
+    max_retries: int = 3
+
+    def __post_init__(self) -> None:
+        if self.threads < 1:
+            raise ValueError(f"threads must be at least 1, got {self.threads}")
+        if self.max_retries < 0:
+            raise ValueError(f"max_retries must be >= 0, got {self.max_retries}")
+
+
+def import_ray():
+    """The ``ray`` module, or ImportError with the install command."""
+    try:
+        import ray
+    except ImportError as exc:
+        raise ImportError(RAY_MISSING) from exc
+    return ray
+
+
+def _ray_stage(root: str, stage: Stage, threads: int, *finished_dependencies: dict[str, Any]) -> dict[str, Any]:
+    """The Ray task of one stage (its dependencies' summaries arrive as arguments only to order the tasks)."""
+    del finished_dependencies
+    prepare_worker(threads)
+    return run_stage(root, stage, threads)
+
+
+def task_options(stage: Stage, threads: int, max_retries: int, cluster_gpus: float) -> dict[str, Any]:
+    """The Ray options of ``stage``'s task: its resources, retries, name and thread environment."""
+    options: dict[str, Any] = {
+        "num_cpus": threads,
+        "num_gpus": 1 if stage.resources.gpu and cluster_gpus >= 1 else 0,
+        "max_retries": max_retries,
+        "retry_exceptions": False,
+        "name": stage.name,
+        "runtime_env": {"env_vars": thread_environment(threads)},
+    }
+    if stage.resources.memory_mb is not None:
+        options["memory"] = int(stage.resources.memory_mb) * 1024 * 1024
+    return options
+
+
+def _connect(ray, address: str | None) -> bool:
+    """Join the cluster at ``address`` (or start a private instance); True when this call started the connection."""
+    if ray.is_initialized():
+        return False
+    ray.init(address=address, log_to_driver=True, logging_level=logging.WARNING, configure_logging=False)
+    return True
+
+
+def _cluster_capacity(ray) -> tuple[float, float]:
+    """(largest CPU count of one alive node, GPUs in the whole cluster)."""
+    alive = [node for node in ray.nodes() if node.get("Alive")]
+    cpus = max((node.get("Resources", {}).get("CPU", 0.0) for node in alive), default=0.0)
+    return cpus, float(ray.cluster_resources().get("GPU", 0.0))
+
+
+def _failure(ray, error: BaseException) -> str:
+    """One line for a failed task: the stage's own exception, not Ray's wrapping of it."""
+    cause = error
+    if isinstance(error, ray.exceptions.RayTaskError):
+        cause = error.cause if error.cause is not None else error
+    text = " ".join(str(cause).split())
+    return f"{type(cause).__name__}: {text}"
+
+
+def execute_ray(graph: StageGraph, root: str | Path, options: RayOptions = RayOptions(),
+                on_done: Callable[[str, dict | None], None] | None = None,
+        raise_on_failure: bool = True) -> RunReport:
+    """Run every unfinished stage of ``graph`` (markers under ``root``) and every stage that depends on one as Ray
+    tasks on the cluster ``options.address``; ``on_done(name, summary)`` as each stage ends (``summary`` None when it
+    failed).
+
+    Raises:
+        ImportError: Ray is not installed. ConnectionError: no cluster at ``options.address``.
+        ValueError: a stage asks for more CPUs than any node of the cluster has (it would never start).
+        StageFailedError: naming each failed stage with its error, and the stages it blocked.
+    """
+    root = Path(root)
+    pending, report = plan_run(graph, root)
+    if not pending:
+        return report
+    ray = import_ray()
+    started = _connect(ray, options.address)
+    try:
+        most_cpus, gpus = _cluster_capacity(ray)
+        if most_cpus < options.threads:
+            raise ValueError(f"every stage asks for {options.threads} CPU(s) (--threads) but the largest node of the "
+                             f"Ray cluster has {most_cpus:g}; use --threads {max(1, math.floor(most_cpus))}")
+        remote = ray.remote(max_calls=1)(_ray_stage)
+        refs: dict[str, Any] = {}
+        for name in pending:  # dependency order: every dependency's ref exists before its dependents are submitted
+            stage = graph[name]
+            after = [refs[d] for d in stage.deps if d in refs]
+            refs[name] = remote.options(**task_options(stage, options.threads, options.max_retries, gpus)).remote(
+                str(root), stage, options.threads, *after)
+            log.info("submitted %s", name)
+        _collect(ray, graph, refs, report, on_done)
+    finally:
+        if started:
+            ray.shutdown()
+    if raise_on_failure:
+        report.raise_if_failed(root)
+    return report
+
+
+def _collect(ray, graph: StageGraph, refs: dict[str, Any], report: RunReport,
+             on_done: Callable[[str, dict | None], None] | None) -> None:
+    """Wait for every task of ``refs`` and record each stage as ran, failed or blocked (a stage whose dependency
+    failed or was blocked is blocked: Ray does not run it). Ctrl-C / SIGTERM cancels every unfinished task."""
+    stage_of = {ref: name for name, ref in refs.items()}
+    outstanding = list(refs.values())
+    order = {name: i for i, name in enumerate(graph.order)}
+    try:
+        with deferred_interrupts() as stop:
+            while outstanding:
+                ready, outstanding = ray.wait(outstanding, num_returns=len(outstanding), timeout=_WAIT_SECONDS,
+                                              fetch_local=False)
+                stop.raise_if_requested()
+                for ref in sorted(ready, key=lambda r: order[stage_of[r]]):  # dependencies before dependents
+                    name = stage_of[ref]
+                    if any(d in report.failed or d in report.blocked for d in graph[name].deps):
+                        report.blocked.append(name)
+                        continue
+                    try:
+                        summary = ray.get(ref)
+                    except Exception as error:  # the stage raised, or Ray gave up on it (retries used up)
+                        report.failed[name] = _failure(ray, error)
+                        log.error("stage %s failed: %s", name, report.failed[name])
+                        summary = None
+                    else:
+                        report.ran.append(name)
+                        if summary.get("restarted"):
+                            report.retried.append(name)
+                        log.info("done %s (%.1f s on %s)", name, summary["seconds"], summary.get("host", "?"))
+                    if on_done is not None:
+                        on_done(name, summary)
+    except BaseException:
+        for ref in outstanding:
+            ray.cancel(ref, force=True, recursive=True)
+        raise
