@@ -73,7 +73,7 @@ def import_ray():
 def _ray_stage(root: str, stage: Stage, threads: int, *finished_dependencies: dict[str, Any]) -> dict[str, Any]:
     """The Ray task of one stage (its dependencies' summaries arrive as arguments only to order the tasks)."""
     del finished_dependencies
-    prepare_worker(threads)
+    prepare_worker(threads, stop_on_sigterm=False)
     return run_stage(root, stage, threads)
 
 

@@ -32,13 +32,21 @@ def thread_environment(threads: int) -> dict[str, str]:
     return {key: str(threads) for key in THREAD_ENV}
 
 
-def prepare_worker(threads: int) -> None:
-    """Set the thread environment before the stage imports numpy/torch; tie the worker's life to its parent's;
-    SIGTERM raises in the stage (so that its atomic writes remove their temporary files) instead of ending it."""
+def prepare_worker(threads: int, stop_on_sigterm: bool = True) -> None:
+    """Set the thread environment before the stage imports numpy/torch and tie the worker's life to its parent's.
+
+    ``stop_on_sigterm`` (the local pool's workers): the parent's death and SIGTERM raise in the stage, which stops
+    like on Ctrl-C (its atomic writes remove their temporary files). A Ray worker passes False: a SIGTERM there means
+    that its node is going away, which Ray must see as a lost worker (and run the stage again elsewhere), not as a
+    stage that stopped itself (which Ray would report as cancelled); it dies with its raylet.
+    """
     os.environ.update(thread_environment(threads))
     drop_blender_script_paths()
-    die_with_parent(signal.SIGTERM)
-    raise_on_sigterm()
+    if stop_on_sigterm:
+        die_with_parent(signal.SIGTERM)
+        raise_on_sigterm()
+    else:
+        die_with_parent(signal.SIGKILL)
 
 
 def run_stage(root: str, stage: Stage, threads: int) -> dict[str, Any]:
