@@ -207,6 +207,44 @@ def export(run_dir, out_path, l0, data_dir):
     click.echo(f"wrote {export_ply(run_dir, out_path, l0, data_dir=data_dir)}")
 
 
+def _scales(_ctx, _param, values: tuple[str, ...]) -> dict[str, float]:
+    """``PATTERN=FACTOR`` options as a dict (BadParameter naming a malformed one)."""
+    scales = {}
+    for value in values:
+        pattern, _, factor = value.partition("=")
+        try:
+            scales[pattern] = float(factor)
+        except ValueError:
+            raise click.BadParameter(f"{value!r} is not PATTERN=FACTOR (e.g. 'render/*=64')") from None
+        if not pattern or scales[pattern] <= 0:
+            raise click.BadParameter(f"{value!r}: need a stage name pattern and a factor > 0")
+    return scales
+
+
+@main.command("cluster-projection")
+@click.argument("root", type=click.Path(exists=True, file_okay=False, path_type=Path))
+@click.option("--nodes", default="1,4,16", show_default=True, help="Comma-separated node counts to project onto.")
+@click.option("--cores-per-node", default=2, show_default=True, type=click.IntRange(1),
+              help="CPU cores of one node; a node runs cores // threads stages at once.")
+@click.option("--threads", type=click.IntRange(1), default=None,
+              help="Threads per stage (default: what the markers recorded).")
+@click.option("--scale", "scales", multiple=True, callback=_scales, metavar="PATTERN=FACTOR",
+              help="Multiply the measured time of the stages whose name matches PATTERN (fnmatch; the first match "
+                   "counts), e.g. to carry measured rates to a larger preset: --scale 'render/*=64'.")
+def cluster_projection(root, nodes, cores_per_node, threads, scales):
+    """Project the wall time of a finished reproduction or render-many job (ROOT) onto N nodes, from the stage times
+    its done-markers recorded: the replay of its stage graph, and the critical path no cluster can beat."""
+    from spotlessgs.jobs.projection import projection_table, read_measured_stages
+
+    try:
+        counts = [int(n) for n in nodes.split(",") if n.strip()]
+    except ValueError:
+        raise click.BadParameter(f"{nodes!r} is not a comma-separated list of node counts", param_hint="--nodes")
+    if not counts or min(counts) < 1:
+        raise click.BadParameter("give at least one node count, each at least 1", param_hint="--nodes")
+    click.echo(projection_table(read_measured_stages(root), counts, cores_per_node, threads, scales))
+
+
 main.add_command(eval_command, name="eval")
 main.add_command(sfm_rings_command)
 main.add_command(ceiling_command)

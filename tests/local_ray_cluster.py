@@ -92,6 +92,31 @@ class LocalRayCluster:
         worker.wait(timeout=30)
         self.workers.remove(worker)
 
+    def node_processes(self, node: subprocess.Popen) -> list[int]:
+        """The processes of a node: its own process group (raylet, agents) and the Ray workers its raylet started
+        (each in a session of its own) with their children."""
+        parents: dict[int, int] = {}
+        group: list[int] = []
+        for entry in os.listdir("/proc"):
+            if not entry.isdigit():
+                continue
+            try:
+                stat = Path(f"/proc/{entry}/stat").read_text()
+            except OSError:
+                continue
+            fields = stat[stat.rindex(")") + 2:].split()  # after "pid (comm) ": state ppid pgrp ...
+            parents[int(entry)] = int(fields[1])
+            if int(fields[2]) == node.pid:
+                group.append(int(entry))
+        found, frontier = set(group), list(group)
+        while frontier:
+            parent = frontier.pop()
+            for pid, ppid in parents.items():
+                if ppid == parent and pid not in found:
+                    found.add(pid)
+                    frontier.append(pid)
+        return sorted(found)
+
     def alive_nodes(self) -> int:
         """Alive nodes, asked of the cluster by a short-lived driver process."""
         code = ("import ray; ray.init(address=%r, logging_level='ERROR'); "

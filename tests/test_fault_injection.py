@@ -169,10 +169,11 @@ def test_render_survives_seeded_kills(tmp_path):
 
 
 def _numbers(node, path: str = ""):
-    """The metric values of a results.json, without timings, memory and dates (which differ run to run)."""
+    """The metric values of a results.json, without timings, memory, dates and where a stage resumed (which differ
+    run to run)."""
     if isinstance(node, dict):
         for key, value in node.items():
-            if re.search(r"second|fps|ms_per|time|rss|created|command|path|dir", key, re.I):
+            if re.search(r"second|fps|ms_per|time|rss|created|command|path|dir|resumed", key, re.I):
                 continue
             yield from _numbers(value, f"{path}.{key}")
     elif isinstance(node, list):

@@ -230,6 +230,8 @@ def test_pipeline_graph_shape(tmp_path):
     # a training stage resumes from its checkpoint (a retry on another Ray worker continues it) and can use a GPU
     assert auto.output == tmp_path / "runs" / "bedroom-uneven" / "auto" and not auto.clean_on_retry
     assert auto.resources.gpu and not graph["render/bedroom-uneven"].resources.gpu
+    assert auto.resources.memory_mb == 1024 + 8000 * 8 // 1024  # the tiny trainer allows 8000 Gaussians
+    assert all(s.resources.memory_mb for s in graph.stages.values())  # every stage declares its memory
     assert "selection_min_proxy_iterations" not in graph["train/bedroom-uneven/spotless"].kwargs
     assert graph["train/bedroom-saturated/spotless"].deps == ("render/bedroom-saturated",)
     assert set(graph["baseline2d/bedroom-uneven/cyclegan"].deps) == {"render/bedroom-uneven", "cyclegan/train"}

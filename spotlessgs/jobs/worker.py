@@ -56,7 +56,7 @@ def run_stage(root: str, stage: Stage, threads: int) -> dict[str, Any]:
     Returns:
         the marker's content: the function's summary under ``result``, ``seconds``, ``peak_rss_mb`` (the worker
         process's peak resident set size, ru_maxrss), ``threads``, ``restarted`` (True when partial output of an
-        interrupted attempt was deleted first) and ``host``.
+        interrupted attempt was deleted first), ``host`` and ``deps`` (the stage's dependencies).
     """
     restarted = prepare_retry(Path(root), stage)
     if restarted:
@@ -72,6 +72,7 @@ def run_stage(root: str, stage: Stage, threads: int) -> dict[str, Any]:
         "threads": threads,
         "restarted": restarted,
         "host": os.uname().nodename,
+        "deps": list(stage.deps),  # what a projection onto N nodes replays (spotlessgs.jobs.projection)
     }
     write_marker(Path(root), stage.name, summary)
     return summary

@@ -28,10 +28,23 @@ from spotlessgs.io.paths import refuse_overlap
 from spotlessgs.experiments.reproduce.config import (
     CEILING_STAGE, INPUTS_STAGE, NOISY_VARIANT, ROBOT_VARIANT, ReproduceConfig, dataset_id,
 )
+from simulator.render_many import RENDER_MEMORY_MB
 from spotlessgs.jobs import ExecutorSpec, RunReport, Stage, StageGraph, StageResources, execute
+from spotlessgs.training.config import PRESETS as TRAIN_PRESETS
 from spotlessgs.run import AUTO
 
 CONFIG_FILE = "reproduce.json"
+# Memory that each stage declares to a cluster scheduler (MiB; Ray places a task only on a node with that much
+# unclaimed; the local executor ignores it). Measured on the 2-core machine (2026-11-25, tiny and quick presets):
+# every stage's process peaks at 0.4-0.6 GiB, most of it the Python, torch and Ray baseline, and a Blender render
+# below 1 GiB; declared with about 2x margin. Training grows with its Gaussian budget (about 5 KiB per Gaussian at
+# the quick preset's 20k), so it declares 1 GiB plus 8 KiB per Gaussian the preset allows (9 GiB for the paper's 1M).
+STAGE_MEMORY_MB = 1024
+
+
+def train_memory_mb(config: ReproduceConfig) -> int:
+    """The memory a training stage of ``config`` declares (see STAGE_MEMORY_MB)."""
+    return STAGE_MEMORY_MB + TRAIN_PRESETS[config.train_preset].max_gaussians * 8 // 1024
 TASKS = "spotlessgs.experiments.reproduce.tasks"
 # Stage family that evaluates a dataset's uneven inputs once (``eval-inputs/<dataset>``; the report reads its marker).
 def dataset_stage(variant: str, ds: str) -> str:
@@ -49,25 +62,28 @@ def build_graph(config: ReproduceConfig, out: Path) -> StageGraph:
     """
     out = Path(out)
     stages: list[Stage] = []
+    render_resources = StageResources(memory_mb=RENDER_MEMORY_MB)
+    train_resources = StageResources(memory_mb=train_memory_mb(config), gpu=True)
+    other = StageResources(memory_mb=STAGE_MEMORY_MB)
     common = {"sfm": config.sfm, "sfm_matcher": config.sfm_matcher, "lpips": config.lpips, "seed": config.seed}
     for room, variant in config.datasets():
         ds = dataset_id(room, variant)
         stages.append(Stage(
             f"render/{ds}", f"{TASKS}:render_room", output=out / "datasets" / ds, clean_on_retry=False,
-            kwargs={"scene_file": str(config.scene_file(room)), "out_dir": str(out / "datasets" / ds),
+            resources=render_resources, kwargs={"scene_file": str(config.scene_file(room)), "out_dir": str(out / "datasets" / ds),
                     "variant": variant, "frames": config.frames, "width": config.width, "height": config.height,
                     "samples": config.samples, "seed": config.seed}))
     if "cyclegan" in config.baselines:
         for room in config.gan_rooms:
             stages.append(Stage(
                 f"render/gan-{room}", f"{TASKS}:render_room", output=out / "datasets" / f"gan-{room}",
-                clean_on_retry=False,
+                clean_on_retry=False, resources=render_resources,
                 kwargs={"scene_file": str(config.scene_file(room)), "out_dir": str(out / "datasets" / f"gan-{room}"),
                         "variant": "uneven", "frames": config.gan_frames, "width": config.gan_width,
                         "height": config.gan_height, "samples": config.gan_samples, "seed": config.seed}))
         source, target = config.gan_domains()
         stages.append(Stage(
-            "cyclegan/train", f"{TASKS}:train_cyclegan_stage", output=out / "cyclegan",
+            "cyclegan/train", f"{TASKS}:train_cyclegan_stage", output=out / "cyclegan", resources=other,
             deps=tuple(f"render/gan-{room}" for room in config.gan_rooms),
             kwargs={"uneven_dirs": [str(out / "datasets" / f"gan-{r}" / "images") for r in source],
                     "even_dirs": [str(out / "datasets" / f"gan-{r}" / "gt") for r in target],
@@ -78,7 +94,7 @@ def build_graph(config: ReproduceConfig, out: Path) -> StageGraph:
         """The stage (:func:`dataset_stage`) that writes a copy of the room's uneven dataset with ``task``."""
         ds, source = dataset_id(room, variant), dataset_id(room, "uneven")
         return Stage(dataset_stage(variant, ds), f"{TASKS}:{task}", deps=(f"render/{source}",),
-                     output=out / "datasets" / ds, clean_on_retry=False,
+                     output=out / "datasets" / ds, clean_on_retry=False, resources=other,
                      kwargs={"data_dir": str(out / "datasets" / source), "out_dir": str(out / "datasets" / ds),
                              **settings})
 
@@ -100,7 +116,7 @@ def build_graph(config: ReproduceConfig, out: Path) -> StageGraph:
                          if method == AUTO else {})
             stages.append(Stage(
                 f"train/{ds}/{method}", f"{TASKS}:train_method", deps=(dataset_stage(variant, ds),), output=run_dir,
-                clean_on_retry=False, resources=StageResources(gpu=True),  # resumes from its checkpoint
+                clean_on_retry=False, resources=train_resources,  # resumes from its checkpoint
                 kwargs={"data_dir": str(out / "datasets" / ds), "run_dir": str(run_dir), "variant": method,
                         "train_preset": config.train_preset, "iterations": config.train_iterations,
                         "image_width": config.train_width, "curve_fractions": tuple(config.curve_fractions),
@@ -112,7 +128,7 @@ def build_graph(config: ReproduceConfig, out: Path) -> StageGraph:
             ds = dataset_id(room, variant)
             stages.append(Stage(
                 f"{prefix}/{ds}", f"{TASKS}:{task}", deps=(dataset_stage(variant, ds),), output=out / folder / ds,
-                kwargs={"data_dir": str(out / "datasets" / ds), "out_dir": str(out / folder / ds), **common}))
+                resources=other, kwargs={"data_dir": str(out / "datasets" / ds), "out_dir": str(out / folder / ds), **common}))
     for room, variant in config.datasets():
         if variant not in config.baseline_variants:
             continue
@@ -122,11 +138,11 @@ def build_graph(config: ReproduceConfig, out: Path) -> StageGraph:
             target_dir = out / "baselines2d" / ds / method
             stages.append(Stage(
                 f"baseline2d/{ds}/{method}", f"{TASKS}:run_baseline2d", deps=deps, output=target_dir,
-                kwargs={"method": method, "data_dir": str(out / "datasets" / ds), "out_dir": str(target_dir),
+                resources=other, kwargs={"method": method, "data_dir": str(out / "datasets" / ds), "out_dir": str(target_dir),
                         "checkpoint": str(out / "cyclegan" / "checkpoint.pt") if method == "cyclegan" else None,
                         **common}))
     stages.append(Stage("report", f"{TASKS}:write_report_stage", deps=tuple(s.name for s in stages),
-                        kwargs={"out_dir": str(out)}))
+                        resources=other, kwargs={"out_dir": str(out)}))
     return StageGraph(stages)
 
 
