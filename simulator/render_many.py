@@ -196,6 +196,7 @@ def render_many(scene_files: Sequence[Path], variants: Sequence[str], root: str 
         raise InputError(str(exc)) from exc
     jobs = plan_jobs(scene_files, variants, root)
     graph = build_render_graph(jobs, settings, frames_per_task)
+    executor.check()  # a cluster that is not there is said before anything is written
     root.mkdir(parents=True, exist_ok=True)
     start = time.perf_counter()
     with folder_lock(root, "spotless-sim render-many"):

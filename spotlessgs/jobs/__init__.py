@@ -49,6 +49,15 @@ class ExecutorSpec:
         if self.threads is not None and self.threads < 1:
             raise ValueError(f"threads must be at least 1, got {self.threads}")
 
+    def check(self) -> None:
+        """Before anything is written: ImportError when the Ray executor has no Ray, ConnectionError when nothing
+        answers at ``ray_address`` (HOST:PORT)."""
+        if self.kind == "ray":
+            from spotlessgs.jobs.ray_cluster import check_reachable, import_ray
+
+            import_ray()
+            check_reachable(self.ray_address)
+
     def stage_threads(self, cores: int | None = None) -> int:
         """The CPU threads each stage gets."""
         if self.threads is not None:

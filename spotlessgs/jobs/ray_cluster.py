@@ -21,6 +21,7 @@ from __future__ import annotations
 
 import logging
 import math
+import socket
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Callable
@@ -92,10 +93,31 @@ def task_options(stage: Stage, threads: int, max_retries: int, cluster_gpus: flo
     return options
 
 
+#: Seconds to wait for a head node's port to accept a connection before saying that no cluster is there (Ray's own
+#: connection attempts go on for minutes).
+CONNECT_TIMEOUT_S = 5.0
+
+
+def check_reachable(address: str | None, timeout: float = CONNECT_TIMEOUT_S) -> None:
+    """ConnectionError naming ``address`` (``HOST:PORT``) when nothing accepts a connection there within ``timeout``
+    seconds; ``auto`` and None (Ray finds or starts the cluster itself and fails fast) are not probed."""
+    if address in (None, "auto") or "://" in str(address):
+        return
+    host, _, port = str(address).rpartition(":")
+    if not host or not port.isdigit():
+        raise ValueError(f"--ray-address {address!r} is not HOST:PORT, auto or local")
+    try:
+        socket.create_connection((host, int(port)), timeout=timeout).close()
+    except OSError as exc:
+        raise ConnectionError(f"{address}: no Ray cluster answers there ({exc}); start its head node with `ray start "
+                              f"--head --port {port}` or give the right --ray-address") from exc
+
+
 def _connect(ray, address: str | None) -> bool:
     """Join the cluster at ``address`` (or start a private instance); True when this call started the connection."""
     if ray.is_initialized():
         return False
+    check_reachable(address)
     ray.init(address=address, log_to_driver=True, logging_level=logging.WARNING, configure_logging=False)
     return True
 

@@ -172,8 +172,10 @@ def reproduce(config: ReproduceConfig, out: str | Path, jobs: int = 1,
         spotlessgs.jobs.StageFailedError: a stage raised (the others keep their results).
     """
     out = Path(out)
+    executor = executor if executor is not None else ExecutorSpec(jobs=jobs)
     refuse_overlap(out, {"--scenes-dir": config.scenes_dir}, "--out")
+    executor.check()  # a cluster that is not there is said before anything is written
     graph = build_graph(config, out)  # checks the rooms exist before anything is written
     with folder_lock(out, "spotless reproduce"):  # a second reproduce into OUT would delete the stages this one runs
         check_or_record_config(config, out)
-        return execute(graph, out, executor if executor is not None else ExecutorSpec(jobs=jobs))
+        return execute(graph, out, executor)
