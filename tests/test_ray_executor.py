@@ -191,6 +191,11 @@ def test_clear_errors_without_ray_or_with_too_many_threads(cluster, tmp_path, mo
     with pytest.raises(ValueError, match=r"asks for 2 CPU\(s\) \(--threads\) but the largest node of the Ray "
                                          r"cluster has 1; use --threads 1"):
         execute_ray(graph, tmp_path / "out", RayOptions(address=cluster.address, threads=2))
+    huge = StageGraph([Stage("a", f"{STAGES}:record", {"path": str(tmp_path / "a.json"), "seconds": 0.0},
+                             resources=StageResources(memory_mb=10**9))])
+    with pytest.raises(ValueError, match=r"stage a declares 1000000000 MiB of memory but the largest node"):
+        execute_ray(huge, tmp_path / "out", _options(cluster))
+    assert not (tmp_path / "a.json").exists()
     monkeypatch.setitem(sys.modules, "ray", None)
     with pytest.raises(ImportError, match=r"pip install 'spotlessgs\[cluster\]'") as error:
         execute_ray(graph, tmp_path / "out", _options(cluster))

@@ -122,11 +122,25 @@ def _connect(ray, address: str | None) -> bool:
     return True
 
 
-def _cluster_capacity(ray) -> tuple[float, float]:
-    """(largest CPU count of one alive node, GPUs in the whole cluster)."""
-    alive = [node for node in ray.nodes() if node.get("Alive")]
-    cpus = max((node.get("Resources", {}).get("CPU", 0.0) for node in alive), default=0.0)
-    return cpus, float(ray.cluster_resources().get("GPU", 0.0))
+def _cluster_capacity(ray) -> tuple[float, float, float]:
+    """(largest CPU count of one alive node, largest memory of one alive node in bytes, GPUs in the cluster)."""
+    alive = [node.get("Resources", {}) for node in ray.nodes() if node.get("Alive")]
+    cpus = max((resources.get("CPU", 0.0) for resources in alive), default=0.0)
+    memory = max((resources.get("memory", 0.0) for resources in alive), default=0.0)
+    return cpus, memory, float(ray.cluster_resources().get("GPU", 0.0))
+
+
+def check_feasible(graph: StageGraph, pending: list[str], threads: int, most_cpus: float, most_memory: float) -> None:
+    """ValueError when a stage asks for more CPUs or memory than the largest node has (Ray would wait for it
+    forever)."""
+    if most_cpus < threads:
+        raise ValueError(f"every stage asks for {threads} CPU(s) (--threads) but the largest node of the Ray cluster "
+                         f"has {most_cpus:g}; use --threads {max(1, math.floor(most_cpus))}")
+    for name in pending:
+        memory_mb = graph[name].resources.memory_mb
+        if memory_mb is not None and memory_mb * 1024 * 1024 > most_memory:
+            raise ValueError(f"stage {name} declares {memory_mb} MiB of memory but the largest node of the Ray "
+                             f"cluster offers {most_memory / 2**20:.0f} MiB; add a node with more memory")
 
 
 def _failure(ray, error: BaseException) -> str:
@@ -147,7 +161,7 @@ def execute_ray(graph: StageGraph, root: str | Path, options: RayOptions = RayOp
 
     Raises:
         ImportError: Ray is not installed. ConnectionError: no cluster at ``options.address``.
-        ValueError: a stage asks for more CPUs than any node of the cluster has (it would never start).
+        ValueError: a stage asks for more CPUs or memory than any node of the cluster has (it would never start).
         StageFailedError: naming each failed stage with its error, and the stages it blocked.
     """
     root = Path(root)
@@ -157,10 +171,8 @@ def execute_ray(graph: StageGraph, root: str | Path, options: RayOptions = RayOp
     ray = import_ray()
     started = _connect(ray, options.address)
     try:
-        most_cpus, gpus = _cluster_capacity(ray)
-        if most_cpus < options.threads:
-            raise ValueError(f"every stage asks for {options.threads} CPU(s) (--threads) but the largest node of the "
-                             f"Ray cluster has {most_cpus:g}; use --threads {max(1, math.floor(most_cpus))}")
+        most_cpus, most_memory, gpus = _cluster_capacity(ray)
+        check_feasible(graph, pending, options.threads, most_cpus, most_memory)
         remote = ray.remote(max_calls=1)(_ray_stage)
         refs: dict[str, Any] = {}
         for name in pending:  # dependency order: every dependency's ref exists before its dependents are submitted
