@@ -226,18 +226,25 @@ def test_rerun_skips_everything_and_redoes_an_interrupted_stage(tiny_run):
     again = reproduce(config, out, jobs=2)
     assert again.ran == [] and len(again.skipped) == 35 and time.perf_counter() - start < 5.0
 
-    # Interrupt one training stage: its marker is gone and a half-written file is left in its run folder.
+    # Interrupt one training stage after its last checkpoint: its marker is gone, its evaluation was not written and
+    # a killed atomic write left a temporary file. The stage resumes from the checkpoint (it is not started again
+    # from scratch) and keeps the curve points it had scored: the same numbers.
     stage = "train/bedroom-uneven/3dgs"
     marker_path(out, stage).unlink()
     run_dir = out / "runs" / "bedroom-uneven" / "3dgs"
     shutil.rmtree(run_dir / "eval")
-    (run_dir / "partial.tmp").write_text("half")
+    partial = run_dir / ".train_summary.json.partial-1234"
+    partial.write_text("half")
     before = json.loads((out / "results.json").read_text())["datasets"]["bedroom-uneven"]["methods"]["3dgs"]
     redo = reproduce(config, out, jobs=2)
-    assert redo.retried == [stage] and redo.ran == [stage, "report"]
-    assert not (run_dir / "partial.tmp").exists() and (run_dir / "eval" / "results.json").is_file()
+    assert redo.retried == [] and redo.ran == [stage, "report"]
+    assert not partial.exists() and (run_dir / "eval" / "results.json").is_file()
     after = json.loads((out / "results.json").read_text())["datasets"]["bedroom-uneven"]["methods"]["3dgs"]
+    assert after["train"]["resumed_from_step"] == 150 and before["train"]["resumed_from_step"] is None
     assert after["curve"][-1]["step"] == before["curve"][-1]["step"] == 150
+    assert [{k: v for k, v in p.items() if k != "train_seconds"} for p in after["curve"]] == \
+        [{k: v for k, v in p.items() if k != "train_seconds"} for p in before["curve"]]
+    assert after["metrics"]["psnr_aligned"] == before["metrics"]["psnr_aligned"]
 
     # Interrupt the inputs' evaluation of one dataset: only it and the report are redone, with the same numbers.
     stage = "eval-inputs/bedroom-saturated"
