@@ -71,6 +71,18 @@ def markdown_report(results: dict, title: str = "Evaluation") -> str:
                      + (f"; exposure gain {results['exposure_gain']:.4f}" if results.get("exposure_gain") else "")
                      + ".")
         lines.append("")
+    alignment = results.get("pose_alignment")
+    if isinstance(alignment, dict):
+        views = alignment.get("aligned_views") or []
+        if views:
+            lines.append(f"Camera poses refined in training; {len(views)} view(s) that training did not fit "
+                         f"({', '.join(views[:6])}{', ...' if len(views) > 6 else ''}) were aligned to their "
+                         f"spotlit inputs ({alignment.get('loss')} loss, {alignment.get('steps')} steps, model "
+                         "frozen, never the ground truth) before relighting.")
+        else:
+            lines.append("Camera poses refined in training; the views that training did not fit were relit at the "
+                         "dataset's poses (not aligned).")
+        lines.append("")
     if cols:
         lines.append("| sequence | " + " | ".join(t for _, t, _ in cols) + " |")
         lines.append("|---|" + "---|" * len(cols))

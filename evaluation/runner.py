@@ -202,14 +202,29 @@ def _non_emitters(pair: ImagePair, gt: torch.Tensor) -> torch.Tensor | None:
 
 
 def score_test_views(data_dir: str | os.PathLike, pred_dir: str | os.PathLike,
-                     num_threads: int | None = None) -> dict[str, float]:
+                     num_threads: int | None = None) -> dict:
     """Mean PSNR/SSIM (raw and after one exposure gain) of ``pred_dir``'s images of the dataset's test views against
     their ground truth: the quick score of the reproduction's curve points and the benchmarks' rows (no LPIPS, no
-    temporal metrics)."""
+    temporal metrics); ``pose_alignment``: the views whose poses were aligned before rendering (a run that refined
+    its poses, :func:`relit_pose_alignment`), else None."""
     data = read_dataset(data_dir)
     pairs = [ImagePair(f.name, Path(pred_dir) / f.name, f.gt_path) for f in data.test_frames if f.gt_path is not None]
     scores = score_pairs(pairs, EvalConfig(lpips=False, temporal=False, num_threads=num_threads, progress=False))
-    return {k: scores[k] for k in ("psnr", "ssim", "psnr_aligned", "ssim_aligned")}
+    return {**{k: scores[k] for k in ("psnr", "ssim", "psnr_aligned", "ssim_aligned")},
+            "pose_alignment": relit_pose_alignment(Path(pred_dir))}
+
+
+def relit_pose_alignment(folder: Path) -> dict | None:
+    """What a relit folder's manifest says about its poses: for a run that refined its poses, ``{"poses": "refined",
+    "aligned_views": [...], "loss": ..., "steps": ...}`` (the views that training did not fit, aligned to their spotlit
+    inputs with the model frozen before rendering); None for the dataset's poses or a folder without a manifest."""
+    try:
+        manifest = read_manifest(folder)
+    except InputError:
+        return None
+    options = (manifest or {}).get("options") or {}
+    record = options.get("pose_alignment")
+    return record if isinstance(record, dict) else None
 
 
 def temporal_block(
@@ -596,7 +611,8 @@ def _evaluate_run_locked(run: Path, data_root: Path, relit_dir: Path, out: Path,
     relit_pairs = [ImagePair(f.name, relit_dir / f.name, f.gt_path, f.depth_path) for f in test]
 
     results: dict = {"mode": "run", "run_dir": str(run), "data_dir": str(data.root),
-                     "test_views": [f.name for f in test], "relit_manifest": relit_manifest}
+                     "test_views": [f.name for f in test], "relit_manifest": relit_manifest,
+                     "pose_alignment": relit_pose_alignment(relit_dir)}
     results.update(score_pairs(relit_pairs, config, "relit vs gt"))
     if config.temporal:
         results.update(temporal_block([relit_dir / f.name for f in data.frames], config, "relit", data))

@@ -56,12 +56,16 @@ def main(verbose: bool) -> None:
 @click.option("--photometric", type=click.Choice(["auto", "on", "off"]), default=None,
               help="Learn each frame's exposure and the lens's vignetting (spotlessgs.models.photometric); default "
                    "auto: on for real cameras' datasets, off for our simulator's fixed-exposure renders.")
+@click.option("--refine-poses", is_flag=True,
+              help="Learn a small correction of every training view's camera pose beside the scene (poses from VIO "
+                   "or SfM a few cm off); test views are then aligned to their spotlit inputs (model frozen) before "
+                   "they are relit and scored. The refined poses: RUN/poses.json.")
 @click.option("--threads", type=click.IntRange(1), default=None, help="CPU threads.")
 @click.option("--device", default="auto", show_default=True, type=click.Choice(["auto", "cpu", "cuda"]))
 @click.option("-q", "--quiet", is_flag=True, help="No progress bar.")
 def train(data_dir, run_dir, model, preset, iterations, image_width, seed, resume, light_prior, light_prior_weight,
-          linear_input, max_gaussians, tolerance_db, selection_search, gaussian_budget, photometric, threads, device,
-          quiet):
+          linear_input, max_gaussians, tolerance_db, selection_search, gaussian_budget, photometric, refine_poses,
+          threads, device, quiet):
     """Train a relightable model (or a baseline) on the uneven images of a dataset."""
     # deferred (here and in the other commands): the torch-based library, kept out of `spotless --help`
     from spotlessgs.run import RunSpec, train as train_run
@@ -70,6 +74,8 @@ def train(data_dir, run_dir, model, preset, iterations, image_width, seed, resum
     if model != "auto" and (tolerance_db is not None or selection_search is not None):
         raise click.UsageError("--tolerance-db and --selection-search only apply to --model auto")
     overrides = {"device": device, "linear_input": linear_input}
+    if refine_poses:
+        overrides["refine_poses"] = True
     for key, value in (("iterations", iterations), ("image_width", image_width), ("num_threads", threads),
                        ("light_prior_weight", light_prior_weight), ("max_gaussians", max_gaussians),
                        ("photometric", photometric)):

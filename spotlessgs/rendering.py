@@ -38,10 +38,12 @@ from spotlessgs.manifest import (
     MANIFEST_NAME, checkpoint_identity, dataset_record, hash_frames, is_partial_name, manifest_path, partial_sibling,
     read_manifest, write_manifest,
 )
+from spotlessgs.models.pose import corrected_cameras
 from spotlessgs.models.shading import shade
 from spotlessgs.rasterizer import rasterize
 from spotlessgs.training.checkpoint import RUN_SCHEMA_VERSION, read_run_info, resolve_data_dir
-from spotlessgs.training.trainer import load_run
+from spotlessgs.training.pose_alignment import align_views
+from spotlessgs.training.trainer import load_pose_correction, load_run, unrefined_views
 
 log = logging.getLogger(__name__)
 
@@ -250,6 +252,7 @@ def render_run(
     device: str = "auto",
     low_frequency: bool = True,
     data_dir: str | Path | None = None,
+    align_poses: bool = True,
 ) -> dict[str, Any]:
     """Render views of a run at the dataset's native resolution.
 
@@ -267,6 +270,10 @@ def render_run(
             the reflectance alone gives; the automatic L0 is then chosen for that image.
         data_dir: the run's dataset when it has moved (``--data``); default: run.json's paths
             (:func:`spotlessgs.training.checkpoint.resolve_data_dir`).
+        align_poses: a run that refined its poses (``refine_poses``) renders its training views at their learned
+            poses and first aligns every other view it renders (the test views) to its spotlit input, model frozen
+            (:mod:`spotlessgs.training.pose_alignment`); False renders those at the dataset's poses instead (to
+            measure what the alignment buys). Recorded as ``pose_alignment`` in the summary and the manifest.
     Returns:
         a summary (views, L0, seconds per view, frames per second, clipped fraction, checkpoint step, manifest), also
         written as ``RUN/<relit|render>.json`` (outside the image folder, which holds images and its manifest only).
@@ -296,7 +303,8 @@ def render_run(
         tmp = partial_sibling(out)
         tmp.mkdir()
         try:
-            summary = _render_into(run_dir, data, mode, which, out, tmp, l0, exr, progress, device, low_frequency)
+            summary = _render_into(run_dir, data, mode, which, out, tmp, l0, exr, progress, device, low_frequency,
+                                   align_poses)
             _swap_in(tmp, out)
         except BaseException:
             shutil.rmtree(tmp, ignore_errors=True)
@@ -305,6 +313,27 @@ def render_run(
             write_json(default_out.with_suffix(".json"),              # another --out never replaces that summary
                        {"schema_version": RUN_SCHEMA_VERSION, **summary})
     return summary
+
+
+def _refined_cameras(run_dir: Path, scene, views, config, cameras, indices: Sequence[int]):
+    """``cameras`` (all views) at the poses of a run that refined them: the training views' learned corrections, and
+    each of ``indices`` that training did not fit aligned to its spotlit input with the model frozen
+    (:mod:`spotlessgs.training.pose_alignment`; without the photometric camera, which the default texture loss does
+    not see); the others at the dataset's poses. Returns the cameras and the summary's ``pose_alignment`` record."""
+    deltas = load_pose_correction(run_dir, len(views.names), cameras.device).delta.detach().clone()
+    unrefined = set(unrefined_views(views))
+    start = time.perf_counter()
+    aligned = align_views(scene, views, [k for k in indices if k in unrefined], config)
+    for k, a in aligned.items():
+        deltas[k] = a.delta.to(deltas.device)
+    record = {
+        "poses": "refined", "aligned_views": [views.names[k] for k in aligned], "loss": config.pose_align_loss,
+        "steps": config.pose_align_steps, "seconds": time.perf_counter() - start,
+        "corrections": {views.names[k]: {"translation_m": a.translation_m, "rotation_deg": a.rotation_deg,
+                                         "loss_before": a.loss_before, "loss_after": a.loss_after}
+                        for k, a in aligned.items()},
+    }
+    return corrected_cameras(cameras, deltas), record
 
 
 def _output_size(cameras: Iterable[Intrinsics]) -> dict[str, Any]:
@@ -316,7 +345,7 @@ def _output_size(cameras: Iterable[Intrinsics]) -> dict[str, Any]:
 
 def _render_into(run_dir: Path, data_dir: Path, mode: str, which: str, out: Path, tmp: Path,
                  l0: Sequence[float] | str, exr: bool, progress: bool, device: str,
-                 low_frequency: bool) -> dict[str, Any]:
+                 low_frequency: bool, align_poses: bool = True) -> dict[str, Any]:
     """:func:`render_run`'s work with the run locked: render into ``tmp`` (to become ``out``) with its manifest."""
     from tqdm import tqdm
 
@@ -334,6 +363,9 @@ def _render_into(run_dir: Path, data_dir: Path, mode: str, which: str, out: Path
         return img if maps is None else remap(img, *maps)
 
     indices = select_views(views, which)
+    alignment = None
+    if config.refine_poses:  # the training views' learned poses; the others aligned to their inputs first
+        cameras, alignment = _refined_cameras(run_dir, scene, views, config, cameras, indices if align_poses else [])
     g = scene.gaussians
     start = time.perf_counter()
     parts = None
@@ -391,9 +423,12 @@ def _render_into(run_dir: Path, data_dir: Path, mode: str, which: str, out: Path
                "l0_mode": "auto" if isinstance(l0, str) else "given",
                **_output_size(working),
                "seconds_per_view": seconds / max(len(indices), 1), "fps": len(indices) / max(seconds, 1e-9),
-               "clipped_fraction": fraction, "num_gaussians": len(g), "device": str(dev), "out_dir": str(out)}
+               "clipped_fraction": fraction, "num_gaussians": len(g), "device": str(dev), "out_dir": str(out),
+               "pose_alignment": alignment}
     options = {k: summary[k] for k in ("mode", "views", "l0", "l0_mode", "low_frequency", "width", "height")
                if k in summary}
+    if alignment is not None:  # what the evaluation reports: which views were aligned, and how
+        options["pose_alignment"] = {k: alignment[k] for k in ("poses", "aligned_views", "loss", "steps")}
     write_manifest(tmp, "relit" if mode == "relit" else "render", run_dir=run_dir, checkpoint=checkpoint,
                    options={**options, "exr": exr}, dataset=dataset_record(data_dir, run_dir, len(views.names)),
                    frames=hash_frames(tmp, written))

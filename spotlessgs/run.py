@@ -28,6 +28,7 @@ from spotlessgs.rendering import render_run
 from spotlessgs.training import trainer
 from spotlessgs.training.checkpoint import check_schema_version, read_run_info, resolve_data_dir
 from spotlessgs.training.config import PRESETS, STRATEGIES, TrainConfig, preset
+from spotlessgs.training.pose_file import RefinedPoses, read_refined_poses
 from spotlessgs.training.selection import SELECTION_FILE, SelectionConfig, train_auto
 
 #: ``RunSpec.model``: a model variant, or ``auto`` (choose one from held-out training views, then train it).
@@ -168,6 +169,12 @@ class Run:
         return self._optional("light.json", "light report")
 
     @property
+    def poses(self) -> RefinedPoses | None:
+        """The refined camera poses (``poses.json``) of a run trained with ``refine_poses``, or None (see
+        :mod:`spotlessgs.training.pose_file`)."""
+        return read_refined_poses(self.dir)
+
+    @property
     def finished(self) -> bool:
         return self.summary is not None
 
@@ -184,7 +191,7 @@ class Run:
                 **options: Any) -> dict[str, Any]:
         """Render ``which`` views (``test``, ``train``, ``all``) under even light into ``out_dir`` (default
         ``RUN/relit``); ``options`` are :func:`spotlessgs.rendering.render_run`'s (``exr``, ``progress``, ``device``,
-        ``low_frequency``, ``data_dir``). Returns the render summary."""
+        ``low_frequency``, ``data_dir``, ``align_poses``). Returns the render summary."""
         return render_run(self.dir, "relit", which, out_dir, l0=l0, **options)
 
     def render(self, which: str = "all", out_dir: str | Path | None = None, **options: Any) -> dict[str, Any]:
@@ -204,7 +211,8 @@ class Run:
 
         Returns:
             ``psnr``, ``ssim``, ``psnr_aligned``, ``ssim_aligned`` (means over the test views, see
-            :func:`evaluation.runner.score_test_views`) and ``relight`` (the render summary: fps, count, ...).
+            :func:`evaluation.runner.score_test_views`), ``pose_alignment`` (the views aligned before rendering, for a
+            run that refined its poses, else None) and ``relight`` (the render summary: fps, count, ...).
         """
         relit = self.relight(which, out_dir, progress=False, data_dir=data_dir, **relight_options)
         data = resolve_data_dir(self.dir, self.info, data_dir)

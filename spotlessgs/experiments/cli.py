@@ -4,10 +4,12 @@
     spotless benchmark selection --data data/bedroom --data data/storage_room --out bench/selection --seed 0 --seed 1
     spotless benchmark robot --ideal out/quick/datasets/bedroom-uneven --robot out/quick/datasets/bedroom-robot \
         --out bench/robot --threads 2
+    spotless benchmark poses --data data/bedroom --out bench/poses --translation-cm 3 --rotation-deg 0.3
 
 ``models`` is :mod:`spotlessgs.experiments.benchmark` (what each model component costs and buys), ``selection`` is
 :mod:`spotlessgs.experiments.selection_benchmark` (model selection and the Gaussian budget against SpotlessGS),
-``robot`` is :mod:`spotlessgs.experiments.robot_benchmark` (what each robot-camera component costs and buys).
+``robot`` is :mod:`spotlessgs.experiments.robot_benchmark` (what each robot-camera component costs and buys),
+``poses`` is :mod:`spotlessgs.experiments.pose_benchmark` (what camera pose refinement costs and buys).
 """
 
 from __future__ import annotations
@@ -23,7 +25,7 @@ from spotlessgs.experiments.benchmark import VARIANTS
 @click.group()
 def benchmark() -> None:
     """Benchmarks: per-model cost and quality (models); model selection and the Gaussian budget (selection); the
-    robot-camera components (robot)."""
+    robot-camera components (robot); camera pose refinement (poses)."""
 
 
 @benchmark.command("models")
@@ -95,4 +97,33 @@ def robot(ideal, robot, out, rows, model, preset, iterations, threads, seed):
     if unknown:
         raise click.BadParameter(f"unknown rows {unknown}; choose from {list(ROWS)}", param_hint="--rows")
     results = run_robot_benchmark(ideal, robot, out, names, model, preset, threads, seed, iterations)
+    click.echo(markdown_table(results))
+
+
+@benchmark.command("poses")
+@click.option("--data", required=True, type=click.Path(exists=True, file_okay=False, path_type=Path),
+              help="A dataset with true poses (and ground truth), e.g. a `spotless-sim render` of a room.")
+@click.option("--out", required=True, type=click.Path(file_okay=False, path_type=Path))
+@click.option("--translation-cm", default=3.0, show_default=True, type=click.FloatRange(0),
+              help="Every frame's pose error in the perturbed copy: its centre moved this far in a random direction.")
+@click.option("--rotation-deg", default=0.3, show_default=True, type=click.FloatRange(0),
+              help="... and turned by this angle about a random axis.")
+@click.option("--rows", default=None, help="Comma-separated rows (default: all of them, in order).")
+@click.option("--model", default="spotless", show_default=True)
+@click.option("--preset", default="quick", show_default=True, type=click.Choice(["tiny", "quick", "paper"]))
+@click.option("--iterations", type=click.IntRange(1), default=None, help="Override the preset's iteration count.")
+@click.option("--threads", default=1, show_default=True, type=click.IntRange(1))
+@click.option("--seed", default=0, show_default=True, type=int, help="Seed of training and of the perturbation.")
+def poses(data, out, translation_cm, rotation_deg, rows, model, preset, iterations, threads, seed):
+    """What camera pose refinement costs per step and buys: pose errors and relit PSNR on the dataset and on a copy
+    whose poses are perturbed by a known amount, with and without --refine-poses."""
+    from spotlessgs.experiments.pose_benchmark import ROWS, markdown_table, run_pose_benchmark
+
+    logging.basicConfig(level=logging.INFO, format="%(levelname)s %(name)s: %(message)s")
+    names = tuple(ROWS) if rows is None else tuple(r for r in rows.split(",") if r)
+    unknown = [r for r in names if r not in ROWS]
+    if unknown:
+        raise click.BadParameter(f"unknown rows {unknown}; choose from {list(ROWS)}", param_hint="--rows")
+    results = run_pose_benchmark(data, out, translation_cm / 100.0, rotation_deg, names, model, preset, threads, seed,
+                                 iterations)
     click.echo(markdown_table(results))

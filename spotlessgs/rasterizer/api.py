@@ -3,7 +3,8 @@
 Backends (``backend=``):
   ``"gsplat"``  gsplat's CUDA kernels (CUDA tensors; optional dependency ``spotlessgs[gpu]``);
   ``"cpp"``     our C++/OpenMP projection and tile compositing with hand-written backward passes (CPU; compiled
-                on first use in about 2 s; the torch projection is used when viewmat or K requires a gradient);
+                on first use in about 2 s; the torch projection is used when K requires a gradient, and a viewmat
+                that requires one reaches the C++ projection through the Gaussians: ``camera_grad.py``);
   ``"torch"``   the same maths in pure PyTorch (CPU or any device; slower, always available);
   ``"auto"``    gsplat for CUDA tensors; on the CPU ``$SPOTLESSGS_RASTER_BACKEND`` (``cpp`` or ``torch``) if set,
                 else ``cpp`` when the kernel builds and ``torch`` (with one logged warning) when it does not.
@@ -22,6 +23,7 @@ from torch import Tensor
 
 from .backend_gsplat import gsplat_available, rasterize_gsplat
 from .binning import bin_gaussians, bin_gaussians_cpp
+from .camera_grad import camera_motion_on_gaussians
 from .composite_cpp import composite_cpp
 from .composite_torch import composite_torch
 from .cpp_kernel import load_kernel
@@ -122,6 +124,8 @@ def rasterize(
         )
         means2d = screen.detach().reshape(-1, 2)
     else:
+        if chosen == "cpp" and viewmat.requires_grad and not K.requires_grad:  # pose refinement: the same render
+            means, quats, viewmat = camera_motion_on_gaussians(means, quats, viewmat)
         if chosen == "cpp" and not (viewmat.requires_grad or K.requires_grad):
             proj_threads = threads if features.shape[0] >= _PARALLEL_PROJECTION_MIN else 1
             proj = project_gaussians_cpp(means, quats, scales, opacities, viewmat, K, width, height,

@@ -41,3 +41,60 @@ def photometric_loss(
         loss = (1.0 - ssim_lambda) * l1 + ssim_lambda * (1.0 - s)
         return loss, {"l1": float(l1.detach()), "ssim": float(s.detach())}
     return l1, {"l1": float(l1.detach()), "ssim": float("nan")}
+
+
+# ---- a loss that sees texture, not the camera-mounted light (pose alignment) -------------------------------------
+
+#: Standard deviation (px) of the Gaussian window of :func:`local_contrast`.
+CONTRAST_SIGMA = 1.0
+#: Floors of the local contrast's denominator: a share of the local mean, and an absolute linear level (8-bit sRGB
+#: quantisation in the dark, ~3e-4 per step, is no texture).
+CONTRAST_RELATIVE_FLOOR = 0.05
+CONTRAST_ABSOLUTE_FLOOR = 2e-3
+
+
+def _blur(x: torch.Tensor, sigma: float) -> torch.Tensor:
+    """(B, 1, H, W) Gaussian blur with a separable (6σ + 1)-tap kernel, reflect padding."""
+    radius = max(1, int(round(3.0 * sigma)))
+    taps = torch.arange(-radius, radius + 1, dtype=x.dtype, device=x.device)
+    kernel = torch.exp(-0.5 * (taps / sigma) ** 2)
+    kernel = kernel / kernel.sum()
+    x = torch.nn.functional.pad(x, (radius, radius, radius, radius), mode="reflect")
+    x = torch.nn.functional.conv2d(x, kernel.view(1, 1, 1, -1))
+    return torch.nn.functional.conv2d(x, kernel.view(1, 1, -1, 1))
+
+
+def local_contrast(image: torch.Tensor, sigma: float = CONTRAST_SIGMA) -> torch.Tensor:
+    """(H, W) locally normalised luminance of a linear image (H, W, C): (Y − μ) / sqrt(σ_Y² + (0.05 μ)² + 0.002²),
+    μ and σ_Y² the mean and variance of Y (the channel mean) in a Gaussian window of ``sigma`` px.
+
+    A light that varies slowly across the image (a spotlight's hot spot and fall-off, an exposure) multiplies Y by a
+    nearly constant factor within the window, which cancels: what is left is the texture's local pattern."""
+    y = image.mean(dim=-1)[None, None]
+    mean = _blur(y, sigma)
+    var = (_blur(y * y, sigma) - mean * mean).clamp(min=0.0)
+    scale = torch.sqrt(var + (CONTRAST_RELATIVE_FLOOR * mean) ** 2 + CONTRAST_ABSOLUTE_FLOOR ** 2)
+    return ((y - mean) / scale)[0, 0]
+
+
+def texture_loss(pred: torch.Tensor, target: torch.Tensor, valid: torch.Tensor | None = None,
+                 sigma: float = CONTRAST_SIGMA) -> torch.Tensor:
+    """Mean absolute difference of the :func:`local_contrast` of a render and an input (both (H, W, C), linear) over
+    the ``valid`` (H, W) pixels (all when None): an image comparison that a camera-mounted light, which moves with a
+    pose hypothesis, cannot pull towards a wrong pose by brightness alone."""
+    diff = (local_contrast(pred, sigma) - local_contrast(target, sigma)).abs()
+    if valid is None:
+        return diff.mean()
+    return (diff * valid).sum() / valid.sum().clamp(min=1)
+
+
+def pose_refinement_terms(pred: torch.Tensor, target: torch.Tensor, clipped: torch.Tensor, row: torch.Tensor,
+                          texture_weight: float, penalty: float) -> torch.Tensor:
+    """What pose refinement adds to the training loss of a view whose correction ``row`` (9,) is learning:
+    ``texture_weight`` × :func:`texture_loss` over the unclipped pixels (its gradient dominates the correction's, so the
+    camera-mounted light does not bias it) + ``penalty`` × ‖row‖² (the pull towards the identity). pred, target:
+    (H, W, 3) linear; clipped: (H, W) bool (clipped, held-out or unseen pixels)."""
+    terms = penalty * row.square().sum()
+    if texture_weight > 0:
+        terms = terms + texture_weight * texture_loss(pred, target, (~clipped).to(pred.dtype))
+    return terms

@@ -31,6 +31,7 @@ from spotlessgs.io.seeding import numpy_rng, torch_generator
 from spotlessgs.metrics import psnr_from_mse
 from spotlessgs.models.gaussians import GaussianParams
 from spotlessgs.models.photometric import PhotometricCamera
+from spotlessgs.models.pose import PoseCorrection, corrected_camera
 from spotlessgs.models.relightable import RelightableScene
 from spotlessgs.models.shading import MODEL_VARIANTS, ModelConfig
 from spotlessgs.rasterizer.cpp_kernel import numerics_record
@@ -41,7 +42,9 @@ from spotlessgs.training.checkpoint import (
 from spotlessgs.training.config import TrainConfig
 from spotlessgs.training.data import TrainingViews, initial_point_cloud, load_training_views
 from spotlessgs.training.light_report import write_light_report
-from spotlessgs.training.losses import photometric_loss
+from spotlessgs.training.losses import photometric_loss, pose_refinement_terms
+from spotlessgs.training.pose_alignment import AlignedView, align_views
+from spotlessgs.training.pose_file import write_refined_poses
 from spotlessgs.training.strategy import DensifyConfig, DensifyStrategy
 from spotlessgs.training.warm_start import warm_start_scene
 from spotlessgs.training.budget import BudgetConfig, BudgetStrategy, budget_report
@@ -188,6 +191,12 @@ def build_optimizers(scene: RelightableScene, config: TrainConfig, extent: float
     return opts
 
 
+def pose_optimizer(poses: PoseCorrection, config: TrainConfig) -> torch.optim.Optimizer:
+    """The pose corrections' optimiser: a lazy Adam (SparseAdam), so that only the rendered view's row moves (a dense
+    Adam would keep moving every row on the momentum of its last visit)."""
+    return torch.optim.SparseAdam(list(poses.parameters()), lr=config.lr_pose)
+
+
 def means_lr(config: TrainConfig, step: int, extent: float) -> float:
     """Exponential decay of the position learning rate from init to final over the run, times the scene extent."""
     t = min(max(step / max(config.iterations, 1), 0.0), 1.0)
@@ -256,7 +265,7 @@ def densify_config(config: TrainConfig) -> DensifyConfig:
 
 
 def _payload(step: int, scene: RelightableScene, opts, strategy: DensifyStrategy,
-             photometric: PhotometricCamera | None) -> dict[str, Any]:
+             photometric: PhotometricCamera | None, poses: PoseCorrection | None = None) -> dict[str, Any]:
     payload = {
         "step": step,
         "gaussians": {k: v.detach().clone() for k, v in scene.gaussians.params.items()},
@@ -266,6 +275,8 @@ def _payload(step: int, scene: RelightableScene, opts, strategy: DensifyStrategy
     }
     if photometric is not None:
         payload["photometric"] = photometric.state_dict()
+    if poses is not None:
+        payload["pose"] = poses.state_dict()
     return payload
 
 
@@ -320,8 +331,9 @@ def _unseen(views: TrainingViews, device: torch.device | str) -> torch.Tensor | 
     return None if views.unseen is None else views.unseen.to(device)
 
 
-def _check_finite(scene: RelightableScene, step: int, ckpt: Path) -> None:
-    for name, p in list(scene.gaussians.params.items()) + list(scene.modules_.named_parameters()):
+def _check_finite(scene: RelightableScene, step: int, ckpt: Path, poses: PoseCorrection | None = None) -> None:
+    pose_params = [] if poses is None else [(f"pose.{n}", p) for n, p in poses.named_parameters()]
+    for name, p in list(scene.gaussians.params.items()) + list(scene.modules_.named_parameters()) + pose_params:
         if not torch.isfinite(p).all():
             raise TrainingDivergedError(
                 f"step {step}: parameter {name!r} became NaN/Inf; the last good checkpoint {ckpt} is intact "
@@ -419,6 +431,7 @@ def _train_locked(data_dir: Path, run_dir: Path, variant: str | ModelConfig, con
     unseen = _unseen(views, device)
     ignored, scored = fitted_and_scored_pixels(held_out, unseen, len(views.names))
     photometric = build_photometric(config, views, split, device)  # exposure and vignetting, or None
+    poses = PoseCorrection(len(views.names)).to(device) if config.refine_poses else None  # per-view corrections
 
     start = 0
     if resume and has_checkpoint:
@@ -430,8 +443,15 @@ def _train_locked(data_dir: Path, run_dir: Path, variant: str | ModelConfig, con
                                  "photometric 'off'")
             # runs before 2026-11-24 stored the pixels' radii too; they are derived from the dataset
             photometric.load_state_dict({k: v for k, v in ckpt["photometric"].items() if k != "radius"})
+        if poses is not None:
+            if "pose" not in ckpt:
+                raise InputError(f"{ckpt_file}: the run was trained without pose refinement; resume it without "
+                                 "refine_poses")
+            poses.load_state_dict(ckpt["pose"])
         strategy = make_strategy(config, extent, seed, device, scene, views, split, photometric, judge_from)
         opts = build_optimizers(scene, config, extent, photometric)
+        if poses is not None:
+            opts["pose"] = pose_optimizer(poses, config)
         for k, o in opts.items():
             o.load_state_dict(ckpt["optimizers"][k])
         strategy.load_state_dict(ckpt["strategy"])
@@ -446,6 +466,8 @@ def _train_locked(data_dir: Path, run_dir: Path, variant: str | ModelConfig, con
         scene = scene.to(device)
         strategy = make_strategy(config, extent, seed, device, scene, views, split, photometric, judge_from)
         opts = build_optimizers(scene, config, extent, photometric)
+        if poses is not None:
+            opts["pose"] = pose_optimizer(poses, config)
         write_json(run_dir / "run.json", run_info)
         numerics = numerics_record(config.num_threads, device.type)
         write_json(run_dir / "config.json", {"schema_version": RUN_SCHEMA_VERSION, **resolved,
@@ -483,7 +505,11 @@ def _train_locked(data_dir: Path, run_dir: Path, variant: str | ModelConfig, con
         for step in bar:
             k = fitted_view(seed, step, views.train, split, config)
             opts["means"].param_groups[0]["lr"] = means_lr(config, step, extent)
-            out = scene.render(cameras[k], backend=config.raster_backend, num_threads=config.num_threads)
+            # pose refinement: the view's camera (and the light mounted on it) with its learned correction
+            refining = poses is not None and step >= config.pose_refine_from
+            row = poses.row(k) if refining else None  # (9,) the view's correction, a sparse gradient
+            camera = corrected_camera(cameras[k], row) if refining else cameras[k]
+            out = scene.render(camera, backend=config.raster_backend, num_threads=config.num_threads)
             if not torch.isfinite(out.image).all():
                 raise TrainingDivergedError(f"step {step}: the render of view {views.names[k]} has NaN/Inf; "
                                             f"the last good checkpoint {ckpt_file} is intact")
@@ -498,6 +524,9 @@ def _train_locked(data_dir: Path, run_dir: Path, variant: str | ModelConfig, con
             loss, parts = photometric_loss(recorded, target, clipped, config.ssim_lambda)
             if prior is not None and scene.appearance.light is not None:
                 loss = loss + scene.appearance.light.light_prior_loss(prior, config.light_prior_weight)
+            if refining:  # a texture term, which the light moving with a pose hypothesis hardly changes, + a penalty
+                loss = loss + pose_refinement_terms(recorded, target, clipped, row, config.pose_texture_weight,
+                                                    config.pose_penalty)
             loss_value = float(loss.detach())
             if not math.isfinite(loss_value):
                 raise TrainingDivergedError(f"step {step}: loss is {loss_value} on view {views.names[k]}; "
@@ -522,8 +551,8 @@ def _train_locked(data_dir: Path, run_dir: Path, variant: str | ModelConfig, con
             if s % config.checkpoint_every == 0 or s == end or stop.requested:
                 # A NaN parameter of a visible Gaussian already shows in the next render (checked every step);
                 # this check, before every save, keeps any other one out of the checkpoint.
-                _check_finite(scene, step, ckpt_file)
-                save_checkpoint(run_dir, _payload(s, scene, opts, strategy, photometric))
+                _check_finite(scene, step, ckpt_file, poses)
+                save_checkpoint(run_dir, _payload(s, scene, opts, strategy, photometric, poses))
             if stop.requested:  # Ctrl-C / SIGTERM: the step is finished and saved; `--resume` continues from it
                 log.warning("stopped at step %d; the checkpoint %s holds it (resume with --resume)", s, ckpt_file)
                 stop.raise_if_requested()
@@ -537,7 +566,12 @@ def _train_locked(data_dir: Path, run_dir: Path, variant: str | ModelConfig, con
     # Ctrl-C after the last step's check: its checkpoint is saved (every run saves its last step), so stop before the
     # final evaluation instead of waiting for it; `--resume` evaluates
     _stop_after_training(stop, end, ckpt_file)
-    test_psnr = evaluate_reconstruction(scene, views, config, photometric) if end == config.iterations else None
+    # a run that refined its poses scores its test views at poses aligned to their inputs (model frozen)
+    aligned = align_views(scene, views, unrefined_views(views), config, photometric) \
+        if poses is not None and end == config.iterations else None
+    _stop_after_training(stop, end, ckpt_file)
+    test_psnr = evaluate_reconstruction(scene, views, config, photometric, aligned) \
+        if end == config.iterations else None
     _stop_after_training(stop, end, ckpt_file)
     val_psnr = val_dark = None
     if end == config.iterations and score_views:
@@ -556,13 +590,16 @@ def _train_locked(data_dir: Path, run_dir: Path, variant: str | ModelConfig, con
         if photometric is not None:
             write_json(run_dir / "photometric.json", {"schema_version": RUN_SCHEMA_VERSION,
                                                       **photometric.report(views.names)})
+        if poses is not None:
+            write_refined_poses(run_dir, views, poses, aligned or {}, end)
         write_json(run_dir / "train_summary.json", {"schema_version": RUN_SCHEMA_VERSION,
             "steps": result.steps, "seconds_this_session": seconds, "ms_per_step": result.ms_per_step,
             "num_gaussians": result.num_gaussians,
             "final_loss": loss_value if math.isfinite(loss_value) else None,  # None: resumed a finished run
             "test_psnr_reconstruction": test_psnr, "device": str(device),
             "validation_views": split.validation, "validation_psnr": val_psnr, "validation_psnr_dark": val_dark,
-            "photometric": photometric is not None,
+            "photometric": photometric is not None, "refine_poses": poses is not None,
+            "test_views_aligned": aligned is not None and bool(views.test),
         })
         if isinstance(strategy, BudgetStrategy):
             write_json(run_dir / "gaussian_budget.json", {"schema_version": RUN_SCHEMA_VERSION,
@@ -633,22 +670,51 @@ def saved_train_config(path: Path) -> TrainConfig:
         raise InputError(f"{path}: the training settings do not fit this version ({exc})") from None
 
 
+def unrefined_views(views: TrainingViews) -> list[int]:
+    """The views whose poses pose refinement does not learn, which are aligned instead (model frozen): every view
+    outside the training split (the test views, and frames left out of training as black or saturated)."""
+    train = set(views.train)
+    return [k for k in range(len(views.names)) if k not in train]
+
+
 @torch.no_grad()
 def evaluate_reconstruction(scene: RelightableScene, views: TrainingViews, config: TrainConfig,
-                            photometric: PhotometricCamera | None = None) -> float | None:
+                            photometric: PhotometricCamera | None = None,
+                            aligned: dict[int, AlignedView] | None = None) -> float | None:
     """Mean PSNR (linear, clamped to [0, 1]) of the spotlight-lit renders of the test views against the inputs
     (through the photometric camera when given: its vignetting, and the test views' exposures, which no loss fits:
-    their known ones, else the reference)."""
+    their known ones, else the reference); at their ``aligned`` poses when given (a run that refined its poses)."""
     if not views.test:
         return None
     cameras = views.cameras.to(views.images.device)
     unseen = _unseen(views, views.images.device)
     values = []
     for k in views.test:
-        out = scene.render(cameras[k], backend=config.raster_backend, num_threads=config.num_threads)
+        camera = cameras[k]
+        if aligned is not None and k in aligned:
+            camera = corrected_camera(camera, aligned[k].delta.to(camera.device))
+        out = scene.render(camera, backend=config.raster_backend, num_threads=config.num_threads)
         image = out.image if photometric is None else photometric(out.image, k)
         values.append(_psnr(image, views.images[k], None if unseen is None else unseen[k]))
     return float(np.mean(values))
+
+
+def load_pose_correction(run_dir: str | Path, num_views: int, device: str | torch.device = "cpu") -> PoseCorrection:
+    """The learned pose corrections of a run trained with ``refine_poses`` (its checkpoint's ``pose``).
+
+    Raises:
+        InputError: the checkpoint has none, or not one per view of the dataset (names the run).
+    """
+    ckpt = load_checkpoint(Path(run_dir))
+    if "pose" not in ckpt:
+        raise InputError(f"{run_dir}: the checkpoint has no pose corrections (the run did not refine its poses)")
+    poses = PoseCorrection(num_views)
+    try:
+        poses.load_state_dict(ckpt["pose"])
+    except RuntimeError:
+        raise InputError(f"{run_dir}: the checkpoint's pose corrections are for another number of views than the "
+                         f"dataset's {num_views}") from None
+    return poses.to(device)
 
 
 def load_run(run_dir: str | Path, device: str = "auto", data_dir: str | Path | None = None,

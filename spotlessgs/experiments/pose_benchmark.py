@@ -1,0 +1,187 @@
+"""What camera pose refinement costs and buys, on a dataset and a copy of it whose poses are perturbed by a known
+amount (as poses from VIO or SfM are a few cm / tenths of a degree off).
+
+    spotless benchmark poses --data DATA --out bench/poses --translation-cm 3 --rotation-deg 0.3 --threads 1
+
+Rows (each a run of one model, the same preset and seed):
+
+* ``clean``: the dataset's poses, no refinement; ``clean+refine``: the same with ``refine_poses`` (it must not make a
+  correct dataset worse by much);
+* ``perturbed``: the perturbed copy, no refinement; ``perturbed+refine``: the same with ``refine_poses``.
+
+Each row: training ms/step; the training views' pose error against the true poses (the clean dataset's) before
+(the poses the run was given) and after refinement: RMSE of the camera centres after a Sim(3) (Umeyama) alignment of
+all training views, and the mean rotation angle after that alignment; the test views' pose error at the dataset's
+poses and after test-view alignment (in the training views' alignment frame); relit test PSNR / SSIM after one
+exposure gain, with the test views aligned before rendering (the default of a run that refined its poses) and not
+aligned (at the dataset's poses). Rows are resumable: a finished row is read back from ``OUT/<row>/row.json``.
+
+The perturbed copy keeps the dataset's point cloud (the simulator's, in the true frame), so the start of the scene
+knows the true geometry; an SfM or VIO cloud would share the poses' errors instead.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import math
+import shutil
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from spotlessgs.io.atomic import write_json, write_text
+from spotlessgs.io.cameras import axis_angle_to_matrix, opengl_to_opencv_c2w
+from spotlessgs.io.json_files import read_json
+from spotlessgs.io.provenance import provenance
+from spotlessgs.io.seeding import numpy_rng
+
+log = logging.getLogger(__name__)
+
+#: Row name -> (dataset: "clean" / "perturbed", refine_poses).
+ROWS: dict[str, tuple[str, bool]] = {
+    "clean": ("clean", False),
+    "clean+refine": ("clean", True),
+    "perturbed": ("perturbed", False),
+    "perturbed+refine": ("perturbed", True),
+}
+RESULTS_JSON, RESULTS_MD = "pose_refinement.json", "pose_refinement.md"
+
+
+def perturb_pose(c2w_opengl: np.ndarray, translation_m: float, rotation_deg: float,
+                 rng: np.random.Generator) -> np.ndarray:
+    """(4, 4) a camera-to-world pose moved by ``translation_m`` in a random direction and turned by ``rotation_deg``
+    about a random axis through its centre (both uniform on the sphere)."""
+    direction = rng.normal(size=3)
+    axis = rng.normal(size=3)
+    out = np.array(c2w_opengl, dtype=np.float64)
+    out[:3, 3] += translation_m * direction / np.linalg.norm(direction)
+    out[:3, :3] = axis_angle_to_matrix(math.radians(rotation_deg) * axis / np.linalg.norm(axis)) @ out[:3, :3]
+    return out
+
+
+def perturbed_copy(data: Path, out: Path, translation_m: float, rotation_deg: float, seed: int = 0) -> Path:
+    """A copy of the dataset ``data`` whose every frame's pose (``transforms.json``) is perturbed by exactly
+    ``translation_m`` and ``rotation_deg`` (directions seeded by ``seed``); made once, atomically (an interrupted copy
+    is redone). The perturbation is recorded in the copy's ``spotless`` block as ``pose_perturbation``."""
+    if (out / "transforms.json").is_file():
+        return out
+    partial = out.with_name(out.name + ".partial")
+    shutil.rmtree(partial, ignore_errors=True)
+    shutil.copytree(data, partial, ignore=shutil.ignore_patterns("sparse", ".lock"))  # sparse/: the true poses
+    transforms = json.loads((partial / "transforms.json").read_text(encoding="utf-8"))
+    rng = numpy_rng(seed, "pose-perturbation")
+    for frame in transforms["frames"]:
+        frame["transform_matrix"] = perturb_pose(np.asarray(frame["transform_matrix"]), translation_m, rotation_deg,
+                                                 rng).tolist()
+    transforms.setdefault("spotless", {})["pose_perturbation"] = {
+        "translation_m": translation_m, "rotation_deg": rotation_deg, "seed": seed, "source": str(data)}
+    write_json(partial / "transforms.json", transforms)
+    partial.rename(out)
+    return out
+
+
+def pose_errors(est_c2w: np.ndarray, true_c2w: np.ndarray, fit: Sequence[int]) -> dict[str, dict[str, float]]:
+    """Errors of estimated against true camera-to-world poses (V, 4, 4), OpenCV axes, after the Sim(3) (Umeyama)
+    alignment of the camera centres of the views ``fit``: for ``fit`` and for the other views (in that frame), the
+    RMSE of the centres (cm) and the mean rotation angle (degrees)."""
+    from evaluation.trajectory import rotation_angle_deg, umeyama
+
+    fit = list(fit)
+    sim = umeyama(est_c2w[fit, :3, 3], true_c2w[fit, :3, 3])
+    centres = sim.apply(est_c2w[:, :3, 3])
+    rotations = sim.rotation @ est_c2w[:, :3, :3]
+    rest = [k for k in range(len(est_c2w)) if k not in set(fit)]
+    out = {}
+    for label, idx in (("fit", fit), ("other", rest)):
+        if not idx:
+            continue
+        err = np.linalg.norm(centres[idx] - true_c2w[idx, :3, 3], axis=1)
+        rot = rotation_angle_deg(np.swapaxes(true_c2w[idx, :3, :3], 1, 2) @ rotations[idx])
+        out[label] = {"ate_cm": 100.0 * float(np.sqrt((err ** 2).mean())), "rotation_deg": float(rot.mean())}
+    return out
+
+
+def run_row(name: str, data: Path, truth: Path, out: Path, model: str, preset: str, threads: int, seed: int,
+            iterations: int | None, overrides: tuple[tuple[str, Any], ...] = ()) -> dict[str, Any]:
+    """Train row ``name`` on ``data`` into ``out/name`` (resumed when interrupted; ``overrides``: more TrainConfig
+    fields), measure its poses against the dataset ``truth`` and score its relit test views; the row's result, also
+    kept in ``out/name/row.json``."""
+    from spotlessgs.io.dataset import read_dataset
+    from spotlessgs.run import RunSpec, train
+
+    row_file = out / name / "row.json"
+    if row_file.is_file():
+        return read_json(row_file, "benchmark row")
+    refine = ROWS[name][1]
+    overrides = (("num_threads", threads), ("refine_poses", refine), *overrides)
+    if iterations is not None:
+        overrides += (("iterations", iterations),)
+    run_dir = out / name / "run"
+    run = train(RunSpec(data=data, model=model, preset=preset, seed=seed, overrides=overrides), run_dir,
+                resume=(run_dir / "run.json").is_file(), progress=False)
+    given = read_dataset(data)
+    true = read_dataset(truth).c2w_opencv
+    train_views = list(given.split.train)
+    row: dict[str, Any] = {"row": name, "data": str(data), "refine_poses": refine,
+                           "ms_per_step": run.summary["ms_per_step"], "gaussians": run.summary["num_gaussians"],
+                           "test_psnr_reconstruction": run.summary["test_psnr_reconstruction"],
+                           "poses_given": pose_errors(given.c2w_opencv, true, train_views)}
+    scores = run.score_views(out / name / "relit", "test", threads)
+    row["relit"] = {k: scores[k] for k in ("psnr", "ssim", "psnr_aligned", "ssim_aligned")}
+    row["relit_test_views_aligned"] = scores["pose_alignment"] is not None and bool(
+        scores["pose_alignment"]["aligned_views"])
+    if refine:
+        poses = run.poses
+        refined = np.stack([opengl_to_opencv_c2w(m) for m in poses.c2w_opengl])
+        row["poses_refined"] = pose_errors(refined, true, train_views)
+        row["alignment_seconds"] = scores["relight"]["pose_alignment"]["seconds"]
+        plain = run.score_views(out / name / "relit_not_aligned", "test", threads, align_poses=False)
+        row["relit_not_aligned"] = {k: plain[k] for k in ("psnr", "ssim", "psnr_aligned", "ssim_aligned")}
+    write_json(row_file, row)
+    return row
+
+
+def run_pose_benchmark(data: Path, out: Path, translation_m: float, rotation_deg: float,
+                       rows: Sequence[str] = tuple(ROWS), model: str = "spotless", preset: str = "quick",
+                       threads: int = 1, seed: int = 0, iterations: int | None = None,
+                       overrides: tuple[tuple[str, Any], ...] = ()) -> list[dict[str, Any]]:
+    """Every row of :data:`ROWS` named in ``rows`` (``overrides``: TrainConfig fields of every row, e.g. the pose
+    refinement's settings); writes ``OUT/pose_refinement.json`` and ``.md``."""
+    unknown = sorted(set(rows) - set(ROWS))
+    if unknown:
+        raise ValueError(f"unknown rows {unknown}; choose from {list(ROWS)}")
+    out.mkdir(parents=True, exist_ok=True)
+    perturbed = perturbed_copy(data, out / "perturbed_data", translation_m, rotation_deg, seed)
+    datasets = {"clean": data, "perturbed": perturbed}
+    results = [run_row(name, datasets[ROWS[name][0]], data, out, model, preset, threads, seed, iterations, overrides)
+               for name in rows]
+    write_json(out / RESULTS_JSON, {"rows": results, "translation_m": translation_m, "rotation_deg": rotation_deg,
+                                    "model": model, "preset": preset, "iterations": iterations, "threads": threads,
+                                    "seed": seed, "overrides": dict(overrides), "provenance": provenance(seed=seed)})
+    write_text(out / RESULTS_MD, markdown_table(results))
+    return results
+
+
+def markdown_table(rows: Sequence[dict[str, Any]]) -> str:
+    """One line per row: ms/step, training views' pose error given -> refined, test views' given -> aligned, relit
+    PSNR / SSIM (exposure aligned) with and without test-view alignment."""
+
+    def err(block: dict | None, part: str) -> str:
+        e = (block or {}).get(part)
+        return "—" if e is None else f"{e['ate_cm']:.2f} cm / {e['rotation_deg']:.3f}°"
+
+    def score(block: dict | None) -> str:
+        return "—" if block is None else f"{block['psnr_aligned']:.2f} / {block['ssim_aligned']:.4f}"
+
+    lines = ["| row | ms/step | train poses given | train poses refined | test poses given | test poses aligned | "
+             "relit PSNR / SSIM al. | same, test views not aligned |",
+             "|---|---|---|---|---|---|---|---|"]
+    for r in rows:
+        refined = r.get("poses_refined")
+        lines.append(f"| {r['row']} | {r['ms_per_step']:.1f} | {err(r['poses_given'], 'fit')} | "
+                     f"{err(refined, 'fit')} | {err(r['poses_given'], 'other')} | {err(refined, 'other')} | "
+                     f"{score(r['relit'])} | {score(r.get('relit_not_aligned'))} |")
+    return "\n".join(lines) + "\n"
