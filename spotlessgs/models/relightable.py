@@ -89,4 +89,5 @@ class RelightableScene(nn.Module):
         mask = frustum_mask(g.means, scales, camera.viewmat, K, width, height)
         feats = self.colours(camera.c2w, mask=mask, relight_l0=relight_l0, split_lights=split_lights)
         return rasterize(g.means, g.quats, scales, g.opacities, feats, camera.viewmat, K, width, height,
-                         background=background, backend=backend, num_threads=num_threads)
+                         background=background, backend=backend, num_threads=num_threads,
+                         rigid_camera_grad=True)  # a view matrix with a gradient is a pose correction's
