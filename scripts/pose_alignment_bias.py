@@ -53,7 +53,8 @@ def main() -> None:
         moved = true.copy()
         direction, axis = rng.normal(size=3), rng.normal(size=3)
         moved[:3, 3] += args.translation_cm / 100.0 * direction / np.linalg.norm(direction)
-        moved[:3, :3] = axis_angle_to_matrix(math.radians(args.rotation_deg) * axis / np.linalg.norm(axis)) @ true[:3, :3]
+        turn = axis_angle_to_matrix(math.radians(args.rotation_deg) * axis / np.linalg.norm(axis))
+        moved[:3, :3] = turn @ true[:3, :3]
         starts[k] = {"true": true, "moved": moved}
     for loss in args.losses.split(","):
         settings = config.replace(pose_align_loss=loss, num_threads=args.threads)

@@ -12,7 +12,6 @@ failure's error).
 from __future__ import annotations
 
 import glob
-import logging
 import time
 from dataclasses import dataclass
 from pathlib import Path
@@ -25,8 +24,6 @@ from spotlessgs.io.errors import InputError
 from spotlessgs.io.folder_lock import folder_lock
 from spotlessgs.jobs import ExecutorSpec, Stage, StageGraph, StageResources, execute
 from spotlessgs.jobs.graph import is_done
-
-log = logging.getLogger(__name__)
 
 SUMMARY_FILE = "render_many.json"
 TASKS = "simulator.render_many"

@@ -497,7 +497,8 @@ def _render_lock(out_dir: Path, part: FramePart):
     render beside parts, is refused)."""
     index, count = part.shard
     if part.frame_range is not None:
-        command, own = f"spotless-sim render-many (frames {part.label[7:]})", f".lock-{part.label}"
+        start, stop = part.frame_range
+        command, own = f"spotless-sim render-many (frames {start}-{stop})", f".lock-{part.label}"
     else:
         command = "spotless-sim render" + (f" --shard {index}/{count}" if count > 1 else "")
         own = f".lock-shard-{index}-of-{count}"

@@ -1,10 +1,11 @@
 """A small DAG of named stages, each with an output folder, its resource needs and an atomic done-marker.
 
 A stage is a module-level function (so that a 'spawn' worker or a Ray worker can import it) called with keyword
-arguments; it returns a JSON-able summary. The marker ``ROOT/.stages/<name>.json`` (written atomically after the function returned) holds
-that summary plus the stage's wall time and peak resident memory. A stage with a marker is done and is skipped; a
-stage without one that left an output folder behind was interrupted: with ``clean_on_retry`` its folder is deleted and
-it starts from scratch, otherwise the function is trusted to resume (the simulator's renders skip finished frames).
+arguments; it returns a JSON-able summary. The marker ``ROOT/.stages/<name>.json`` (written atomically after the
+function returned) holds that summary plus the stage's wall time and peak resident memory. A stage with a marker is
+done and is skipped; a stage without one that left an output folder behind was interrupted: with ``clean_on_retry``
+its folder is deleted and it starts from scratch, otherwise the function is trusted to resume (the simulator's renders
+skip finished frames, training continues from its checkpoint).
 """
 
 from __future__ import annotations
@@ -15,7 +16,7 @@ import re
 import shutil
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Callable, Iterable
+from typing import Any, Callable, Iterable, Mapping, Sequence
 
 from spotlessgs.io.atomic import write_json
 
@@ -103,6 +104,29 @@ def prepare_retry(root: Path, stage: Stage) -> bool:
     return False
 
 
+def topological_order(deps: Mapping[str, Sequence[str]]) -> list[str]:
+    """The names of ``deps`` (name -> the names it depends on, every one a key) such that each comes after its
+    dependencies, ties in the mapping's order (ValueError naming a cycle)."""
+    state: dict[str, int] = {}  # 1 = on the stack, 2 = placed
+    order: list[str] = []
+
+    def visit(name: str, path: list[str]) -> None:
+        if state.get(name) == 2:
+            return
+        if state.get(name) == 1:
+            cycle = path[path.index(name):] + [name]
+            raise ValueError(f"stage dependencies form a cycle: {' -> '.join(cycle)}")
+        state[name] = 1
+        for dep in deps[name]:
+            visit(dep, path + [name])
+        state[name] = 2
+        order.append(name)
+
+    for name in deps:
+        visit(name, [])
+    return order
+
+
 class StageGraph:
     """Stages in insertion order with their dependencies checked (unknown names, duplicates, cycles)."""
 
@@ -116,28 +140,7 @@ class StageGraph:
             missing = [d for d in stage.deps if d not in self.stages]
             if missing:
                 raise ValueError(f"stage {stage.name!r} depends on unknown stage(s) {missing}")
-        self.order = self._topological_order()
-
-    def _topological_order(self) -> list[str]:
-        """Names such that every stage comes after its dependencies (ValueError naming a cycle)."""
-        state: dict[str, int] = {}  # 1 = on the stack, 2 = placed
-        order: list[str] = []
-
-        def visit(name: str, path: list[str]) -> None:
-            if state.get(name) == 2:
-                return
-            if state.get(name) == 1:
-                cycle = path[path.index(name):] + [name]
-                raise ValueError(f"stage dependencies form a cycle: {' -> '.join(cycle)}")
-            state[name] = 1
-            for dep in self.stages[name].deps:
-                visit(dep, path + [name])
-            state[name] = 2
-            order.append(name)
-
-        for name in self.stages:
-            visit(name, [])
-        return order
+        self.order = topological_order({name: stage.deps for name, stage in self.stages.items()})
 
     def __len__(self) -> int:
         return len(self.stages)

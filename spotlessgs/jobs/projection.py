@@ -5,21 +5,21 @@ replays the graph on ``nodes`` identical nodes of ``slots`` stage slots each (``
 starts as soon as its dependencies have finished and a slot is free, ready stages taking free slots longest remaining
 chain first (the classic list-scheduling rule; a real scheduler does no better on average, Ray's first-come order can
 do worse), and lasts its measured time times an optional scale factor per stage family (to carry measured rates to a
-larger preset). Moving data between nodes and starting processes cost nothing here. The critical path (the longest chain of dependent stages)
-is what no number of nodes can beat.
+larger preset). Moving data between nodes and starting processes cost nothing here. The critical path (the longest
+chain of dependent stages) is what no number of nodes can beat.
 """
 
 from __future__ import annotations
 
 import fnmatch
 import heapq
-import json
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Iterable, Mapping, Sequence
 
 from spotlessgs.io.errors import InputError
-from spotlessgs.jobs.graph import MARKER_DIR
+from spotlessgs.io.json_files import read_json
+from spotlessgs.jobs.graph import MARKER_DIR, topological_order
 
 
 @dataclass(frozen=True)
@@ -50,7 +50,7 @@ def read_measured_stages(root: str | Path) -> list[MeasuredStage]:
     folder = Path(root) / MARKER_DIR
     stages = []
     for path in sorted(folder.rglob("*.json")):
-        marker = json.loads(path.read_text(encoding="utf-8"))
+        marker = read_json(path, "a stage's done-marker", required=("stage", "seconds"))
         if "deps" not in marker:
             raise InputError(f"{path}: this done-marker does not record its stage's dependencies (written before "
                              "2026-11-25); a projection needs a job run since")
@@ -75,20 +75,7 @@ def _ordered(stages: Sequence[MeasuredStage]) -> list[MeasuredStage]:
     missing = sorted({d for s in stages for d in s.deps if d not in by_name})
     if missing:
         raise InputError(f"the finished stages depend on stages that have no marker: {missing}")
-    placed: set[str] = set()
-    order: list[MeasuredStage] = []
-
-    def visit(stage: MeasuredStage) -> None:
-        if stage.name in placed:
-            return
-        placed.add(stage.name)
-        for dep in stage.deps:
-            visit(by_name[dep])
-        order.append(stage)
-
-    for stage in stages:
-        visit(stage)
-    return order
+    return [by_name[name] for name in topological_order({s.name: s.deps for s in stages})]
 
 
 def critical_path(stages: Sequence[MeasuredStage], scales: Mapping[str, float] = {}) -> tuple[float, list[str]]:

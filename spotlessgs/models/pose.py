@@ -131,5 +131,5 @@ def rotation_angle_deg(rot: Tensor) -> Tensor:
     return torch.rad2deg(torch.atan2(skew.norm(dim=-1) / 2.0, (trace - 1.0) / 2.0))
 
 
-__all__ = ["PoseCorrection", "ROT6D_IDENTITY", "corrected_camera", "corrected_cameras", "correction_matrix", "correction_size",
-           "rigid_inverse", "rotation_6d_to_matrix", "rotation_angle_deg"]
+__all__ = ["PoseCorrection", "ROT6D_IDENTITY", "corrected_camera", "corrected_cameras", "correction_matrix",
+           "correction_size", "rigid_inverse", "rotation_6d_to_matrix", "rotation_angle_deg"]

@@ -124,8 +124,8 @@ def align_views(scene: RelightableScene, views: TrainingViews, indices: Sequence
     scene.eval()
     try:
         with torch.enable_grad():  # also from a caller under no_grad (rendering)
-            return {k: align_view(scene, cameras[k], k, views.images[k].to(device), views.saturated[k].to(device), config,
-                                  None if views.unseen is None else views.unseen[k].to(device), photometric)
+            return {k: align_view(scene, cameras[k], k, views.images[k].to(device), views.saturated[k].to(device),
+                                  config, None if views.unseen is None else views.unseen[k].to(device), photometric)
                     for k in indices}
     finally:
         scene.train(was_training)

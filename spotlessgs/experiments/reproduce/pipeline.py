@@ -40,13 +40,14 @@ CONFIG_FILE = "reproduce.json"
 # below 1 GiB; declared with about 2x margin. Training grows with its Gaussian budget (about 5 KiB per Gaussian at
 # the quick preset's 20k), so it declares 1 GiB plus 8 KiB per Gaussian the preset allows (9 GiB for the paper's 1M).
 STAGE_MEMORY_MB = 1024
+TASKS = "spotlessgs.experiments.reproduce.tasks"
 
 
 def train_memory_mb(config: ReproduceConfig) -> int:
     """The memory a training stage of ``config`` declares (see STAGE_MEMORY_MB)."""
     return STAGE_MEMORY_MB + TRAIN_PRESETS[config.train_preset].max_gaussians * 8 // 1024
-TASKS = "spotlessgs.experiments.reproduce.tasks"
-# Stage family that evaluates a dataset's uneven inputs once (``eval-inputs/<dataset>``; the report reads its marker).
+
+
 def dataset_stage(variant: str, ds: str) -> str:
     """The stage that writes dataset ``ds``: ``noise/<ds>`` for a sensor-noise copy, ``robot/<ds>`` for a
     robot-camera copy, ``render/<ds>`` otherwise."""
@@ -70,7 +71,8 @@ def build_graph(config: ReproduceConfig, out: Path) -> StageGraph:
         ds = dataset_id(room, variant)
         stages.append(Stage(
             f"render/{ds}", f"{TASKS}:render_room", output=out / "datasets" / ds, clean_on_retry=False,
-            resources=render_resources, kwargs={"scene_file": str(config.scene_file(room)), "out_dir": str(out / "datasets" / ds),
+            resources=render_resources,
+            kwargs={"scene_file": str(config.scene_file(room)), "out_dir": str(out / "datasets" / ds),
                     "variant": variant, "frames": config.frames, "width": config.width, "height": config.height,
                     "samples": config.samples, "seed": config.seed}))
     if "cyclegan" in config.baselines:
@@ -128,7 +130,8 @@ def build_graph(config: ReproduceConfig, out: Path) -> StageGraph:
             ds = dataset_id(room, variant)
             stages.append(Stage(
                 f"{prefix}/{ds}", f"{TASKS}:{task}", deps=(dataset_stage(variant, ds),), output=out / folder / ds,
-                resources=other, kwargs={"data_dir": str(out / "datasets" / ds), "out_dir": str(out / folder / ds), **common}))
+                resources=other,
+                kwargs={"data_dir": str(out / "datasets" / ds), "out_dir": str(out / folder / ds), **common}))
     for room, variant in config.datasets():
         if variant not in config.baseline_variants:
             continue
@@ -138,7 +141,8 @@ def build_graph(config: ReproduceConfig, out: Path) -> StageGraph:
             target_dir = out / "baselines2d" / ds / method
             stages.append(Stage(
                 f"baseline2d/{ds}/{method}", f"{TASKS}:run_baseline2d", deps=deps, output=target_dir,
-                resources=other, kwargs={"method": method, "data_dir": str(out / "datasets" / ds), "out_dir": str(target_dir),
+                resources=other,
+                kwargs={"method": method, "data_dir": str(out / "datasets" / ds), "out_dir": str(target_dir),
                         "checkpoint": str(out / "cyclegan" / "checkpoint.pt") if method == "cyclegan" else None,
                         **common}))
     stages.append(Stage("report", f"{TASKS}:write_report_stage", deps=tuple(s.name for s in stages),

@@ -264,7 +264,8 @@ def train_method(data_dir: str, run_dir: str, variant: str, train_preset: str, i
     milestones = curve_milestones(config.iterations, curve_fractions)
     resumed_from = _checkpoint_step(run)
     progress_file = run / "curve" / CURVE_PROGRESS
-    progress = read_json(progress_file, "a training stage's curve progress") if resumed_from is not None and progress_file.is_file() else {}
+    resuming = resumed_from is not None and progress_file.is_file()
+    progress = read_json(progress_file, "a training stage's curve progress") if resuming else {}
     curve: list[dict[str, Any]] = list(progress.get("points", []))
     loop_seconds = float(progress.get("loop_seconds", 0.0))
     selection, selection_seconds = None, 0.0
