@@ -108,13 +108,20 @@ def robot(ideal, robot, out, rows, model, preset, iterations, threads, seed):
               help="Every frame's pose error in the perturbed copy: its centre moved this far in a random direction.")
 @click.option("--rotation-deg", default=0.3, show_default=True, type=click.FloatRange(0),
               help="... and turned by this angle about a random axis.")
+@click.option("--error-model", default="independent", show_default=True, type=click.Choice(["independent", "drift"]),
+              help="independent: every frame off by exactly the amounts above; drift: a random walk along the frames "
+                   "(as VIO drifts), whose RMS over frames is the amounts above.")
+@click.option("--points", default="kept", show_default=True, type=click.Choice(["kept", "triangulated"]),
+              help="kept: the dataset's point cloud (true geometry); triangulated: points triangulated with each "
+                   "dataset's own poses (the perturbed start shares the poses' errors, as an SfM or VIO cloud does).")
 @click.option("--rows", default=None, help="Comma-separated rows (default: all of them, in order).")
 @click.option("--model", default="spotless", show_default=True)
 @click.option("--preset", default="quick", show_default=True, type=click.Choice(["tiny", "quick", "paper"]))
 @click.option("--iterations", type=click.IntRange(1), default=None, help="Override the preset's iteration count.")
 @click.option("--threads", default=1, show_default=True, type=click.IntRange(1))
 @click.option("--seed", default=0, show_default=True, type=int, help="Seed of training and of the perturbation.")
-def poses(data, out, translation_cm, rotation_deg, rows, model, preset, iterations, threads, seed):
+def poses(data, out, translation_cm, rotation_deg, error_model, points, rows, model, preset, iterations, threads,
+          seed):
     """What camera pose refinement costs per step and buys: pose errors and relit PSNR on the dataset and on a copy
     whose poses are perturbed by a known amount, with and without --refine-poses."""
     from spotlessgs.experiments.pose_benchmark import ROWS, markdown_table, run_pose_benchmark
@@ -125,5 +132,5 @@ def poses(data, out, translation_cm, rotation_deg, rows, model, preset, iteratio
     if unknown:
         raise click.BadParameter(f"unknown rows {unknown}; choose from {list(ROWS)}", param_hint="--rows")
     results = run_pose_benchmark(data, out, translation_cm / 100.0, rotation_deg, names, model, preset, threads, seed,
-                                 iterations)
+                                 iterations, error_model=error_model, points=points)
     click.echo(markdown_table(results))

@@ -16,8 +16,20 @@ poses and after test-view alignment (in the training views' alignment frame); re
 exposure gain, with the test views aligned before rendering (the default of a run that refined its poses) and not
 aligned (at the dataset's poses). Rows are resumable: a finished row is read back from ``OUT/<row>/row.json``.
 
-The perturbed copy keeps the dataset's point cloud (the simulator's, in the true frame), so the start of the scene
-knows the true geometry; an SfM or VIO cloud would share the poses' errors instead.
+Two error models (``--error-model``):
+
+* ``independent``: every frame's centre moved by exactly the given distance in a random direction and turned by the
+  given angle about a random axis (the errors of frames are unrelated, as SfM's noise);
+* ``drift``: the errors of a visual-inertial odometry, a random walk along the frames' order (each frame's error is the
+  previous frame's plus a small random step, the first frame exact), scaled so that the RMS over frames of the
+  centre's offset and of the rotation's angle are the given distance and angle. Neighbouring frames then share most of
+  their error, so the drift is smooth, and a good part of it is a similarity of the whole trajectory that refinement
+  need not remove (the pose errors are measured after a Sim(3) alignment).
+
+Points (``--points``): ``kept`` leaves the dataset's point cloud (the simulator's, in the true frame), so the start
+knows the true geometry; ``triangulated`` replaces it, in the clean and the perturbed datasets alike, by points
+triangulated on the training frames with each dataset's own poses (``spotless prepare --points``), so the perturbed
+start shares the poses' errors, as an SfM or VIO cloud does.
 """
 
 from __future__ import annotations
@@ -48,6 +60,10 @@ ROWS: dict[str, tuple[str, bool]] = {
     "perturbed+refine": ("perturbed", True),
 }
 RESULTS_JSON, RESULTS_MD = "pose_refinement.json", "pose_refinement.md"
+#: Pose error models of the perturbed copy (see the module docstring).
+ERROR_MODELS = ("independent", "drift")
+#: Where the datasets' initial points come from (see the module docstring).
+POINT_SOURCES = ("kept", "triangulated")
 
 
 def perturb_pose(c2w_opengl: np.ndarray, translation_m: float, rotation_deg: float,
@@ -62,23 +78,71 @@ def perturb_pose(c2w_opengl: np.ndarray, translation_m: float, rotation_deg: flo
     return out
 
 
-def perturbed_copy(data: Path, out: Path, translation_m: float, rotation_deg: float, seed: int = 0) -> Path:
-    """A copy of the dataset ``data`` whose every frame's pose (``transforms.json``) is perturbed by exactly
-    ``translation_m`` and ``rotation_deg`` (directions seeded by ``seed``); made once, atomically (an interrupted copy
-    is redone). The perturbation is recorded in the copy's ``spotless`` block as ``pose_perturbation``."""
+def drift_offsets(count: int, translation_m: float, rotation_deg: float,
+                  rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
+    """A random walk of ``count`` pose errors (the ``drift`` model): centre offsets (count, 3) in metres and rotation
+    vectors (count, 3) in radians, both zero at the first frame, each the previous plus an independent Gaussian step,
+    scaled so that the RMS of the offsets' lengths is ``translation_m`` and that of the rotation angles is
+    ``rotation_deg`` (both zero for a single frame)."""
+    def walk(target: float) -> np.ndarray:
+        steps = rng.normal(size=(count, 3))
+        steps[0] = 0.0
+        path = np.cumsum(steps, axis=0)
+        rms = float(np.sqrt((np.linalg.norm(path, axis=1) ** 2).mean()))
+        return path * (target / rms) if rms > 0 else path
+
+    return walk(translation_m), walk(math.radians(rotation_deg))
+
+
+def perturbed_poses(c2w_opengl: Sequence[np.ndarray], translation_m: float, rotation_deg: float, model: str,
+                    rng: np.random.Generator) -> list[np.ndarray]:
+    """The poses (each (4, 4) camera-to-world, in the frames' order) with errors of ``model`` (see the module
+    docstring): ``independent`` per frame, or ``drift`` along the sequence (rotations about each camera's centre)."""
+    if model == "independent":
+        return [perturb_pose(np.asarray(m), translation_m, rotation_deg, rng) for m in c2w_opengl]
+    if model != "drift":
+        raise ValueError(f"unknown pose error model {model!r}; choose from {list(ERROR_MODELS)}")
+    offsets, rotations = drift_offsets(len(c2w_opengl), translation_m, rotation_deg, rng)
+    out = []
+    for m, offset, rotvec in zip(c2w_opengl, offsets, rotations):
+        moved = np.array(m, dtype=np.float64)
+        moved[:3, 3] += offset
+        moved[:3, :3] = axis_angle_to_matrix(rotvec) @ moved[:3, :3]
+        out.append(moved)
+    return out
+
+
+def perturbed_copy(data: Path, out: Path, translation_m: float, rotation_deg: float, seed: int = 0,
+                   model: str = "independent", points: str = "kept") -> Path:
+    """A copy of the dataset ``data`` whose frames' poses (``transforms.json``) carry errors of ``model`` of size
+    ``translation_m`` and ``rotation_deg`` (random directions seeded by ``seed``; both zero: the poses unchanged), and
+    whose point cloud is ``points`` (``kept`` or ``triangulated`` with the copy's poses); made once, atomically (an
+    interrupted copy is redone). The perturbation is recorded in the copy's ``spotless`` block as
+    ``pose_perturbation``."""
+    if points not in POINT_SOURCES:
+        raise ValueError(f"unknown point source {points!r}; choose from {list(POINT_SOURCES)}")
     if (out / "transforms.json").is_file():
         return out
     partial = out.with_name(out.name + ".partial")
     shutil.rmtree(partial, ignore_errors=True)
-    shutil.copytree(data, partial, ignore=shutil.ignore_patterns("sparse", ".lock"))  # sparse/: the true poses
-    transforms = json.loads((partial / "transforms.json").read_text(encoding="utf-8"))
+    ignored = ["sparse", ".lock", "sfm", "prepare.json"]  # sparse/: the true poses; sfm/: an earlier triangulation
+    transforms = json.loads((data / "transforms.json").read_text(encoding="utf-8"))
+    if points == "triangulated" and transforms.get("ply_file_path"):
+        ignored.append(Path(transforms.pop("ply_file_path")).name)
+    shutil.copytree(data, partial, ignore=shutil.ignore_patterns(*ignored))
     rng = numpy_rng(seed, "pose-perturbation")
-    for frame in transforms["frames"]:
-        frame["transform_matrix"] = perturb_pose(np.asarray(frame["transform_matrix"]), translation_m, rotation_deg,
-                                                 rng).tolist()
+    moved = perturbed_poses([np.asarray(f["transform_matrix"]) for f in transforms["frames"]], translation_m,
+                            rotation_deg, model, rng)
+    for frame, pose in zip(transforms["frames"], moved):
+        frame["transform_matrix"] = pose.tolist()
     transforms.setdefault("spotless", {})["pose_perturbation"] = {
-        "translation_m": translation_m, "rotation_deg": rotation_deg, "seed": seed, "source": str(data)}
+        "translation_m": translation_m, "rotation_deg": rotation_deg, "model": model, "points": points, "seed": seed,
+        "source": str(data)}
     write_json(partial / "transforms.json", transforms)
+    if points == "triangulated":
+        from spotlessgs.prepare.points import add_sfm_points
+
+        add_sfm_points(partial, seed=seed)
     partial.rename(out)
     return out
 
@@ -147,18 +211,25 @@ def run_row(name: str, data: Path, truth: Path, out: Path, model: str, preset: s
 def run_pose_benchmark(data: Path, out: Path, translation_m: float, rotation_deg: float,
                        rows: Sequence[str] = tuple(ROWS), model: str = "spotless", preset: str = "quick",
                        threads: int = 1, seed: int = 0, iterations: int | None = None,
-                       overrides: tuple[tuple[str, Any], ...] = ()) -> list[dict[str, Any]]:
+                       overrides: tuple[tuple[str, Any], ...] = (), error_model: str = "independent",
+                       points: str = "kept") -> list[dict[str, Any]]:
     """Every row of :data:`ROWS` named in ``rows`` (``overrides``: TrainConfig fields of every row, e.g. the pose
-    refinement's settings); writes ``OUT/pose_refinement.json`` and ``.md``."""
+    refinement's settings; ``error_model`` and ``points``: see the module docstring); writes
+    ``OUT/pose_refinement.json`` and ``.md``."""
     unknown = sorted(set(rows) - set(ROWS))
     if unknown:
         raise ValueError(f"unknown rows {unknown}; choose from {list(ROWS)}")
+    if error_model not in ERROR_MODELS:
+        raise ValueError(f"unknown pose error model {error_model!r}; choose from {list(ERROR_MODELS)}")
     out.mkdir(parents=True, exist_ok=True)
-    perturbed = perturbed_copy(data, out / "perturbed_data", translation_m, rotation_deg, seed)
-    datasets = {"clean": data, "perturbed": perturbed}
+    perturbed = perturbed_copy(data, out / "perturbed_data", translation_m, rotation_deg, seed, error_model, points)
+    clean = data if points == "kept" else perturbed_copy(data, out / "clean_data", 0.0, 0.0, seed, error_model,
+                                                         points)
+    datasets = {"clean": clean, "perturbed": perturbed}
     results = [run_row(name, datasets[ROWS[name][0]], data, out, model, preset, threads, seed, iterations, overrides)
                for name in rows]
     write_json(out / RESULTS_JSON, {"rows": results, "translation_m": translation_m, "rotation_deg": rotation_deg,
+                                    "error_model": error_model, "points": points,
                                     "model": model, "preset": preset, "iterations": iterations, "threads": threads,
                                     "seed": seed, "overrides": dict(overrides), "provenance": provenance(seed=seed)})
     write_text(out / RESULTS_MD, markdown_table(results))
