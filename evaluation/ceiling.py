@@ -11,6 +11,9 @@ same test views:
   3 (the form of the relighting's L0 + L_lf), ``c`` fitted per colour channel by least squares against the linear
   ground truth over every test pixel that is not an emitter (:meth:`FrameEXR.emitters`).
 
+Against the uniform ground truth (``--ground-truth uniform``: even, shadow-free light; a dataset rendered with
+``spotless-sim render --gt uniform``) the oracles are the same, fitted and scored against that ground truth instead.
+
     spotless ceiling DATA --out CEILING     # CEILING/albedo, CEILING/albedo-sh, CEILING/gt, CEILING/eval-*
 """
 
@@ -41,10 +44,11 @@ ORACLE_SH_DEGREE = 3
 ORACLES = {"albedo": "true albedo x one gain", "albedo-sh": "true albedo x best light per normal (SH 3)"}
 
 
-def _test_frames(data_dir: Path):
-    """(frame, FrameEXR with albedo) of every scored test view; InputError naming the file where a pass is missing."""
+def _test_frames(data_dir: Path, ground_truth: str = "lamps"):
+    """(frame, FrameEXR with albedo) of every scored test view, the frames' ``gt_path`` the ``ground_truth`` kind;
+    InputError naming the file where a pass is missing."""
     out = []
-    for frame in scored_test_frames(read_dataset(data_dir)):
+    for frame in scored_test_frames(read_dataset(data_dir, ground_truth)):
         if frame.depth_path is None:
             raise InputError(f"{data_dir}: test view {frame.name} has no EXR (exr_file_path); the ceiling needs the "
                              "renderer's albedo pass")
@@ -52,8 +56,16 @@ def _test_frames(data_dir: Path):
         if exr.albedo is None:
             raise InputError(f"{frame.depth_path}: no albedo pass (albedo.R/G/B); render the dataset again with "
                              "spotless-sim render (datasets from 2026-11-24 on have it)")
+        if ground_truth == "uniform" and exr.gt_uniform is None:
+            raise InputError(f"{frame.depth_path}: no uniform ground truth (gt_uniform.R/G/B); render the dataset with "
+                             "spotless-sim render --gt uniform")
         out.append((frame, exr))
     return out
+
+
+def linear_ground_truth(exr, ground_truth: str = "lamps") -> np.ndarray:
+    """(H, W, 3) the linear ground truth of kind ``ground_truth`` held by a FrameEXR."""
+    return exr.gt_uniform if ground_truth == "uniform" else exr.gt
 
 
 def normal_basis(exr, degree: int = ORACLE_SH_DEGREE) -> tuple[np.ndarray, np.ndarray]:
@@ -65,26 +77,27 @@ def normal_basis(exr, degree: int = ORACLE_SH_DEGREE) -> tuple[np.ndarray, np.nd
     return basis, np.isfinite(exr.depth) & (length[..., 0] > 0.5)
 
 
-def fit_light_per_normal(frames, bases) -> np.ndarray:
+def fit_light_per_normal(frames, bases, ground_truth: str = "lamps") -> np.ndarray:
     """(3, B) SH coefficients ``c`` of the light per normal minimising Σ (a · cᵀY(n) − g)² per channel over the
-    pixels of ``frames`` (FrameEXRs) that show a surface and no emitter; ``bases``: each frame's
-    :func:`normal_basis`."""
+    pixels of ``frames`` (FrameEXRs) that show a surface and no emitter, g the ``ground_truth`` kind; ``bases``: each
+    frame's :func:`normal_basis`."""
     albedo, basis, gt = [], [], []
     for exr, (frame_basis, surface) in zip(frames, bases):
         lamps = exr.emitters()
         use = surface if lamps is None else surface & ~lamps
         albedo.append(exr.albedo[use])
         basis.append(frame_basis[use])
-        gt.append(exr.gt[use])
+        gt.append(linear_ground_truth(exr, ground_truth)[use])
     albedo, gt = np.concatenate(albedo).astype(np.float64), np.concatenate(gt).astype(np.float64)
     basis = np.concatenate(basis)
     return np.stack([np.linalg.lstsq(albedo[:, ch, None] * basis, gt[:, ch], rcond=None)[0] for ch in range(3)])
 
 
-def write_oracles(data_dir: str | Path, out: str | Path) -> list[ImagePair]:
+def write_oracles(data_dir: str | Path, out: str | Path, ground_truth: str = "lamps") -> list[ImagePair]:
     """Each oracle's images of every scored test view (sRGB PNGs named as the inputs) in ``out/<oracle>`` and their
     ground truths (copies) in ``out/gt``; returns the image pairs of the first oracle (the others: the same names in
-    their folders), each with its frame's EXR (for the lamp-masked metrics).
+    their folders), each with its frame's EXR (for the lamp-masked metrics); ``ground_truth``: the kind fitted and
+    copied.
 
     Raises:
         InputError: a test view has no EXR, or its EXR has no albedo pass (rendered before 2026-11-24: render the
@@ -92,9 +105,9 @@ def write_oracles(data_dir: str | Path, out: str | Path) -> list[ImagePair]:
     """
     data_dir, out = Path(data_dir), Path(out)
     refuse_overlap(out, {"DATA": data_dir}, "--out")
-    frames = _test_frames(data_dir)
+    frames = _test_frames(data_dir, ground_truth)
     bases = [normal_basis(exr) for _, exr in frames]
-    coefficients = fit_light_per_normal([exr for _, exr in frames], bases)
+    coefficients = fit_light_per_normal([exr for _, exr in frames], bases, ground_truth)
     pairs = []
     for (frame, exr), (basis, _surface) in zip(frames, bases):
         light = np.maximum(basis @ coefficients.T, 0.0)  # (H, W, 3)
@@ -109,13 +122,15 @@ def write_oracles(data_dir: str | Path, out: str | Path) -> list[ImagePair]:
 def ceiling(data_dir: str | Path, out: str | Path, config: EvalConfig = EvalConfig()) -> dict[str, dict]:
     """Write the oracles of ``data_dir`` into ``out`` and score each against the ground truth like a method's test
     views (image metrics, aligned, and without the lamps where the EXRs have an emission pass; results in
-    ``out/eval-<oracle>/results.json`` and ``.md``); returns the results by oracle name."""
+    ``out/eval-<oracle>/results.json`` and ``.md``; ``config.ground_truth``: which of the dataset's ground truths);
+    returns the results by oracle name."""
     out = Path(out)
-    pairs = write_oracles(data_dir, out)
+    pairs = write_oracles(data_dir, out, config.ground_truth)
     results = {}
     for name in ORACLES:
         oracle = [dataclasses.replace(p, pred=out / name / p.name) for p in pairs]
         results[name] = {"mode": "ceiling", "oracle": name, "what": ORACLES[name], "data": str(data_dir),
+                         "ground_truth": config.ground_truth,
                          **score_pairs(oracle, config, name)}
         write_results_json(out / f"eval-{name}" / "results.json", results[name])
         write_markdown(out / f"eval-{name}" / "results.md", results[name], f"Ceiling: {ORACLES[name]}")

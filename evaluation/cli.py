@@ -23,10 +23,14 @@ import click
               help="Output folder for results.json, results.md and figures/ (run mode default: RUN/eval).")
 @click.option("--json", "json_path", type=click.Path(dir_okay=False, path_type=Path),
               help="Also write the results JSON to this file.")
+@click.option("--ground-truth", default="lamps", show_default=True, type=click.Choice(["lamps", "uniform"]),
+              help="RUN mode: score against the dataset's lamps-on ground truth or its uniform one (even, shadow-free "
+                   "light; a dataset rendered with `spotless-sim render --gt uniform`).")
 @click.option("--no-lpips", is_flag=True, help="Skip LPIPS.")
 @click.option("--threads", type=click.IntRange(min=1), default=None, help="CPU threads for metrics and SfM.")
 @click.option("--quiet", is_flag=True, help="No progress bars.")
-def eval_command(run, pred, gt, data_dir, sfm, matcher, out_dir, json_path, no_lpips, threads, quiet) -> None:
+def eval_command(run, pred, gt, data_dir, sfm, matcher, out_dir, json_path, ground_truth, no_lpips, threads,
+                 quiet) -> None:
     """Score relit images: `spotless eval RUN` evaluates a training run; `spotless eval --pred DIR --gt DIR` scores
     any two folders of images matched by file name."""
     from evaluation.runner import EvalConfig, evaluate_folders, evaluate_run
@@ -38,8 +42,11 @@ def eval_command(run, pred, gt, data_dir, sfm, matcher, out_dir, json_path, no_l
         raise click.UsageError("give a RUN folder, or both --pred DIR and --gt DIR")
     if data_dir is not None and run is None:
         raise click.UsageError("--data only applies to RUN mode")
+    if ground_truth != "lamps" and run is None:
+        raise click.UsageError("--ground-truth only applies to RUN mode (folder mode scores against --gt)")
     sfm_config = SfmConfig(matcher=matcher, **({"num_threads": threads} if threads else {}))
-    config = EvalConfig(lpips=not no_lpips, sfm=sfm, sfm_config=sfm_config, num_threads=threads, progress=not quiet)
+    config = EvalConfig(lpips=not no_lpips, sfm=sfm, sfm_config=sfm_config, num_threads=threads, progress=not quiet,
+                        ground_truth=ground_truth)
     if run is not None:
         results = evaluate_run(run, config, out_dir=out_dir, json_path=json_path, data_dir=data_dir)
         where = out_dir or run / "eval"
@@ -86,10 +93,14 @@ def sfm_rings_command(runs: dict[str, Path], bins: int) -> None:
 @click.argument("data", type=click.Path(exists=True, file_okay=False, path_type=Path))
 @click.option("--out", "out_dir", required=True, type=click.Path(file_okay=False, path_type=Path),
               help="Folder for the oracles' images (albedo/, albedo-sh/, gt/) and their scores (eval-*/).")
+@click.option("--ground-truth", default="lamps", show_default=True, type=click.Choice(["lamps", "uniform"]),
+              help="Fit and score against the lamps-on ground truth or the uniform one (`spotless-sim render --gt "
+                   "uniform`).")
 @click.option("--no-lpips", is_flag=True, help="Skip LPIPS.")
 @click.option("--threads", type=click.IntRange(min=1), default=None, help="CPU threads for the metrics.")
 @click.option("--quiet", is_flag=True, help="No progress bars.")
-def ceiling_command(data: Path, out_dir: Path, no_lpips: bool, threads: int | None, quiet: bool) -> None:
+def ceiling_command(data: Path, out_dir: Path, ground_truth: str, no_lpips: bool, threads: int | None,
+                    quiet: bool) -> None:
     """The relighting ceiling of a rendered dataset: its test views' true albedo (the renderer's diffuse colour
     pass) × one best gain, and × the best light per surface normal (SH 3 fitted to the ground truth), each scored
     against the ground truth like a method."""
@@ -97,7 +108,7 @@ def ceiling_command(data: Path, out_dir: Path, no_lpips: bool, threads: int | No
     from evaluation.report import markdown_report
     from evaluation.runner import EvalConfig
 
-    config = EvalConfig(lpips=not no_lpips, num_threads=threads, progress=not quiet)
+    config = EvalConfig(lpips=not no_lpips, num_threads=threads, progress=not quiet, ground_truth=ground_truth)
     for name, results in ceiling(data, out_dir, config).items():
         click.echo(f"## {name}: {ORACLES[name]}\n\n{markdown_report(results)}")
     click.echo(f"results written to {out_dir}/eval-*")

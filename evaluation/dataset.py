@@ -18,6 +18,7 @@ from pathlib import Path
 import numpy as np
 
 from spotlessgs.io.cameras import Intrinsics
+from spotlessgs.io.dataset import ground_truth_paths
 from spotlessgs.io.dataset import read_dataset as read_dataset_description
 from spotlessgs.io.exr import DEPTH_CHANNEL, read_exr
 from spotlessgs.io.transforms import DatasetDescription, DatasetError
@@ -49,24 +50,29 @@ class DatasetViews:
         return [self.frames[i] for i in self.test_indices]
 
 
-def read_dataset(data_dir: str | os.PathLike) -> DatasetViews:
-    """Read a dataset folder with the shared reader (see the module docstring) and keep what the evaluation needs.
+def read_dataset(data_dir: str | os.PathLike, ground_truth: str = "lamps") -> DatasetViews:
+    """Read a dataset folder with the shared reader (see the module docstring) and keep what the evaluation needs;
+    ``ground_truth``: which of the dataset's ground truths the frames' ``gt_path`` are
+    (:data:`spotlessgs.io.dataset.GROUND_TRUTHS`).
 
     Raises:
         FileNotFoundError: the folder has neither ``transforms.json`` nor a COLMAP ``sparse/`` model.
-        spotlessgs.io.transforms.DatasetError: malformed content (a ValueError naming the file, frame and field).
+        spotlessgs.io.transforms.DatasetError: malformed content (a ValueError naming the file, frame and field), or
+            the dataset has no such ground truth.
         ValueError: two views share an input image file name.
     """
-    return dataset_views(read_dataset_description(data_dir))
+    return dataset_views(read_dataset_description(data_dir), ground_truth)
 
 
-def dataset_views(desc: DatasetDescription) -> DatasetViews:
-    """The evaluation's view of a shared dataset description: one :class:`DatasetFrame` per frame, the test split."""
+def dataset_views(desc: DatasetDescription, ground_truth: str = "lamps") -> DatasetViews:
+    """The evaluation's view of a shared dataset description: one :class:`DatasetFrame` per frame (its ground truth
+    of the kind ``ground_truth``), the test split."""
+    gt_paths = ground_truth_paths(desc, ground_truth)
     frames = tuple(
         DatasetFrame(
             name=desc.image_paths[i].name,
             input_path=desc.image_paths[i],
-            gt_path=desc.gt_paths[i],
+            gt_path=gt_paths[i],
             depth_path=desc.exr_paths[i],
             c2w_opengl=desc.c2w_opengl[i],
         )

@@ -38,6 +38,7 @@ from evaluation.report import write_markdown, write_results_json
 from evaluation.sfm import SfmConfig, SfmResult, run_sfm
 from evaluation.temporal import PosedFrame, sequence_flicker, temporal_scores, warped_temporal_scores
 from spotlessgs.io.cameras import Intrinsics, opengl_to_opencv_c2w
+from spotlessgs.io.dataset import GROUND_TRUTHS
 from spotlessgs.io.errors import InputError
 from spotlessgs.io.exr import read_emitters
 from spotlessgs.io.folder_lock import folder_lock
@@ -69,8 +70,13 @@ class EvalConfig:
     # evaluate_run only: also score the run's original (uneven) inputs (the ``input`` block: image metrics, temporal
     # metrics, SfM). False skips them when a caller scores the inputs once for many runs of one dataset.
     inputs: bool = True
+    # which of the dataset's ground truths to score against (spotlessgs.io.dataset.GROUND_TRUTHS): "lamps" (the
+    # lamps-on render) or "uniform" (even, shadow-free environment light; `spotless-sim render --gt uniform`)
+    ground_truth: str = "lamps"
 
     def __post_init__(self) -> None:
+        if self.ground_truth not in GROUND_TRUTHS:
+            raise ValueError(f"ground_truth must be one of {list(GROUND_TRUTHS)}, got {self.ground_truth!r}")
         if self.grid_frames < 1:
             raise ValueError(f"grid_frames must be at least 1, got {self.grid_frames}")
         if self.num_threads is not None and self.num_threads < 1:
@@ -202,12 +208,12 @@ def _non_emitters(pair: ImagePair, gt: torch.Tensor) -> torch.Tensor | None:
 
 
 def score_test_views(data_dir: str | os.PathLike, pred_dir: str | os.PathLike,
-                     num_threads: int | None = None) -> dict:
+                     num_threads: int | None = None, ground_truth: str = "lamps") -> dict:
     """Mean PSNR/SSIM (raw and after one exposure gain) of ``pred_dir``'s images of the dataset's test views against
     their ground truth: the quick score of the reproduction's curve points and the benchmarks' rows (no LPIPS, no
     temporal metrics); ``pose_alignment``: the views whose poses were aligned before rendering (a run that refined
-    its poses, :func:`relit_pose_alignment`), else None."""
-    data = read_dataset(data_dir)
+    its poses, :func:`relit_pose_alignment`), else None; ``ground_truth``: which of the dataset's ground truths."""
+    data = read_dataset(data_dir, ground_truth)
     pairs = [ImagePair(f.name, Path(pred_dir) / f.name, f.gt_path) for f in data.test_frames if f.gt_path is not None]
     scores = score_pairs(pairs, EvalConfig(lpips=False, temporal=False, num_threads=num_threads, progress=False))
     return {**{k: scores[k] for k in ("psnr", "ssim", "psnr_aligned", "ssim_aligned")},
@@ -516,9 +522,9 @@ def score_inputs(data: DatasetViews, config: EvalConfig, sfm_dir: Path) -> tuple
                          "input vs gt")
     if config.temporal:
         scores.update(temporal_block([f.input_path for f in data.frames], config, "input", data))
-        if len(data.frames) > 1 and all(f.gt_path is not None and f.gt_path.is_file() for f in data.frames):
-            with _torch_threads(config.num_threads), torch.no_grad():  # what an evenly lit sequence has
-                scores["gt_tmp_flicker"] = sequence_flicker(_chw(_load(f.gt_path)) for f in data.frames)
+        flicker = ground_truth_flicker(data, config)  # what an evenly lit sequence has
+        if flicker is not None:
+            scores["gt_tmp_flicker"] = flicker
     result = None
     if config.sfm:
         names = [f.name for f in data.frames]
@@ -530,6 +536,15 @@ def score_inputs(data: DatasetViews, config: EvalConfig, sfm_dir: Path) -> tuple
             scores["sfm_gt"], _ = _sfm_block(gt_folder, names, sfm_dir.with_name(sfm_dir.name + "_gt"), config,
                                              "ground truth", data.intrinsics, true)
     return scores, result
+
+
+def ground_truth_flicker(data: DatasetViews, config: EvalConfig = EvalConfig()) -> float | None:
+    """The flicker (:func:`evaluation.temporal.sequence_flicker`) of the dataset's ground-truth sequence, every
+    frame in order (the frames' ``gt_path``: the kind the dataset was read with); None when a frame has none."""
+    if len(data.frames) < 2 or not all(f.gt_path is not None and f.gt_path.is_file() for f in data.frames):
+        return None
+    with _torch_threads(config.num_threads), torch.no_grad():
+        return sequence_flicker(_chw(_load(f.gt_path)) for f in data.frames)
 
 
 def _ground_truth_folder(data: DatasetViews) -> Path | None:
@@ -597,7 +612,7 @@ def evaluate_run(
 def _evaluate_run_locked(run: Path, data_root: Path, relit_dir: Path, out: Path, config: EvalConfig,
                          json_path: str | os.PathLike | None) -> dict:
     """:func:`evaluate_run` with the run folder locked."""
-    data = read_dataset(data_root)
+    data = read_dataset(data_root, config.ground_truth)
     relit_manifest = check_relit_folder(run, relit_dir)
     # a verified manifest vouches for every file (EXR files of `relight --exr` included); else images only
     relit_names = set(image_names(relit_dir)) if relit_manifest is None else {

@@ -59,6 +59,11 @@ def main(verbose: bool) -> None:
 @click.option("--motion-blur", default=0.0, show_default=True, type=click.FloatRange(0, 1),
               help="Camera motion blur in the spotlit input: the shutter's open time as a fraction of the time "
                    "between two frames (0: sharp; the ground truth stays sharp).")
+@click.option("--gt", "ground_truths", multiple=True, default=("lamps",), show_default=True,
+              type=click.Choice(["lamps", "uniform"]),
+              help="Ground truths to render. The lamps-on one (gt/) is always rendered; `--gt uniform` adds the room "
+                   "under even, shadow-free environment light of radiance 1 with the lamps unlit (gt_uniform/): what "
+                   "the relighting equation's constant L0 would show.")
 @click.option("--path", "camera_path", default="paper", show_default=True, type=click.Choice(["paper", "robot"]),
               help="Camera loop: the paper's (perpendicular to the path, 90° turns at the corners, 10 cm / 0.1 rad "
                    "pose noise) or a robot's (looks at the room's centre and turns smoothly, 2 cm / 0.02 rad).")
@@ -71,8 +76,8 @@ def main(verbose: bool) -> None:
 @click.option("--device", default="auto", show_default=True, type=click.Choice(["auto", "cpu", "gpu"]))
 @click.option("-q", "--quiet", is_flag=True, help="No progress bar, and no messages from Blender's device probing.")
 def render(scene_path, out_dir, future_dir, texture_dir, allow_missing, room, frames, width, height, h_fov_deg, samples,
-           no_denoise, bounces, ambient, lambertian, motion_blur, camera_path, seed, preset, shard, threads, device,
-           quiet):
+           no_denoise, bounces, ambient, lambertian, motion_blur, ground_truths, camera_path, seed, preset, shard,
+           threads, device, quiet):
     """Render the spotlight-only and the evenly lit image of every pose of a room's camera loop.
 
     Ctrl-C (or SIGTERM) stops within a second or two (exit 130 / 143) and keeps every finished frame: rerun the same
@@ -86,7 +91,7 @@ def render(scene_path, out_dir, future_dir, texture_dir, allow_missing, room, fr
     config = RenderConfig.from_preset(
         preset, frames=frames, width=width, height=height, h_fov_deg=h_fov_deg, samples=samples,
         denoise=not no_denoise, max_bounces=bounces, ambient=ambient, lambertian=lambertian, seed=seed,
-        room=room, trajectory=PATHS[camera_path], motion_blur=motion_blur,
+        room=room, trajectory=PATHS[camera_path], motion_blur=motion_blur, uniform_gt="uniform" in ground_truths,
     )
     summary = render_dataset(
         scene_path, out_dir, config,
@@ -134,6 +139,9 @@ def generate(kind, out_dir, seed):
 @click.option("--path", "camera_path", default="paper", show_default=True, type=click.Choice(["paper", "robot"]),
               help="Camera loop (as for `render`).")
 @click.option("--seed", default=0, show_default=True, type=int)
+@click.option("--gt", "ground_truths", multiple=True, default=("lamps",), show_default=True,
+              type=click.Choice(["lamps", "uniform"]),
+              help="Ground truths to render (as `spotless-sim render --gt`): `--gt uniform` adds the uniform one.")
 @click.option("--frames-per-task", default=20, show_default=True, type=click.IntRange(1),
               help="Consecutive frames rendered by one task (one Blender process).")
 @click.option("--executor", default="local", show_default=True, type=click.Choice(["local", "ray"]),
@@ -147,8 +155,8 @@ def generate(kind, out_dir, seed):
               help="Render threads per task (default: cores // jobs locally, 1 on Ray, where a task asks for as many "
                    "CPUs).")
 @click.option("-q", "--quiet", is_flag=True, help="No progress bar.")
-def render_many(scene_patterns, out_dir, variants, frames, width, height, samples, camera_path, seed, frames_per_task,
-                executor, jobs, ray_address, threads, quiet):
+def render_many(scene_patterns, out_dir, variants, frames, width, height, samples, camera_path, seed, ground_truths,
+                frames_per_task, executor, jobs, ray_address, threads, quiet):
     """Render many rooms and spotlight variants as one resumable job, split into frame ranges, on this machine or a
     Ray cluster; a failed task is reported with its error and the others still finish."""
     from simulator.render_many import SUMMARY_FILE, find_scenes, render_many as run_many
@@ -161,7 +169,7 @@ def render_many(scene_patterns, out_dir, variants, frames, width, height, sample
         raise click.BadParameter(f"unknown variant(s) {unknown or names}; choose from {sorted(SPOTLIGHT_PRESETS)}",
                                  param_hint="--variants")
     settings = {"frames": frames, "width": width, "height": height, "samples": samples, "seed": seed,
-                "path": camera_path}
+                "path": camera_path, **({"uniform_gt": True} if "uniform" in ground_truths else {})}
     spec = ExecutorSpec(kind=executor, jobs=jobs, threads=threads,
                         ray_address=None if ray_address == "local" else ray_address)
     summary = run_many(find_scenes(scene_patterns), names, out_dir, settings, frames_per_task, spec,

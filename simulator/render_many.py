@@ -28,7 +28,7 @@ from spotlessgs.jobs.graph import is_done
 SUMMARY_FILE = "render_many.json"
 TASKS = "simulator.render_many"
 #: RenderConfig fields that render-many's settings may set (besides the variant, which picks the spotlight preset).
-SETTING_FIELDS = ("frames", "width", "height", "samples", "seed", "h_fov_deg", "max_bounces", "denoise")
+SETTING_FIELDS = ("frames", "width", "height", "samples", "seed", "h_fov_deg", "max_bounces", "denoise", "uniform_gt")
 # Expected peak memory of one render task (Blender with a room and its EXRs), declared to the Ray scheduler: the
 # 64x48 test renders peaked at about 0.5 GiB, the quick reproduction's 160x120 ones below 1 GiB.
 RENDER_MEMORY_MB = 2048
@@ -165,9 +165,9 @@ def finish_dataset(scene_file: str, out_dir: str, variant: str, settings: dict[s
 # The job
 
 
-def frames_done(job: RenderJob, frames: int) -> int:
-    """How many of a dataset's ``frames`` frames are on disk."""
-    return sum(frame_done(job.out_dir, k) for k in range(frames)) if job.out_dir.is_dir() else 0
+def frames_done(job: RenderJob, frames: int, uniform_gt: bool = False) -> int:
+    """How many of a dataset's ``frames`` frames are on disk (``uniform_gt``: with the uniform ground truth)."""
+    return sum(frame_done(job.out_dir, k, uniform_gt) for k in range(frames)) if job.out_dir.is_dir() else 0
 
 
 def render_many(scene_files: Sequence[Path], variants: Sequence[str], root: str | Path, settings: dict[str, Any],
@@ -188,7 +188,8 @@ def render_many(scene_files: Sequence[Path], variants: Sequence[str], root: str 
     if frames_per_task < 1:
         raise InputError(f"--frames-per-task must be at least 1, got {frames_per_task}")
     try:
-        frames = render_config(variants[0] if variants else "uneven", settings).frames
+        base = render_config(variants[0] if variants else "uneven", settings)
+        frames, uniform_gt = base.frames, base.uniform_gt
     except ValueError as exc:
         raise InputError(str(exc)) from exc
     jobs = plan_jobs(scene_files, variants, root)
@@ -197,7 +198,7 @@ def render_many(scene_files: Sequence[Path], variants: Sequence[str], root: str 
     root.mkdir(parents=True, exist_ok=True)
     start = time.perf_counter()
     with folder_lock(root, "spotless-sim render-many"):
-        before = {job.name: frames_done(job, frames) for job in jobs}
+        before = {job.name: frames_done(job, frames, uniform_gt) for job in jobs}
         bar = tqdm(total=frames * len(jobs), initial=sum(before.values()), desc="render-many", unit="frame",
                    disable=not progress)
 
@@ -209,7 +210,7 @@ def render_many(scene_files: Sequence[Path], variants: Sequence[str], root: str 
             report = execute(graph, root, executor, on_done=on_done, raise_on_failure=False)
         finally:
             bar.close()
-        summary = _summary(jobs, graph, root, frames, before, report, time.perf_counter() - start)
+        summary = _summary(jobs, graph, root, frames, before, report, time.perf_counter() - start, uniform_gt)
         summary["executor"] = {"kind": executor.kind, "threads_per_task": executor.stage_threads(),
                                "frames_per_task": frames_per_task}
         write_json(root / SUMMARY_FILE, summary)
@@ -217,11 +218,11 @@ def render_many(scene_files: Sequence[Path], variants: Sequence[str], root: str 
 
 
 def _summary(jobs: Sequence[RenderJob], graph: StageGraph, root: Path, frames: int, before: dict[str, int],
-             report, seconds: float) -> dict[str, Any]:
+             report, seconds: float, uniform_gt: bool = False) -> dict[str, Any]:
     """The job's summary: per dataset its frames done before and after, whether it is complete, its failures."""
     datasets = []
     for job in jobs:
-        done = frames_done(job, frames)
+        done = frames_done(job, frames, uniform_gt)
         own = [name for name in graph.order if name.split("/")[1] == job.name]
         datasets.append({
             "dataset": job.name, "scene_file": str(job.scene_file), "variant": job.variant, "frames": frames,

@@ -5,13 +5,14 @@ Output folder (the dataset contract, see ``docs/dataset.md``)::
     OUT/plan.json            settings fingerprint + poses (written first; a rerun with other settings is refused)
     OUT/images/frame_00042.png  spotlight-only (uneven) input, 8-bit sRGB
     OUT/gt/frame_00042.png      lamps-on ground truth, 8-bit sRGB
+    OUT/gt_uniform/frame_00042.png  with ``uniform_gt``: the uniform ground truth (even, shadow-free light), 8-bit sRGB
     OUT/exr/frame_00042.exr     linear uneven.RGB, gt.RGB, depth.Z (planar, m), normal.XYZ (world), albedo.RGB,
-                                emission.RGB (the ground truth's glowing surfaces)
+                                emission.RGB (the ground truth's glowing surfaces), with ``uniform_gt`` gt_uniform.RGB
     OUT/points3d.ply            initial coloured point cloud back-projected from depth
     OUT/sparse/0/*.txt          COLMAP text model (true poses)
     OUT/transforms.json         nerfstudio-compatible + our "spotless" block (written last: the dataset is complete)
 
-Every file is written atomically; a frame counts as done when its three files exist, so rerunning the same command
+Every file is written atomically; a frame counts as done when all its files exist, so rerunning the same command
 resumes where it stopped. ``shard=(i, n)`` renders frames ``k`` with ``k % n == i`` so n jobs can share a scene; the
 job that finds every frame done writes the dataset-level files. ``frame_range=(a, b)`` renders frames ``a <= k < b``
 and never writes the dataset-level files: ``spotless-sim render-many`` (:mod:`simulator.render_many`) splits datasets
@@ -57,6 +58,7 @@ from spotlessgs.io.folder_lock import folder_lock
 from spotlessgs.io.images import read_image, write_png
 from spotlessgs.io.paths import refuse_overlap
 from spotlessgs.io.processes import die_with_parent, drop_blender_script_paths
+from spotlessgs.io.dataset import UNIFORM_GT_DIR
 from spotlessgs.io.ply import write_point_cloud
 from spotlessgs.io.provenance import package_version, provenance
 from spotlessgs.io.seeding import numpy_rng, stage_seed
@@ -84,6 +86,8 @@ class RenderConfig:
             keeps a 4 % Fresnel specular layer even at roughness 0.9, which is not Lambertian.
         motion_blur: camera motion blur in the spotlight-only input: the shutter is open this fraction of the time
             between two frames, centred on the frame (0 = sharp; the ground truth is always sharp).
+        uniform_gt: also render the uniform ground truth (``gt_uniform/``): the room under even, shadow-free
+            environment light of radiance 1, lamps present but unlit (the relighting equation's constant L0).
         seed: the command seed; poses, render noise and point sampling each derive their own generator from it.
         preset: name of the spotlight preset (``uneven`` or ``saturated``), recorded in the dataset.
         spotlight: the camera-mounted spotlight.
@@ -103,6 +107,7 @@ class RenderConfig:
     ambient: float = 0.0
     lambertian: bool = False
     motion_blur: float = 0.0
+    uniform_gt: bool = False
     seed: int = 0
     preset: str = "uneven"
     spotlight: SpotlightConfig = field(default_factory=SpotlightConfig)
@@ -213,25 +218,26 @@ def frame_name(index: int) -> str:
     return f"frame_{index:05d}"
 
 
-def frame_paths(out_dir: Path, index: int) -> dict[str, Path]:
-    """The three per-frame files of frame ``index``."""
+def frame_paths(out_dir: Path, index: int, uniform_gt: bool = False) -> dict[str, Path]:
+    """The per-frame files of frame ``index``: image, gt, exr and with ``uniform_gt`` the uniform ground truth."""
     stem = frame_name(index)
     return {
         "image": out_dir / "images" / f"{stem}.png",
         "gt": out_dir / "gt" / f"{stem}.png",
+        **({"gt_uniform": out_dir / UNIFORM_GT_DIR / f"{stem}.png"} if uniform_gt else {}),
         "exr": out_dir / "exr" / f"{stem}.exr",
     }
 
 
-def frame_done(out_dir: Path, index: int) -> bool:
+def frame_done(out_dir: Path, index: int, uniform_gt: bool = False) -> bool:
     """True when all files of frame ``index`` exist (each is written atomically)."""
-    return all(p.is_file() for p in frame_paths(out_dir, index).values())
+    return all(p.is_file() for p in frame_paths(out_dir, index, uniform_gt).values())
 
 
 def _fingerprint(scene_path: Path, config: RenderConfig) -> dict[str, Any]:
     """The settings that determine the output (JSON-able)."""
     cfg = dataclasses.asdict(config)
-    for option in ("lambertian", "motion_blur"):
+    for option in ("lambertian", "motion_blur", "uniform_gt"):
         if not cfg[option]:
             del cfg[option]  # recorded only when set: datasets rendered before the option existed still resume
     return {"scene": str(scene_path.resolve()), "config": to_jsonable(cfg)}
@@ -333,7 +339,7 @@ def remove_leftovers(out_dir: str | Path, part: FramePart | tuple[int, int] = (0
         scratch = [p for p in out_dir.glob(f"{SCRATCH_PREFIX}*") if p.is_dir() and not p.is_symlink()]
     else:
         mine = set(frames)
-        for sub in ("images", "gt", "exr"):
+        for sub in ("images", "gt", UNIFORM_GT_DIR, "exr"):
             folder = out_dir / sub
             for path in folder.glob(f".frame_*{PARTIAL_MARK}*") if folder.is_dir() else ():
                 match = _FRAME_PARTIAL.match(path.name)
@@ -517,7 +523,7 @@ def _render_planned(scene_path: Path, out_dir: Path, config: RenderConfig, execu
     mine = part.frames(len(poses))
     remove_leftovers(out_dir, part, mine)
 
-    todo = [k for k in mine if not frame_done(out_dir, k)]
+    todo = [k for k in mine if not frame_done(out_dir, k, config.uniform_gt)]
     summary: dict[str, Any] = {"rendered": 0, "skipped": len(mine) - len(todo), "seconds_per_frame": None}
     device, blender, checks = "n/a", None, {}
     if todo:
@@ -529,7 +535,7 @@ def _render_planned(scene_path: Path, out_dir: Path, config: RenderConfig, execu
         summary["seconds_per_frame"] = result.seconds_per_frame
         if not part.owns_folder:  # the job that finishes the dataset may render nothing itself: it reads these
             write_json(out_dir / PARTS_DIR / f"{part.label}.json", {"device": device, "blender": blender})
-    complete = all(frame_done(out_dir, k) for k in range(len(poses)))
+    complete = all(frame_done(out_dir, k, config.uniform_gt) for k in range(len(poses)))
     summary["complete"] = complete
     report, total = dark_frames(checks), len(checks)
     finishes = part.frame_range is None  # a range leaves the dataset-level files to a whole-dataset call
@@ -666,6 +672,7 @@ def _render_frames(conn, out_dir: Path, config: RenderConfig, execution: Executi
             device=execution.device,
             ambient=config.ambient,
             motion_blur=config.motion_blur > 0,
+            uniform_gt=config.uniform_gt,
         )
         device = renderer.configure(settings)
         built = scene_builder.build_scene(room_scene, config.spotlight, config.ground_truth.ceiling_glow,
@@ -678,10 +685,13 @@ def _render_frames(conn, out_dir: Path, config: RenderConfig, execution: Executi
             shutter = shutter_poses(poses, k, config.motion_blur) if config.motion_blur > 0 else None
             pair = renderer.render_pair(built, poses[k], settings, stage_seed(config.seed, f"cycles/{k}"),
                                         workdir=scratch, shutter=shutter)
-            paths = frame_paths(out_dir, k)
+            paths = frame_paths(out_dir, k, config.uniform_gt)
             write_frame_exr(paths["exr"], FrameEXR(uneven=pair.uneven, gt=pair.gt, depth=pair.depth,
-                                                   normal=pair.normal, albedo=pair.albedo, emission=pair.emission))
+                                                   normal=pair.normal, albedo=pair.albedo, emission=pair.emission,
+                                                   gt_uniform=pair.gt_uniform))
             write_png(paths["gt"], linear_to_srgb(pair.gt))
+            if pair.gt_uniform is not None:
+                write_png(paths["gt_uniform"], linear_to_srgb(pair.gt_uniform))
             write_png(paths["image"], linear_to_srgb(pair.uneven))
             conn.send(("frame", k, frame_check(pair.uneven, pair.gt, pair.depth)))
     finally:
@@ -860,6 +870,7 @@ def finalize_dataset(
             "ambient": config.ambient,
             "lambertian": config.lambertian,
             **({"motion_blur": config.motion_blur} if config.motion_blur > 0 else {}),
+            **({"ground_truths": {"lamps": "gt", "uniform": UNIFORM_GT_DIR}} if config.uniform_gt else {}),
             "ground_truth_lighting": to_jsonable(dataclasses.asdict(config.ground_truth)),
             "trajectory": to_jsonable(dataclasses.asdict(config.trajectory)),
             "h_fov_deg": config.h_fov_deg,

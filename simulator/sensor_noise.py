@@ -37,6 +37,7 @@ import numpy as np
 from spotlessgs.io.atomic import atomic_path, remove_partial_files, write_json
 from spotlessgs.io.cameras import Intrinsics
 from spotlessgs.io.colorspace import linear_to_srgb
+from spotlessgs.io.dataset import UNIFORM_GT_DIR
 from spotlessgs.io.exr import FrameEXR, read_frame_exr, write_frame_exr
 from spotlessgs.io.folder_lock import folder_lock
 from spotlessgs.io.images import write_png
@@ -48,7 +49,7 @@ from spotlessgs.io.transforms import nerfstudio_camera, read_transforms
 NOISE_RECORD = "sensor_noise.json"
 EFFECTS_RECORD = "camera_effects.json"
 # Everything of a dataset folder that the noisy copy takes over unchanged (images/ is written anew).
-COPIED = ("gt", "exr", "sparse", "points3d.ply", "plan.json", "transforms.json")
+COPIED = ("gt", UNIFORM_GT_DIR, "exr", "sparse", "points3d.ply", "plan.json", "transforms.json")
 
 
 @dataclass(frozen=True)
@@ -243,7 +244,7 @@ def add_sensor_noise_to_dataset(data: str | Path, out: str | Path, noise: Sensor
                 continue
             if name in ("points3d.ply", "sparse") and not point_cloud:  # the COLMAP model holds the depth points too
                 continue
-            if lens_maps is not None and name in ("gt", "exr", "sparse"):  # resampled below; no pinhole model
+            if lens_maps is not None and name in ("gt", UNIFORM_GT_DIR, "exr", "sparse"):  # resampled below
                 continue
             if not src.exists() or dst.exists():
                 continue
@@ -264,14 +265,19 @@ def add_sensor_noise_to_dataset(data: str | Path, out: str | Path, noise: Sensor
             if lens_maps is not None:  # the render seen through the lens; the ground truth and the geometry too
                 linear = remap(linear, *lens_maps)
                 gt = remap(rendered.gt, *lens_maps)
+                uniform = None if rendered.gt_uniform is None else remap(rendered.gt_uniform, *lens_maps)
                 # depth and normals: nearest samples (an interpolated depth at an edge is a surface nobody sees)
                 write_frame_exr(out / frame.exr_file_path, FrameEXR(
                     uneven=linear, gt=gt, depth=remap_nearest(rendered.depth, *lens_maps),
                     normal=remap_nearest(rendered.normal, *lens_maps),
                     albedo=None if rendered.albedo is None else remap(rendered.albedo, *lens_maps),
-                    emission=None if rendered.emission is None else remap(rendered.emission, *lens_maps)))
+                    emission=None if rendered.emission is None else remap(rendered.emission, *lens_maps),
+                    gt_uniform=uniform))
                 if frame.gt_file_path is not None:
                     write_png(out / frame.gt_file_path, linear_to_srgb(np.clip(gt, 0, 1)))
+                if uniform is not None and frame.gt_file_path is not None:
+                    write_png(out / UNIFORM_GT_DIR / Path(frame.gt_file_path).name,
+                              linear_to_srgb(np.clip(uniform, 0, 1)))
             if gains is not None:
                 linear = linear * (effects.sensitivity * gains[index] * falloff)
             recorded = np.clip(linear, 0.0, 1.0) if noise is None else add_sensor_noise(

@@ -17,10 +17,11 @@ from spotlessgs.io.images import read_image, write_png
 from spotlessgs.io.transforms import DatasetMeta, FrameRecord, write_transforms
 
 
-def _dataset(root, with_albedo=True, frames=12, light_per_normal=False):
+def _dataset(root, with_albedo=True, frames=12, light_per_normal=False, uniform=False):
     """``frames`` views of 16 x 12 pixels (test views 0 and 11) with random unit normals: each frame's ground truth is
     its albedo (random colours) times 0.5, or with ``light_per_normal`` times a light that depends on the normal,
-    (0.5 + 0.3 n_z, 0.4, 0.6 - 0.2 n_x) per channel; the input is a dimmer copy."""
+    (0.5 + 0.3 n_z, 0.4, 0.6 - 0.2 n_x) per channel; the input is a dimmer copy. With ``uniform`` the dataset also
+    has the uniform ground truth, the albedo itself (gt_uniform/, the EXRs' gt_uniform channels)."""
     rng = np.random.default_rng(1)
     records = []
     for k in range(frames):
@@ -32,13 +33,16 @@ def _dataset(root, with_albedo=True, frames=12, light_per_normal=False):
         gt = (albedo * (light if light_per_normal else 0.5)).astype(np.float32)
         write_frame_exr(root / "exr" / f"{name}.exr", FrameEXR(
             uneven=0.2 * gt, gt=gt, depth=np.ones((12, 16), np.float32), normal=normal,
-            albedo=albedo if with_albedo else None))
+            albedo=albedo if with_albedo else None, gt_uniform=albedo if uniform else None))
+        if uniform:
+            write_png(root / "gt_uniform" / f"{name}.png", linear_to_srgb(albedo))
         write_png(root / "images" / f"{name}.png", linear_to_srgb(0.2 * gt))
         write_png(root / "gt" / f"{name}.png", linear_to_srgb(gt))
         records.append(FrameRecord(f"images/{name}.png", np.eye(4), gt_file_path=f"gt/{name}.png",
                                    exr_file_path=f"exr/{name}.exr"))
+    renderer = {"ground_truths": {"lamps": "gt", "uniform": "gt_uniform"}} if uniform else {}
     write_transforms(root / "transforms.json", Intrinsics.from_fov(60.0, 16, 12), records,
-                     DatasetMeta(scene_id="ceiling", test_every=11))
+                     DatasetMeta(scene_id="ceiling", test_every=11, renderer=renderer))
     return root
 
 
@@ -76,6 +80,31 @@ def test_the_light_per_normal_is_fitted_and_explains_a_normal_dependent_ground_t
     scores = ceiling(data, tmp_path / "ceiling", EvalConfig(lpips=False, progress=False))
     assert scores["albedo-sh"]["psnr_aligned"] > 40.0
     assert scores["albedo"]["psnr_aligned"] < scores["albedo-sh"]["psnr_aligned"] - 10.0
+
+
+def test_the_ceiling_against_the_uniform_ground_truth(tmp_path):
+    """The uniform ground truth is the albedo itself: the albedo oracle needs a gain of 1 and is exact; the scored
+    ground truth is gt_uniform/; a dataset without it is refused in one line naming its transforms.json."""
+    from spotlessgs.io.dataset import ground_truth_paths, read_dataset
+
+    data = _dataset(tmp_path / "data", light_per_normal=True, uniform=True)
+    assert ground_truth_paths(read_dataset(data), "uniform")[3] == data / "gt_uniform" / "frame_00003.png"
+    result = CliRunner().invoke(main, ["ceiling", str(data), "--out", str(tmp_path / "ceiling"), "--ground-truth",
+                                       "uniform", "--no-lpips", "--quiet"])
+    assert result.exit_code == 0, result.output + repr(result.exception)
+    scores = json.loads((tmp_path / "ceiling" / "eval-albedo" / "results.json").read_text())
+    assert scores["ground_truth"] == "uniform"
+    # the oracle's PNGs are the ground truth's bytes: an infinite PSNR (JSON null) and an SSIM of 1
+    assert scores["exposure_gain"] == pytest.approx(1.0, rel=0.01)
+    assert scores["psnr"] is None and scores["ssim"] == pytest.approx(1.0)
+    np.testing.assert_array_equal(read_image(tmp_path / "ceiling" / "gt" / "frame_00011.png"),
+                                  read_image(data / "gt_uniform" / "frame_00011.png"))
+    plain = _dataset(tmp_path / "plain")
+    result = CliRunner().invoke(main, ["ceiling", str(plain), "--out", str(tmp_path / "c2"), "--ground-truth",
+                                       "uniform", "--quiet"])
+    assert result.exit_code != 0
+    assert f"{plain / 'transforms.json'}: the dataset has no 'uniform' ground truth" in result.output
+    assert "spotless-sim render --gt uniform" in result.output and not (tmp_path / "c2").exists()
 
 
 def test_a_dataset_without_the_albedo_pass_is_refused_naming_the_file(tmp_path):

@@ -423,3 +423,74 @@ def test_motion_blur_blurs_the_input_and_leaves_the_ground_truth_and_geometry_sh
     renderer = json.loads((blurred / "transforms.json").read_text())["spotless"]["renderer"]
     assert renderer["motion_blur"] == 1.0
     assert "motion_blur" not in json.loads((sharp / "transforms.json").read_text())["spotless"]["renderer"]
+
+
+def test_the_uniform_ground_truth_is_the_albedo_without_shadows_and_restores_the_scene():
+    """A Lambertian floor (albedo 0.6) under a ceiling that closes it off from the world: the lamps-on render sees
+    only the lamp; the uniform ground truth is the albedo times the environment's radiance 1 everywhere, as if the
+    ceiling cast no shadow and the lamp were off. Afterwards every setting the uniform render changed is back."""
+    import bpy
+
+    from simulator.blender import renderer, scene_builder
+    from simulator.lighting import SpotlightConfig
+    from simulator.scene_model import LightFixture, Material, MeshObject, Scene
+    from spotlessgs.io.cameras import Intrinsics
+
+    scene_builder.reset_blender()
+    settings = renderer.CyclesSettings(width=24, height=18, samples=64, denoise=False, max_bounces=3, threads=2,
+                                       uniform_gt=True)
+    renderer.configure(settings)
+
+    def plane(name: str, z: float, half: float, material: Material) -> MeshObject:
+        return MeshObject(name=name, source="test", category=name,
+                          vertices=np.array([[-half, -half, z], [half, -half, z], [half, half, z], [-half, half, z]],
+                                            float), faces=np.array([[0, 1, 2], [0, 2, 3]]), material=material)
+
+    grey = Material(name="grey", base_color=(0.6, 0.6, 0.6), roughness=0.9)
+    glowing = Material(name="lamp", base_color=(1.0, 1.0, 1.0), emission=5.0, emission_color=(1.0, 1.0, 1.0))
+    scene = Scene(scene_id="closed", source=Path("closed"), rooms=[],
+                  objects=[plane("Floor", 0.0, 5.0, grey), plane("Ceiling", 2.0, 5.0, grey),
+                           plane("lamp", 1.9, 0.05, glowing)],
+                  lights=[LightFixture(name="bulb", kind="point", position=(2.0, 0.0, 1.5), power_w=30.0, size=0.05)])
+    built = scene_builder.build_scene(scene, SpotlightConfig(), 0.0, Intrinsics.from_fov(30.0, 24, 18),
+                                      lambertian=True)
+    pair = renderer.render_pair(built, _look_at_blender([0.0, 0.0, 1.0], [0.0, 0.0, 0.0]), settings, seed=0)
+    assert pair.gt_uniform is not None and pair.gt_uniform.shape == pair.gt.shape
+    np.testing.assert_allclose(pair.gt_uniform.mean(axis=(0, 1)), 0.6, atol=0.02)  # albedo x 1, no shadow
+    assert pair.gt_uniform.std() < 0.03  # even: no fall-off, no hot spot
+    np.testing.assert_allclose(pair.albedo, 0.6, atol=0.01)
+    assert pair.gt.max() > 0.05 and pair.gt.std() > 0.01  # the lamps-on render: lit by the bulb, uneven
+    scene_state = bpy.context.scene
+    assert all(ob.visible_shadow and ob.visible_diffuse and ob.visible_glossy for ob in built.meshes)
+    background = scene_state.world.node_tree.nodes["Background"].inputs["Strength"].default_value
+    assert background == 0.0
+
+
+def test_a_dataset_with_the_uniform_ground_truth_keeps_the_other_renders_bit_for_bit(dataset, tmp_path):
+    """``--gt uniform`` adds gt_uniform/ and the EXR channels; the inputs and the lamps-on ground truth are those of
+    the same render without it, the transforms name both ground truths, and a rerun without the option is refused."""
+    from simulator.render_pipeline import DatasetFolderError
+    from spotlessgs.io.exr import read_frame_exr
+    from spotlessgs.io.images import read_image
+
+    out = tmp_path / "uniform"
+    summary = _render(out, uniform_gt=True)
+    assert summary["complete"] and summary["rendered"] == 6
+    for k in range(6):
+        name = f"frame_{k:05d}"
+        for sub in ("images", "gt"):
+            assert (out / sub / f"{name}.png").read_bytes() == (dataset / sub / f"{name}.png").read_bytes()
+        frame = read_frame_exr(out / "exr" / f"{name}.exr")
+        assert frame.gt_uniform is not None
+        uniform = read_image(out / "gt_uniform" / f"{name}.png")
+        assert uniform.shape == (48, 64, 3)
+        surface = np.isfinite(frame.depth) & ~frame.emitters() & (frame.albedo.mean(-1) > 0.05)
+        ratio = frame.gt_uniform[surface].mean(-1) / frame.albedo[surface].mean(-1)
+        # the directional albedo: the albedo plus the 4 % specular layer of Blender's dielectrics (measured: median
+        # 1.04-1.06); no pixel in shadow (measured: 5th percentile 0.98-1.01)
+        assert 1.0 < float(np.median(ratio)) < 1.1 and float(np.percentile(ratio, 5)) > 0.95
+    renderer = json.loads((out / "transforms.json").read_text())["spotless"]["renderer"]
+    assert renderer["ground_truths"] == {"lamps": "gt", "uniform": "gt_uniform"}
+    assert "ground_truths" not in json.loads((dataset / "transforms.json").read_text())["spotless"]["renderer"]
+    with pytest.raises(DatasetFolderError, match="differs in: uniform_gt"):
+        _render(out)

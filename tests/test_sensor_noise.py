@@ -183,3 +183,40 @@ def test_temporary_files_of_a_killed_run_are_removed_when_the_next_starts(tmp_pa
     (out / ".sensor_noise.json.partial-k1ll3d.json").write_text("{")
     assert add_sensor_noise_to_dataset(src, out, noise, seed=1) == 1
     assert _tree(out) == expected
+
+
+def test_the_uniform_ground_truth_travels_with_the_copy_and_through_a_lens(tmp_path):
+    """A dataset rendered with ``--gt uniform``: a plain noisy copy keeps gt_uniform/ byte for byte; a copy through a
+    lens resamples it like the lamps-on ground truth (the same maps: the PNG is the resampled EXR channel)."""
+    from simulator.sensor_noise import CameraEffects
+    from spotlessgs.io.exr import read_frame_exr
+    from spotlessgs.io.lens import distort_maps, remap
+
+    src = tmp_path / "clean"
+    _dataset(src, frames=2, height=48, width=64)
+    rng = np.random.default_rng(5)
+    for k in range(2):
+        name = f"frame_{k:05d}"
+        frame = read_frame_exr(src / "exr" / f"{name}.exr")
+        uniform = rng.uniform(0.1, 0.9, frame.gt.shape).astype(np.float32)
+        write_frame_exr(src / "exr" / f"{name}.exr", FrameEXR(uneven=frame.uneven, gt=frame.gt, depth=frame.depth,
+                                                               normal=frame.normal, gt_uniform=uniform))
+        write_png(src / "gt_uniform" / f"{name}.png", linear_to_srgb(uniform))
+    plain = tmp_path / "plain"
+    add_sensor_noise_to_dataset(src, plain, SensorNoise(shot=0.01, read=0.01), seed=0)
+    for k in range(2):
+        name = f"frame_{k:05d}.png"
+        assert (plain / "gt_uniform" / name).read_bytes() == (src / "gt_uniform" / name).read_bytes()
+    lensed = tmp_path / "lens"
+    effects = CameraEffects(lens="opencv", distortion=(-0.2, 0.03, 0.0, 0.0))
+    add_sensor_noise_to_dataset(src, lensed, None, seed=0, effects=effects)
+    camera = effects.camera(Intrinsics.from_fov(75.0, 64, 48))
+    map_x, map_y, _valid = distort_maps(camera, Intrinsics.from_fov(75.0, 64, 48))
+    for k in range(2):
+        name = f"frame_{k:05d}"
+        source = read_frame_exr(src / "exr" / f"{name}.exr").gt_uniform
+        copied = read_frame_exr(lensed / "exr" / f"{name}.exr").gt_uniform
+        np.testing.assert_allclose(copied, remap(source, map_x, map_y), atol=1e-6)
+        assert not np.allclose(copied, source, atol=0.05)  # really resampled
+        png = read_image(lensed / "gt_uniform" / f"{name}.png")
+        np.testing.assert_allclose(png, linear_to_srgb(np.clip(copied, 0, 1)), atol=1 / 255 + 1e-6)

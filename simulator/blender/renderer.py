@@ -1,4 +1,5 @@
-"""Cycles set-up and the paired render of one pose: spotlight-only (uneven) and lamps-on (ground truth)."""
+"""Cycles set-up and the paired render of one pose: spotlight-only (uneven) and lamps-on (ground truth), and on
+request a third, the uniform ground truth (even, shadow-free environment light: see :func:`_uniform_light`)."""
 
 from __future__ import annotations
 
@@ -31,6 +32,7 @@ class CyclesSettings:
         ambient: world (environment) strength of the spotlight-only render; 0 = darkness besides the spotlight.
         motion_blur: Cycles camera motion blur in the spotlight-only render, on when :func:`render_pair` is given
             the poses at shutter open and close (the ground truth stays sharp).
+        uniform_gt: also render the uniform ground truth (:func:`_uniform_light`).
     """
 
     width: int = 320
@@ -42,6 +44,7 @@ class CyclesSettings:
     device: str = "auto"
     ambient: float = 0.0
     motion_blur: bool = False
+    uniform_gt: bool = False
 
 
 def _select_device(settings: CyclesSettings) -> str:
@@ -130,6 +133,35 @@ def _set_mode(built: BuiltScene, mode: str, settings: CyclesSettings) -> None:
     _world_strength(settings.ambient if spot else 0.0)
 
 
+#: Ray visibilities a mesh loses in the uniform ground truth: it is seen by camera rays only.
+_INDIRECT_VISIBILITY = ("visible_diffuse", "visible_glossy", "visible_transmission", "visible_volume_scatter",
+                        "visible_shadow")
+
+
+@contextlib.contextmanager
+def _uniform_light(built: BuiltScene):
+    """The room under even, shadow-free environment light of radiance 1 (white): the relighting equation's constant
+    L0. The spotlight and the lamps' lights are off and no surface glows (the lamps are present, unlit); every mesh
+    is visible to camera rays only, so every ray leaving a surface reaches the environment: each surface point sees
+    it, unoccluded, over its whole hemisphere and returns its directional albedo (a Lambertian surface: exactly its
+    albedo), with no shadow and no interreflection. Restores every setting on exit."""
+    built.spotlight.hide_render = True
+    for fixture in built.fixtures:
+        fixture.hide_render = True
+    for socket, _strength in built.emission_inputs:
+        socket.default_value = 0.0
+    saved = [(ob, name, getattr(ob, name)) for ob in built.meshes for name in _INDIRECT_VISIBILITY]
+    for ob, name, _value in saved:
+        setattr(ob, name, False)
+    _world_strength(1.0)
+    try:
+        yield
+    finally:
+        for ob, name, value in saved:
+            setattr(ob, name, value)
+        _world_strength(0.0)
+
+
 @dataclass
 class RenderedPair:
     """Both renders of one pose, linear float32.
@@ -142,6 +174,7 @@ class RenderedPair:
         albedo: (H, W, 3) diffuse colour of the visible surfaces (Cycles' Diffuse Color pass: the Principled BSDF's base
             colour scaled by its diffuse share, so a metal's is dark), linear.
         emission: (H, W, 3) linear radiance emitted by the visible surfaces in the ground truth (Cycles' Emission pass).
+        gt_uniform: (H, W, 3) the uniform ground truth (:func:`_uniform_light`), linear RGB, or None when not asked.
     """
 
     uneven: np.ndarray
@@ -150,6 +183,7 @@ class RenderedPair:
     normal: np.ndarray
     albedo: np.ndarray
     emission: np.ndarray
+    gt_uniform: np.ndarray | None = None
 
 
 def _channels(chans: dict[str, np.ndarray], suffixes: tuple[str, ...], path: Path) -> np.ndarray:
@@ -263,6 +297,10 @@ def render_pair(built: BuiltScene, c2w_blender: np.ndarray, settings: CyclesSett
             spot = _render_exr(work, "uneven")
         _set_mode(built, "gt", settings)
         gt = _render_exr(work, "gt")
+        uniform = None
+        if settings.uniform_gt:
+            with _uniform_light(built):
+                uniform = _render_exr(work, "gt_uniform")
     combined = (".Combined.R", ".Combined.G", ".Combined.B")
     sharp = gt if blurred else spot  # the geometry passes of a sharp render (identical in both when nothing moves)
     depth = blender_depth_to_planar(_channels(sharp, (".Depth.Z",), work))
@@ -273,6 +311,7 @@ def render_pair(built: BuiltScene, c2w_blender: np.ndarray, settings: CyclesSett
         normal=_channels(sharp, (".Normal.X", ".Normal.Y", ".Normal.Z"), work).astype(np.float32),
         albedo=_channels(gt, (".Diffuse Color.R", ".Diffuse Color.G", ".Diffuse Color.B"), work).astype(np.float32),
         emission=_channels(gt, (".Emission.R", ".Emission.G", ".Emission.B"), work).astype(np.float32),
+        gt_uniform=None if uniform is None else _channels(uniform, combined, work).astype(np.float32),
     )
 
 

@@ -24,6 +24,7 @@ class BuiltScene:
         spot_local: (4, 4) pose of the spot light in the Blender camera frame (constant).
         fixtures: ground-truth light objects.
         emission_inputs: (socket, strength) pairs of the emission strengths to enable in the ground-truth render.
+        meshes: every mesh object of the room (the uniform ground truth makes them cast no shadow).
     """
 
     camera: bpy.types.Object
@@ -31,6 +32,7 @@ class BuiltScene:
     spot_local: np.ndarray
     fixtures: list = field(default_factory=list)
     emission_inputs: list = field(default_factory=list)
+    meshes: list = field(default_factory=list)
 
 
 def reset_blender() -> None:
@@ -190,6 +192,6 @@ def build_scene(scene: Scene, spot: SpotlightConfig, ceiling_glow: float, intrin
         key = (obj.material, glow)
         if key not in materials:
             materials[key] = build_material(obj.material, built, glow, lambertian)
-        build_mesh(obj, materials[key])
+        built.meshes.append(build_mesh(obj, materials[key]))
     built.fixtures = [build_fixture(light) for light in scene.lights]
     return built

@@ -105,6 +105,40 @@ def read_dataset(folder: str | os.PathLike, check_files: bool = False) -> Datase
     raise FileNotFoundError(f"{folder}: neither transforms.json nor a COLMAP sparse/ folder")
 
 
+#: The ground truths a dataset may hold: ``lamps`` (the lamps-on render, each frame's ``gt_file_path``) and
+#: ``uniform`` (even, shadow-free environment light; ``spotless-sim render --gt uniform``).
+GROUND_TRUTHS = ("lamps", "uniform")
+#: The folder the simulator writes the uniform ground truth's PNGs to, beside ``gt/`` (same file names).
+UNIFORM_GT_DIR = "gt_uniform"
+
+
+def available_ground_truths(dataset: DatasetDescription) -> tuple[str, ...]:
+    """The ground truths of :data:`GROUND_TRUTHS` that ``dataset`` holds (``lamps`` when its frames have a
+    ``gt_file_path``; the others when its renderer settings list their folder)."""
+    folders = (dataset.meta.get("renderer") or {}).get("ground_truths") or {}
+    has_lamps = any(p is not None for p in dataset.gt_paths)
+    return tuple(name for name in GROUND_TRUTHS if (has_lamps if name == "lamps" else name in folders))
+
+
+def ground_truth_paths(dataset: DatasetDescription, which: str = "lamps") -> tuple[Path | None, ...]:
+    """Each frame's ground-truth image of the kind ``which`` (see :data:`GROUND_TRUTHS`): ``lamps`` are the frames'
+    ``gt_file_path``; another kind has the same file name in the folder its renderer settings name.
+
+    Raises:
+        DatasetError: ``which`` is unknown, or the dataset was rendered without it (naming the file).
+    """
+    if which not in GROUND_TRUTHS:
+        raise DatasetError(f"unknown ground truth {which!r}; choose from {list(GROUND_TRUTHS)}")
+    if which == "lamps":
+        return tuple(dataset.gt_paths)
+    folders = (dataset.meta.get("renderer") or {}).get("ground_truths") or {}
+    folder = folders.get(which)
+    if not isinstance(folder, str) or not folder or Path(folder).is_absolute() or ".." in Path(folder).parts:
+        raise DatasetError(f"{dataset.source}: the dataset has no {which!r} ground truth (render it with "
+                           f"`spotless-sim render --gt {which}`)")
+    return tuple(None if p is None else dataset.root / folder / p.name for p in dataset.gt_paths)
+
+
 def load_initial_points(dataset: DatasetDescription) -> PointCloud | None:
     """The initial point cloud: the PLY named by the dataset, else the COLMAP model's 3D points, else None."""
     if dataset.ply_path is not None:

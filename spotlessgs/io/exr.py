@@ -10,7 +10,8 @@ The dataset's per-frame EXR holds linear renders and geometry of one view (see `
 ``uneven.R/G/B`` (linear spotlight-only render), ``gt.R/G/B`` (linear ground truth), ``depth.Z`` (planar depth along the
 optical axis in metres, inf for background) and ``normal.X/Y/Z`` (world-space unit normals); datasets rendered from
 2026-11-24 on also ``albedo.R/G/B`` (the diffuse colour of the visible surfaces) and ``emission.R/G/B`` (the radiance
-that visible surfaces emit in the ground truth: its glowing lamps).
+that visible surfaces emit in the ground truth: its glowing lamps); datasets rendered with ``--gt uniform`` also
+``gt_uniform.R/G/B`` (the uniform ground truth: even, shadow-free environment light, lamps unlit).
 """
 
 from __future__ import annotations
@@ -38,6 +39,7 @@ DEPTH_CHANNEL = "depth.Z"
 NORMAL_CHANNELS = ("normal.X", "normal.Y", "normal.Z")
 ALBEDO_CHANNELS = ("albedo.R", "albedo.G", "albedo.B")
 EMISSION_CHANNELS = ("emission.R", "emission.G", "emission.B")
+UNIFORM_GT_CHANNELS = ("gt_uniform.R", "gt_uniform.G", "gt_uniform.B")
 # A pixel shows an emitter when the emitted radiance is at least this share of its ground-truth radiance (the lamp
 # surfaces; anti-aliased edge pixels that are mostly lamp count too).
 EMITTER_SHARE = 0.5
@@ -139,6 +141,8 @@ class FrameEXR:
         albedo: (H, W, 3) float32 linear diffuse colour of the visible surfaces, or None (datasets rendered before
             2026-11-24).
         emission: (H, W, 3) float32 linear radiance emitted by the visible surfaces in the ground truth, or None.
+        gt_uniform: (H, W, 3) float32 linear uniform ground truth (even, shadow-free environment light of radiance 1,
+            no glowing lamps), or None (rendered only with ``spotless-sim render --gt uniform``).
     """
 
     uneven: np.ndarray
@@ -147,12 +151,13 @@ class FrameEXR:
     normal: np.ndarray
     albedo: np.ndarray | None = None
     emission: np.ndarray | None = None
+    gt_uniform: np.ndarray | None = None
 
     def __post_init__(self) -> None:
         if self.depth.ndim != 2:
             raise ValueError(f"FrameEXR: depth must be (H, W), got shape {self.depth.shape}")
         expected = self.depth.shape + (3,)
-        for name in ("uneven", "gt", "normal", "albedo", "emission"):
+        for name in ("uneven", "gt", "normal", "albedo", "emission", "gt_uniform"):
             value = getattr(self, name)
             if value is not None and value.shape != expected:
                 raise ValueError(f"FrameEXR: {name} must have shape {expected} (from depth), got {value.shape}")
@@ -183,7 +188,8 @@ def write_frame_exr(path: str | os.PathLike, frame: FrameEXR, compression: str =
     """Write a :class:`FrameEXR` with the dataset's channel names, 32-bit float, atomically."""
     channels: dict[str, np.ndarray] = {}
     for names, image in ((UNEVEN_CHANNELS, frame.uneven), (GT_CHANNELS, frame.gt), (NORMAL_CHANNELS, frame.normal),
-                         (ALBEDO_CHANNELS, frame.albedo), (EMISSION_CHANNELS, frame.emission)):
+                         (ALBEDO_CHANNELS, frame.albedo), (EMISSION_CHANNELS, frame.emission),
+                         (UNIFORM_GT_CHANNELS, frame.gt_uniform)):
         if image is None:
             continue
         for k, name in enumerate(names):
@@ -213,4 +219,5 @@ def read_frame_exr(path: str | os.PathLike) -> FrameEXR:
         normal=stack(NORMAL_CHANNELS),
         albedo=optional(ALBEDO_CHANNELS),
         emission=optional(EMISSION_CHANNELS),
+        gt_uniform=optional(UNIFORM_GT_CHANNELS),
     )

@@ -60,6 +60,9 @@ class ReproduceConfig:
     height: int = 120
     # Cycles samples per pixel.
     samples: int = 16
+    # Also render every test room's uniform ground truth (even, shadow-free environment light, lamps unlit:
+    # ``spotless-sim render --gt uniform``) and score every row against it beside the lamps-on one.
+    uniform_gt: bool = True
     # 3D models trained on every test dataset.
     methods: tuple[str, ...] = METHODS_3D
     # Trainer preset (spotlessgs.training.config) and overrides (None keeps the preset's value). quick: the trainer's

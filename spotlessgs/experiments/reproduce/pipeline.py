@@ -8,8 +8,10 @@ Output folder layout::
     OUT/datasets/<room>-robot/            the uneven dataset through a robot camera, sparse start (config.robot_*)
     OUT/datasets/gan-<room>/              other rooms' renders for the Cycle-GAN
     OUT/inputs/<room>-<variant>/          the uneven inputs' evaluation, once per dataset (results.json, sfm/)
-    OUT/ceiling/<room>-<variant>/         the relighting ceiling's oracles and their scores (evaluation.ceiling)
-    OUT/runs/<room>-<variant>/<method>/   training runs (+ relit/, eval/ without the inputs, curve/; auto:
+    OUT/ceiling/<room>-<variant>/         the relighting ceiling's oracles and their scores (evaluation.ceiling;
+                                          uniform/: the same against the uniform ground truth)
+    OUT/runs/<room>-<variant>/<method>/   training runs (+ relit/, eval/ without the inputs, eval-uniform/ against
+                                          the uniform ground truth (image metrics), curve/; auto:
                                           model_selection.json, selection/ and gaussian_budget.json)
     OUT/cyclegan/                         the Cycle-GAN checkpoint
     OUT/baselines2d/<room>-<variant>/<method>/  enhanced images and their evaluation
@@ -74,7 +76,7 @@ def build_graph(config: ReproduceConfig, out: Path) -> StageGraph:
             resources=render_resources,
             kwargs={"scene_file": str(config.scene_file(room)), "out_dir": str(out / "datasets" / ds),
                     "variant": variant, "frames": config.frames, "width": config.width, "height": config.height,
-                    "samples": config.samples, "seed": config.seed}))
+                    "samples": config.samples, "seed": config.seed, "uniform_gt": config.uniform_gt}))
     if "cyclegan" in config.baselines:
         for room in config.gan_rooms:
             stages.append(Stage(

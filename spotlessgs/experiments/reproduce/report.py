@@ -47,8 +47,9 @@ def collect(out: Path, config: ReproduceConfig) -> dict[str, Any]:
     for room, variant in config.all_datasets():
         ds = dataset_id(room, variant)
         entry: dict[str, Any] = {"room": room, "variant": variant, "methods": {}, "baselines2d": {},
-                                 "input": read_marker(out, f"{INPUTS_STAGE}/{ds}")["result"]["metrics"],
-                                 "ceiling": read_marker(out, f"{CEILING_STAGE}/{ds}")["result"].get("metrics", {})}
+                                 "input": read_marker(out, f"{INPUTS_STAGE}/{ds}")["result"]["metrics"]}
+        ceiling = read_marker(out, f"{CEILING_STAGE}/{ds}")["result"]
+        entry.update(ceiling=ceiling.get("metrics", {}), ceiling_uniform=ceiling.get("uniform", {}))
         if variant == NOISY_VARIANT:
             entry["sensor_noise"] = read_marker(out, f"noise/{ds}")["result"]
         if variant == ROBOT_VARIANT:

@@ -1,11 +1,16 @@
-"""Tables I-IV, the runtime table and the agreement notes, computed from the collected stage results.
+"""Tables I-IV, the runtime, robot-camera, ceiling and uniform-ground-truth tables and the agreement notes, computed
+from the collected stage results.
 
 Input (``collected``, built by :mod:`spotlessgs.experiments.reproduce.report`)::
 
     {"datasets": {DS: {"room", "variant",
                        "input": {psnr, ssim, lpips, *_aligned, tmp_psnr, tmp_ssim, sfm: {...}} (the uneven inputs,
                                 scored once per dataset by its eval-inputs stage),
-                       "methods": {METHOD: {"metrics": {same keys, sfm}, "train": {...}, "relight": {...},
+                       "ceiling": {ORACLE: {psnr, ..., *_masked}}, "ceiling_uniform": {ORACLE: {...}} (against the
+                                uniform ground truth; {} for a dataset without one),
+                       "methods": {METHOD: {"metrics": {same keys, sfm, "uniform": {image metrics against the uniform
+                                                                                      ground truth}},
+                                            "train": {...}, "relight": {...},
                                             "curve": [...], "selection": {...} (auto only),
                                             "decisions": {"model chosen": str, "Gaussians": int | None}}},
                        "baselines2d": {METHOD: {"metrics": {...}, "runtime": {...}}}}},
@@ -369,6 +374,10 @@ def robot_table(collected: dict) -> Table:
                                _get(metrics, "tmp_flicker"), gaussians])
         table.rows.append([ds_name, "Ground truth (evenly lit)", None, None, None, None,
                            _get(robot, "input", "gt_tmp_flicker"), None])
+        uniform_flicker = _get(robot, "input", "uniform", "gt_tmp_flicker")
+        if uniform_flicker is not None:
+            table.rows.append([ds_name, "Uniform ground truth (even, shadow-free)", None, None, None, None,
+                               uniform_flicker, None])
         camera = robot["robot_camera"]
         effects = camera.get("camera_effects", {})
         table.notes.append(
@@ -423,6 +432,37 @@ def ceiling_table(collected: dict) -> Table:
     return table
 
 
+def uniform_table(collected: dict) -> Table:
+    """Every row of the ceiling table scored against both ground truths: the lamps-on one (lamps left out) and the
+    uniform one (even, shadow-free light; ``spotless-sim render --gt uniform``), with each row's distance to the
+    uniform ceiling. Only datasets rendered with the uniform ground truth have rows."""
+    columns = ["Dataset", "Method", "PSNR (aligned), lamps-on GT, no lamps", "PSNR (aligned), uniform GT",
+               "SSIM (aligned), uniform GT", "LPIPS (aligned), uniform GT", "Below the uniform ceiling (dB)"]
+    table = Table("uniform", "Against the uniform ground truth — even, shadow-free light (the relighting equation's "
+                  "constant L0)", columns,
+                  digits={"PSNR (aligned), lamps-on GT, no lamps": 2, "PSNR (aligned), uniform GT": 2,
+                          "Below the uniform ceiling (dB)": 2})
+    names = ["input", "3dgs", "darkgs", "darkgs+sh", "darkgs+brdf", "spotless", "auto", "clahe", "msrcr", "cyclegan"]
+    for ds_name, ds in collected["datasets"].items():
+        oracles = ds.get("ceiling_uniform") or {}
+        if not oracles:
+            continue
+        top = _get(oracles.get("albedo-sh"), "psnr_aligned")
+        rows = [(CEILING_ROWS[k], _get(ds.get("ceiling"), k), oracles.get(k)) for k in CEILING_ROWS]
+        rows += [(label, metrics, _get(metrics, "uniform")) for _key, label, metrics in method_rows(ds, names)]
+        for label, lamps, uniform in rows:
+            own = _get(uniform, "psnr_aligned")
+            below = top - own if _finite(top) and _finite(own) else None
+            table.rows.append([ds_name, label, _get(lamps, "psnr_aligned_masked")]
+                              + [_get(uniform, k) for k in ("psnr_aligned", "ssim_aligned", "lpips_aligned")]
+                              + [below])
+    table.notes.append("The same test images scored against the uniform ground truth: the room under even, "
+                       "shadow-free environment light of radiance 1 with the lamps unlit, which a relighting of the "
+                       "form albedo × (L0 + L_lf) can produce up to the specular layer. Ceiling rows: fitted to it. "
+                       "Below the ceiling = the SH oracle's PSNR minus the row's, against the uniform ground truth.")
+    return table
+
+
 def ceiling_agreement(collected: dict) -> list[Agreement]:
     """Issue 18's acceptance on every dataset with a ceiling: SpotlessGS within CEILING_WITHIN_DB of it (aligned PSNR,
     lamps left out)."""
@@ -455,6 +495,9 @@ def robot_agreement(collected: dict) -> list[Agreement]:
         psnr, ideal_psnr = ours.get("psnr_aligned"), _get(ideal, "methods", "spotless", "metrics", "psnr_aligned")
         inputs = _get(robot, "input", "psnr_aligned")
         flicker, gt_flicker = ours.get("tmp_flicker"), _get(robot, "input", "gt_tmp_flicker")
+        uniform_flicker = _get(robot, "input", "uniform", "gt_tmp_flicker")
+        uniform_words = (f"; the uniform ground truth's (even, shadow-free light, no lamp fall-off) {uniform_flicker:.3f}"
+                         if _finite(uniform_flicker) else "")
         checks = [
             (f"Acceptance on {ds_name}: SpotlessGS within {ROBOT_WITHIN_DB} dB of the ideal input (PSNR aligned)",
              (psnr, ideal_psnr), lambda a, b: a >= b - ROBOT_WITHIN_DB,
@@ -464,7 +507,8 @@ def robot_agreement(collected: dict) -> list[Agreement]:
              lambda a, b: f"relit {a:.2f} dB, inputs {b:.2f} dB: {a - b:+.2f} dB"),
             (f"Acceptance on {ds_name}: the relit sequence flickers no more than the ground truth",
              (flicker, gt_flicker), lambda a, b: a <= b,
-             lambda a, b: f"relit {a:.3f}, ground truth {b:.3f} (mean |log brightness ratio| of consecutive frames)"),
+             lambda a, b: f"relit {a:.3f}, ground truth {b:.3f} (mean |log brightness ratio| of consecutive frames)"
+                          f"{uniform_words}"),
         ]
         for claim, (a, b), holds, sentence in checks:
             if not (_finite(a) and _finite(b)):
@@ -717,8 +761,10 @@ def agreement_notes(collected: dict) -> list[Agreement]:
 
 
 def all_tables(collected: dict) -> list[Table]:
-    """Tables I-IV, the runtime table, the robot camera's and the relighting ceiling's, in report order."""
+    """Tables I-IV, the runtime table, the robot camera's, the relighting ceiling's and the uniform ground truth's,
+    in report order."""
     tables = [table1(collected), table2(collected), table3(collected), table4(collected), runtime_table(collected)]
     tables += [robot_table(collected)] if robot_pairs(collected) else []
-    return tables + ([ceiling_table(collected)] if any(ds.get("ceiling") for ds in collected["datasets"].values())
-                     else [])
+    datasets = collected["datasets"].values()
+    tables += [ceiling_table(collected)] if any(ds.get("ceiling") for ds in datasets) else []
+    return tables + ([uniform_table(collected)] if any(ds.get("ceiling_uniform") for ds in datasets) else [])

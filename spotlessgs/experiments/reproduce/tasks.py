@@ -24,7 +24,9 @@ from evaluation.ceiling import ceiling
 from evaluation.dataset import read_dataset
 from evaluation.folders import ImagePair
 from evaluation.report import write_results_json
-from evaluation.runner import EvalConfig, evaluate_run, score_inputs, score_pairs, temporal_block
+from evaluation.runner import (
+    EvalConfig, evaluate_run, ground_truth_flicker, score_inputs, score_pairs, scored_test_frames, temporal_block,
+)
 from evaluation.sfm import SfmConfig, run_sfm
 from simulator.render_pipeline import ExecutionOptions, RenderConfig, render_dataset
 from simulator.sensor_noise import CameraEffects, SensorNoise, add_sensor_noise_to_dataset
@@ -34,6 +36,7 @@ from spotlessgs.baselines2d.cyclegan.train import train_cyclegan
 from spotlessgs.experiments.reproduce.report import write_report
 from spotlessgs.io.atomic import to_jsonable, write_json
 from spotlessgs.io.cameras import opengl_to_opencv_c2w
+from spotlessgs.io.dataset import available_ground_truths
 from spotlessgs.io.dataset import read_dataset as read_dataset_description
 from spotlessgs.io.errors import InputError
 from spotlessgs.io.json_files import read_json
@@ -48,10 +51,12 @@ _BULKY_KEYS = ("per_image", "config", "provenance", "test_views")
 
 
 def compact_metrics(results: dict[str, Any]) -> dict[str, Any]:
-    """An evaluation results dict without per-image lists, configs and provenance (recursively for ``input``)."""
+    """An evaluation results dict without per-image lists, configs and provenance (recursively for ``input`` and
+    ``uniform``, the scores against the uniform ground truth)."""
     out = {k: v for k, v in results.items() if k not in _BULKY_KEYS}
-    if isinstance(out.get("input"), dict):
-        out["input"] = compact_metrics(out["input"])
+    for nested in ("input", "uniform"):
+        if isinstance(out.get(nested), dict):
+            out[nested] = compact_metrics(out[nested])
     return out
 
 
@@ -86,9 +91,11 @@ def relight_in_fresh_process(run_dir: Path, threads: int) -> dict[str, Any]:
 
 
 def render_room(scene_file: str, out_dir: str, variant: str, frames: int, width: int, height: int, samples: int,
-                seed: int, threads: int) -> dict[str, Any]:
-    """Render (or resume) one paired dataset with the simulator; RuntimeError when it is not complete afterwards."""
-    config = RenderConfig.from_preset(variant, frames=frames, width=width, height=height, samples=samples, seed=seed)
+                seed: int, threads: int, uniform_gt: bool = False) -> dict[str, Any]:
+    """Render (or resume) one paired dataset with the simulator (``uniform_gt``: also the uniform ground truth);
+    RuntimeError when it is not complete afterwards."""
+    config = RenderConfig.from_preset(variant, frames=frames, width=width, height=height, samples=samples, seed=seed,
+                                      uniform_gt=uniform_gt)
     execution = ExecutionOptions(threads=threads, progress=False, quiet=True)
     summary = render_dataset(scene_file, out_dir, config, execution=execution)
     if not summary["complete"]:
@@ -137,6 +144,19 @@ def _eval_config(sfm: bool, sfm_matcher: str, lpips: bool, seed: int, threads: i
                       num_threads=threads, progress=False, inputs=inputs)
 
 
+def _uniform_config(lpips: bool, threads: int) -> EvalConfig:
+    """The scores against a dataset's uniform ground truth: image metrics of the test views only (the temporal
+    metrics and SfM do not depend on the ground truth and are computed once, against the lamps-on one)."""
+    return EvalConfig(lpips=lpips, temporal=False, sfm=False, num_threads=threads, progress=False, inputs=False,
+                      ground_truth="uniform")
+
+
+def has_uniform_ground_truth(data_dir: str | Path) -> bool:
+    """Was the dataset rendered with the uniform ground truth (``spotless-sim render --gt uniform``; its noisy and
+    robot-camera copies carry it over)?"""
+    return "uniform" in available_ground_truths(read_dataset_description(data_dir))
+
+
 def evaluate_inputs(data_dir: str, out_dir: str, sfm: bool, sfm_matcher: str, lpips: bool, seed: int,
                     threads: int) -> dict[str, Any]:
     """Score a dataset's original (uneven) inputs once for every method: the ``input`` block of
@@ -162,6 +182,14 @@ def evaluate_inputs(data_dir: str, out_dir: str, sfm: bool, sfm_matcher: str, lp
                                "test_views": [f.name for f in data.test_frames if f.gt_path is not None], **scores}
     results["config"] = asdict(config)
     results["provenance"] = provenance(extra_packages=("pycolmap", "kornia"))
+    if has_uniform_ground_truth(data_dir):
+        uniform = read_dataset(data_dir, "uniform")
+        results["uniform"] = score_pairs([ImagePair(f.name, f.input_path, f.gt_path, f.depth_path)
+                                          for f in scored_test_frames(uniform)],
+                                         _uniform_config(lpips, threads), "input vs uniform gt")
+        flicker = ground_truth_flicker(uniform, config)  # an evenly lit sequence without the lamps' fall-off
+        if flicker is not None:
+            results["uniform"]["gt_tmp_flicker"] = flicker
     write_results_json(out / "results.json", results)
     metrics = {k: v for k, v in compact_metrics(results).items() if k not in ("mode", "data_dir")}
     return {"metrics": to_jsonable(metrics)}
@@ -173,17 +201,24 @@ def evaluate_ceiling(data_dir: str, out_dir: str, sfm: bool, sfm_matcher: str, l
     best light per normal, scored like the methods' test views) into ``out_dir``.
 
     Returns:
-        ``{"metrics": {oracle: results without per-image lists}}``, or ``{"skipped": reason}`` for a dataset whose
-        EXRs have no albedo pass (rendered before 2026-11-24).
+        ``{"metrics": {oracle: results without per-image lists}}`` (and ``uniform``: the same against the uniform
+        ground truth, fitted to it, in ``out_dir/uniform``, when the dataset has one), or ``{"skipped": reason}`` for a
+        dataset whose EXRs have no albedo pass (rendered before 2026-11-24).
     """
     del sfm, sfm_matcher, seed  # the oracles are images of the test views: no SfM, nothing random
     config = EvalConfig(lpips=lpips, temporal=False, num_threads=threads, progress=False)
+
+    def compact(results: dict[str, dict]) -> dict[str, Any]:
+        return to_jsonable({name: {k: v for k, v in compact_metrics(r).items() if k not in ("mode", "data")}
+                            for name, r in results.items()})
+
     try:
-        results = ceiling(data_dir, out_dir, config)
+        out = {"metrics": compact(ceiling(data_dir, out_dir, config))}
     except InputError as exc:
         return {"skipped": str(exc)}
-    return {"metrics": to_jsonable({name: {k: v for k, v in compact_metrics(r).items() if k not in ("mode", "data")}
-                                    for name, r in results.items()})}
+    if has_uniform_ground_truth(data_dir):
+        out["uniform"] = compact(ceiling(data_dir, Path(out_dir) / "uniform", _uniform_config(lpips, threads)))
+    return out
 
 
 def curve_milestones(iterations: int, fractions: Sequence[float]) -> list[int]:
@@ -291,6 +326,9 @@ def train_method(data_dir: str, run_dir: str, variant: str, train_preset: str, i
     results = evaluate_run(run, _eval_config(sfm, sfm_matcher, lpips, seed, threads, inputs=False),
                            out_dir=run / "eval")
     metrics = compact_metrics(results)
+    if has_uniform_ground_truth(data):  # the same relit test views against the other ground truth
+        metrics["uniform"] = compact_metrics(evaluate_run(run, _uniform_config(lpips, threads),
+                                                          out_dir=run / "eval-uniform"))
     train_seconds = selection_seconds + loop_seconds
     curve.append({"step": config.iterations, "train_seconds": train_seconds,
                   **{k: metrics[k] for k in ("psnr", "ssim", "psnr_aligned", "ssim_aligned")}})
@@ -338,6 +376,10 @@ def evaluate_enhanced(data_dir: Path, enhanced_dir: Path, work_dir: Path, sfm: b
     if not pairs:
         raise ValueError(f"{data_dir}: no test view has a ground-truth image")
     results: dict[str, Any] = dict(score_pairs(pairs, config, "enhanced vs gt"))
+    if has_uniform_ground_truth(data_dir):
+        results["uniform"] = score_pairs([ImagePair(f.name, enhanced_dir / f.name, f.gt_path, f.depth_path)
+                                          for f in scored_test_frames(read_dataset(data_dir, "uniform"))],
+                                         _uniform_config(lpips, threads), "enhanced vs uniform gt")
     results.update(temporal_block([enhanced_dir / f.name for f in data.frames], config, "enhanced", data))
     if sfm:
         names = [f.name for f in data.frames]
