@@ -18,7 +18,7 @@ from pathlib import Path
 import numpy as np
 
 from spotlessgs.io.cameras import Intrinsics
-from spotlessgs.io.dataset import ground_truth_paths
+from spotlessgs.io.dataset import ground_truth_paths, true_exposure_gains
 from spotlessgs.io.dataset import read_dataset as read_dataset_description
 from spotlessgs.io.exr import DEPTH_CHANNEL, read_exr
 from spotlessgs.io.transforms import DatasetDescription, DatasetError
@@ -43,6 +43,9 @@ class DatasetViews:
     intrinsics: Intrinsics | None  # the camera every frame shares; None for frames of several cameras
     frames: tuple[DatasetFrame, ...]  # all views in time order
     test_indices: tuple[int, ...]  # indices into ``frames`` of the test views
+    # each frame's true exposure gain (a simulated robot camera's copy, spotlessgs.io.dataset.true_exposure_gains),
+    # else None
+    exposure_gains: tuple[float, ...] | None = None
 
     @property
     def test_frames(self) -> list[DatasetFrame]:
@@ -86,7 +89,8 @@ def dataset_views(desc: DatasetDescription, ground_truth: str = "lamps") -> Data
                 f"are both {frame.name!r} (relit images are matched to views by this name)"
             )
         seen[frame.name] = i
-    return DatasetViews(desc.root, desc.intrinsics if desc.has_one_camera else None, frames, tuple(desc.split.test))
+    return DatasetViews(desc.root, desc.intrinsics if desc.has_one_camera else None, frames, tuple(desc.split.test),
+                        true_exposure_gains(desc))
 
 
 def read_depth_exr(path: str | os.PathLike) -> np.ndarray:

@@ -36,7 +36,9 @@ from evaluation.lpips import lpips
 from evaluation.plots import save_image_grid, save_trajectory_plot
 from evaluation.report import write_markdown, write_results_json
 from evaluation.sfm import SfmConfig, SfmResult, run_sfm
-from evaluation.temporal import PosedFrame, sequence_flicker, temporal_scores, warped_temporal_scores
+from evaluation.temporal import (
+    PosedFrame, exposure_leak, sequence_flicker, temporal_scores, warped_temporal_scores,
+)
 from spotlessgs.io.cameras import Intrinsics, opengl_to_opencv_c2w
 from spotlessgs.io.dataset import GROUND_TRUTHS
 from spotlessgs.io.errors import InputError
@@ -525,6 +527,9 @@ def score_inputs(data: DatasetViews, config: EvalConfig, sfm_dir: Path) -> tuple
         flicker = ground_truth_flicker(data, config)  # what an evenly lit sequence has
         if flicker is not None:
             scores["gt_tmp_flicker"] = flicker
+        leak = _exposure_leak([f.input_path for f in data.frames], data, config)
+        if leak is not None:
+            scores["tmp_exposure_leak"] = leak
     result = None
     if config.sfm:
         names = [f.name for f in data.frames]
@@ -536,6 +541,17 @@ def score_inputs(data: DatasetViews, config: EvalConfig, sfm_dir: Path) -> tuple
             scores["sfm_gt"], _ = _sfm_block(gt_folder, names, sfm_dir.with_name(sfm_dir.name + "_gt"), config,
                                              "ground truth", data.intrinsics, true)
     return scores, result
+
+
+def _exposure_leak(paths: Sequence[Path], data: DatasetViews, config: EvalConfig) -> float | None:
+    """:func:`evaluation.temporal.exposure_leak` of the sequence ``paths`` (one image per frame of ``data``, in
+    order) against the ground truth, with the dataset's true exposure gains; None when the dataset has no gains (not
+    a simulated robot camera's copy) or a frame has no ground truth."""
+    if data.exposure_gains is None or not all(f.gt_path is not None for f in data.frames):
+        return None
+    with _torch_threads(config.num_threads), torch.no_grad():
+        return exposure_leak((_chw(_load(p)) for p in paths), (_chw(_load(f.gt_path)) for f in data.frames),
+                             data.exposure_gains)
 
 
 def ground_truth_flicker(data: DatasetViews, config: EvalConfig = EvalConfig()) -> float | None:
@@ -631,6 +647,9 @@ def _evaluate_run_locked(run: Path, data_root: Path, relit_dir: Path, out: Path,
     results.update(score_pairs(relit_pairs, config, "relit vs gt"))
     if config.temporal:
         results.update(temporal_block([relit_dir / f.name for f in data.frames], config, "relit", data))
+        leak = _exposure_leak([relit_dir / f.name for f in data.frames], data, config)
+        if leak is not None:
+            results["tmp_exposure_leak"] = leak
     panels = {}
     names = [f.name for f in data.frames]
     true = {f.name: opengl_to_opencv_c2w(f.c2w_opengl) for f in data.frames}

@@ -15,7 +15,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from typing import Iterable, Iterator
+from typing import Iterable, Iterator, Sequence
 
 import torch
 import torch.nn.functional as F
@@ -69,6 +69,30 @@ def sequence_flicker(frames: Iterable[Tensor]) -> float:
     """TemporalScores.flicker of a sequence of (3, H, W) frames without the pairs' PSNR and SSIM (NaN for fewer
     than two frames)."""
     return TemporalScores([], [], [brightness_step(a, b) for a, b in consecutive_pairs(frames)]).flicker
+
+
+def exposure_leak(pred: Iterable[Tensor], reference: Iterable[Tensor], gains: Sequence[float]) -> float:
+    """How much of a camera's exposure changes a predicted sequence carries: the least-squares slope of
+    log(mean linear brightness of the prediction / that of the reference) against log(exposure gain), over the frames
+    of three aligned sequences ((3, H, W) sRGB frames and one gain per frame). 0: the prediction's brightness relative
+    to the evenly lit reference does not follow the exposure; 1: it follows it fully, as frames recorded with those
+    gains would. NaN when fewer than two frames or the gains do not vary.
+
+    Raises:
+        ValueError: the sequences and the gains differ in length, or a gain is not positive.
+    """
+    levels = [(mean_linear_brightness(p), mean_linear_brightness(r)) for p, r in zip(pred, reference, strict=True)]
+    gains = [float(g) for g in gains]
+    if len(gains) != len(levels):
+        raise ValueError(f"exposure_leak: {len(levels)} frames but {len(gains)} gains")
+    if any(not g > 0 for g in gains):
+        raise ValueError("exposure_leak: every gain must be positive")
+    x = torch.tensor([math.log(g) for g in gains], dtype=torch.float64)
+    y = torch.tensor([math.log(p / r) for p, r in levels], dtype=torch.float64)
+    if len(gains) < 2 or float(x.var()) == 0.0:
+        return math.nan
+    xc = x - x.mean()
+    return float((xc * (y - y.mean())).sum() / (xc * xc).sum())
 
 
 def consecutive_pairs(frames: Iterable[Tensor]) -> Iterator[tuple[Tensor, Tensor]]:

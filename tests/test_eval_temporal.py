@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import math
 
+import numpy as np
 import pytest
 import torch
 
@@ -162,3 +163,26 @@ def test_warping_through_a_lens_removes_camera_motion():
     with pytest.raises(ValueError, match="camera is 120x90, the images 119x90"):
         warp_into(frames[0].image[:, :, :119], frames[0].depth[:, :119], lens, frames[0].c2w, frames[0].c2w)
     assert isinstance(lens, Intrinsics) and not lens.is_pinhole
+
+
+def test_exposure_leak_is_the_slope_of_the_brightness_ratio_against_the_gain():
+    """A prediction that is the reference times gain^0.5 leaks half the exposure (slope 0.5, pinned by hand: the
+    log ratio is exactly 0.5·log g); one that is the reference times a constant leaks nothing; gains that never change
+    give NaN; mismatched lengths are refused."""
+    from evaluation.temporal import exposure_leak
+    from spotlessgs.io.colorspace import linear_to_srgb
+
+    rng = np.random.default_rng(3)
+    reference = [rng.uniform(0.05, 0.3, (8, 10, 3)) for _ in range(6)]
+    gains = [1.0, 1.7, 3.2, 2.1, 4.0, 1.3]
+
+    def frames(images):
+        return [torch.from_numpy(linear_to_srgb(im)).permute(2, 0, 1) for im in images]
+
+    half = [im * g ** 0.5 for im, g in zip(reference, gains)]
+    assert exposure_leak(frames(half), frames(reference), gains) == pytest.approx(0.5, abs=0.02)  # 8-bit-free
+    steady = [im * 1.8 for im in reference]
+    assert exposure_leak(frames(steady), frames(reference), gains) == pytest.approx(0.0, abs=0.01)
+    assert math.isnan(exposure_leak(frames(steady), frames(reference), [2.0] * 6))
+    with pytest.raises(ValueError, match="6 frames but 5 gains"):
+        exposure_leak(frames(steady), frames(reference), gains[:5])

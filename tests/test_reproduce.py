@@ -182,6 +182,10 @@ def test_robot_camera_copy_starts_from_triangulated_points_and_is_set_against_th
     inputs = next(r for r in rows if r[1] == "Input (spotlight-lit)")
     truth = next(r for r in rows if r[1] == "Ground truth (evenly lit)")
     assert inputs[flicker] > 0 and truth[flicker] > 0 and inputs[flicker] != truth[flicker]
+    uniform = next(r for r in rows if r[1] == "Uniform ground truth (even, shadow-free)")
+    assert uniform[flicker] > 0 and uniform[flicker] != truth[flicker]
+    leak = columns.index("Exposure leak")  # the camera's true gains are known: every sequence gets its slope
+    assert all(isinstance(r[leak], float) and math.isfinite(r[leak]) for r in (ours, inputs))
     claims = {a["claim"]: a for a in results["agreement"]}
     for claim in ("SpotlessGS within 0.7 dB of the ideal input (PSNR aligned)",
                   "SpotlessGS at least 4.0 dB above its inputs (PSNR aligned)",

@@ -17,7 +17,9 @@ import numpy as np
 
 from spotlessgs.io.cameras import opencv_to_opengl_c2w
 from spotlessgs.io.colmap_text import read_colmap_model
+from spotlessgs.io.errors import InputError
 from spotlessgs.io.images import is_image_name
+from spotlessgs.io.json_files import read_json
 from spotlessgs.io.lens import check_invertible
 from spotlessgs.io.ply import PointCloud, read_point_cloud
 from spotlessgs.io.transforms import DatasetDescription, DatasetError, Split, read_transforms
@@ -137,6 +139,25 @@ def ground_truth_paths(dataset: DatasetDescription, which: str = "lamps") -> tup
         raise DatasetError(f"{dataset.source}: the dataset has no {which!r} ground truth (render it with "
                            f"`spotless-sim render --gt {which}`)")
     return tuple(None if p is None else dataset.root / folder / p.name for p in dataset.gt_paths)
+
+
+def true_exposure_gains(dataset: DatasetDescription) -> tuple[float, ...] | None:
+    """Each frame's true exposure gain where the dataset is a simulated robot camera's copy (``spotless-sim add-noise
+    --robot-camera``: its ``camera_effects`` block names the record, whose ``gains`` map image file names to gains);
+    None for any other dataset, or when a frame has no gain.
+
+    Raises:
+        InputError: the record is not a readable JSON object or its gains are not a name → number map (named).
+    """
+    effects = dataset.meta.get("camera_effects")
+    record = effects.get("record") if isinstance(effects, dict) else None
+    if not isinstance(record, str) or not (dataset.root / record).is_file():
+        return None
+    gains = read_json(dataset.root / record, "a robot camera's exposure record").get("gains")
+    if not isinstance(gains, dict) or not all(isinstance(v, (int, float)) for v in gains.values()):
+        raise InputError(f"{dataset.root / record}: 'gains' must map image file names to numbers")
+    names = [p.name for p in dataset.image_paths]
+    return tuple(float(gains[n]) for n in names) if all(n in gains for n in names) else None
 
 
 def load_initial_points(dataset: DatasetDescription) -> PointCloud | None:

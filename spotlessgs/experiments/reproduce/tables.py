@@ -357,7 +357,7 @@ def robot_pairs(collected: dict) -> list[tuple[str, dict[str, Any], dict[str, An
 def robot_table(collected: dict) -> Table:
     """Each method on the robot-camera copy against the same method on the ideal input of the room."""
     columns = ["Dataset", "Method", "PSNR (aligned), ideal input", "PSNR (aligned), robot camera", "Loss (dB)",
-               "SSIM (aligned), robot camera", "Flicker", "Gaussians"]
+               "SSIM (aligned), robot camera", "Flicker", "Exposure leak", "Gaussians"]
     table = Table("robot", "Robot camera — what each method loses against the ideal input", columns,
                   digits={"PSNR (aligned), ideal input": 2, "PSNR (aligned), robot camera": 2, "Loss (dB)": 2})
     names = ["input", "3dgs", "darkgs", "darkgs-calibrated", "darkgs+sh", "darkgs+brdf", "spotless", "auto"]
@@ -371,13 +371,13 @@ def robot_table(collected: dict) -> Table:
             loss = before - after if _finite(before) and _finite(after) else None
             gaussians = None if key == "input" else _get(robot, "methods", key, "decisions", "Gaussians")
             table.rows.append([ds_name, label, before, after, loss, _get(metrics, "ssim_aligned"),
-                               _get(metrics, "tmp_flicker"), gaussians])
+                               _get(metrics, "tmp_flicker"), _get(metrics, "tmp_exposure_leak"), gaussians])
         table.rows.append([ds_name, "Ground truth (evenly lit)", None, None, None, None,
-                           _get(robot, "input", "gt_tmp_flicker"), None])
+                           _get(robot, "input", "gt_tmp_flicker"), None, None])
         uniform_flicker = _get(robot, "input", "uniform", "gt_tmp_flicker")
         if uniform_flicker is not None:
             table.rows.append([ds_name, "Uniform ground truth (even, shadow-free)", None, None, None, None,
-                               uniform_flicker, None])
+                               uniform_flicker, None, None])
         camera = robot["robot_camera"]
         effects = camera.get("camera_effects", {})
         table.notes.append(
@@ -391,7 +391,11 @@ def robot_table(collected: dict) -> Table:
               "with normals.")
     table.notes.append("Loss = ideal − robot (positive: the robot camera costs that much). Flicker: mean |log| "
                        "ratio of consecutive frames' mean linear brightness over the whole sequence (relit; the "
-                       "input row: the recorded frames, whose auto-exposure follows the scene's brightness).")
+                       "input row: the recorded frames, whose auto-exposure follows the scene's brightness). "
+                       "Exposure leak: the slope of log(frame brightness / the ground truth's) against log(the "
+                       "camera's true exposure gain) over the sequence: 0 = the relit sequence does not follow the "
+                       "auto-exposure, 1 = it follows it fully (the input row is confounded: auto-exposure raises "
+                       "the gain where the spotlit frame is dark).")
     return table
 
 
