@@ -53,6 +53,9 @@ def main(verbose: bool) -> None:
               help="Light bounces (0 = direct light only).")
 @click.option("--ambient", default=0.0, show_default=True, type=click.FloatRange(0), 
               help="World light strength in the spotlight-only render.")
+@click.option("--residual-light", default=0.0, show_default=True, type=click.FloatRange(0, 1),
+              help="Leave the room's own lights on in the spotlight-only render at this fraction of their power (a "
+                   "dimmed ceiling light): light the spotlight does not explain.")
 @click.option("--lambertian", is_flag=True,
               help="Render every surface as an ideal Lambertian reflector (specular layer off, metallic 0): a room "
                    "with only diffuse materials.")
@@ -76,7 +79,7 @@ def main(verbose: bool) -> None:
 @click.option("--device", default="auto", show_default=True, type=click.Choice(["auto", "cpu", "gpu"]))
 @click.option("-q", "--quiet", is_flag=True, help="No progress bar, and no messages from Blender's device probing.")
 def render(scene_path, out_dir, future_dir, texture_dir, allow_missing, room, frames, width, height, h_fov_deg, samples,
-           no_denoise, bounces, ambient, lambertian, motion_blur, ground_truths, camera_path, seed, preset, shard,
+           no_denoise, bounces, ambient, residual_light, lambertian, motion_blur, ground_truths, camera_path, seed, preset, shard,
            threads, device, quiet):
     """Render the spotlight-only and the evenly lit image of every pose of a room's camera loop.
 
@@ -90,7 +93,8 @@ def render(scene_path, out_dir, future_dir, texture_dir, allow_missing, room, fr
 
     config = RenderConfig.from_preset(
         preset, frames=frames, width=width, height=height, h_fov_deg=h_fov_deg, samples=samples,
-        denoise=not no_denoise, max_bounces=bounces, ambient=ambient, lambertian=lambertian, seed=seed,
+        denoise=not no_denoise, max_bounces=bounces, ambient=ambient, residual_light=residual_light,
+        lambertian=lambertian, seed=seed,
         room=room, trajectory=PATHS[camera_path], motion_blur=motion_blur, uniform_gt="uniform" in ground_truths,
     )
     summary = render_dataset(

@@ -81,6 +81,9 @@ class RenderConfig:
         denoise: OpenImageDenoise on both renders.
         max_bounces: light bounces (0 = direct light only: no bounce light at all).
         ambient: world strength in the spotlight-only render (0 = a dark room).
+        residual_light: the room's own lights left on in the spotlight-only render at this fraction of their
+            ground-truth power (a dimmed ceiling light that stays on; 0 = off): light that the spotlight does not
+            explain, for the low-frequency light to model.
         lambertian: render every surface as an ideal Lambertian reflector (the Principled BSDF's specular layer off,
             metallic 0; colours and textures kept): a room with only diffuse materials. Blender's default dielectric
             keeps a 4 % Fresnel specular layer even at roughness 0.9, which is not Lambertian.
@@ -105,6 +108,7 @@ class RenderConfig:
     denoise: bool = True
     max_bounces: int = 4
     ambient: float = 0.0
+    residual_light: float = 0.0
     lambertian: bool = False
     motion_blur: float = 0.0
     uniform_gt: bool = False
@@ -237,7 +241,7 @@ def frame_done(out_dir: Path, index: int, uniform_gt: bool = False) -> bool:
 def _fingerprint(scene_path: Path, config: RenderConfig) -> dict[str, Any]:
     """The settings that determine the output (JSON-able)."""
     cfg = dataclasses.asdict(config)
-    for option in ("lambertian", "motion_blur", "uniform_gt"):
+    for option in ("lambertian", "motion_blur", "uniform_gt", "residual_light"):
         if not cfg[option]:
             del cfg[option]  # recorded only when set: datasets rendered before the option existed still resume
     return {"scene": str(scene_path.resolve()), "config": to_jsonable(cfg)}
@@ -671,6 +675,7 @@ def _render_frames(conn, out_dir: Path, config: RenderConfig, execution: Executi
             threads=execution.threads,
             device=execution.device,
             ambient=config.ambient,
+            residual_light=config.residual_light,
             motion_blur=config.motion_blur > 0,
             uniform_gt=config.uniform_gt,
         )
@@ -868,6 +873,7 @@ def finalize_dataset(
             "max_bounces": config.max_bounces,
             "view_transform": "Standard",
             "ambient": config.ambient,
+            **({"residual_light": config.residual_light} if config.residual_light > 0 else {}),
             "lambertian": config.lambertian,
             **({"motion_blur": config.motion_blur} if config.motion_blur > 0 else {}),
             **({"ground_truths": {"lamps": "gt", "uniform": UNIFORM_GT_DIR}} if config.uniform_gt else {}),

@@ -494,3 +494,22 @@ def test_a_dataset_with_the_uniform_ground_truth_keeps_the_other_renders_bit_for
     assert "ground_truths" not in json.loads((dataset / "transforms.json").read_text())["spotless"]["renderer"]
     with pytest.raises(DatasetFolderError, match="differs in: uniform_gt"):
         _render(out)
+
+
+def test_residual_light_adds_the_dimmed_lamps_to_the_spotlit_input_only(dataset, tmp_path):
+    """``--residual-light 0.2`` leaves the room's lamps on at a fifth of their power in the spotlit input: light
+    adds up, so the input gains about 0.2 × the lamps-on ground truth (mean over each frame, within render noise);
+    the ground truth itself is byte-identical, and the setting is recorded."""
+    from spotlessgs.io.exr import read_frame_exr
+
+    out = tmp_path / "residual"
+    _render(out, residual_light=0.2)
+    for k in range(6):
+        name = f"frame_{k:05d}"
+        assert (out / "gt" / f"{name}.png").read_bytes() == (dataset / "gt" / f"{name}.png").read_bytes()
+        lit, plain = read_frame_exr(out / "exr" / f"{name}.exr"), read_frame_exr(dataset / "exr" / f"{name}.exr")
+        added = float(lit.uneven.mean() - plain.uneven.mean())
+        assert added == pytest.approx(0.2 * float(plain.gt.mean()), rel=0.15), (k, added, float(plain.gt.mean()))
+    renderer = json.loads((out / "transforms.json").read_text())["spotless"]["renderer"]
+    assert renderer["residual_light"] == 0.2
+    assert "residual_light" not in json.loads((dataset / "transforms.json").read_text())["spotless"]["renderer"]

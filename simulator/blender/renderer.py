@@ -30,6 +30,8 @@ class CyclesSettings:
         threads: CPU threads (Cycles ``threads_mode='FIXED'``).
         device: ``auto`` (GPU when Blender finds one), ``cpu`` or ``gpu``.
         ambient: world (environment) strength of the spotlight-only render; 0 = darkness besides the spotlight.
+        residual_light: the room's own lights (the ground truth's lamps and their glowing surfaces) left on in the
+            spotlight-only render at this fraction of their power (a dimmed ceiling light); 0 = off.
         motion_blur: Cycles camera motion blur in the spotlight-only render, on when :func:`render_pair` is given
             the poses at shutter open and close (the ground truth stays sharp).
         uniform_gt: also render the uniform ground truth (:func:`_uniform_light`).
@@ -43,6 +45,7 @@ class CyclesSettings:
     threads: int = 2
     device: str = "auto"
     ambient: float = 0.0
+    residual_light: float = 0.0
     motion_blur: bool = False
     uniform_gt: bool = False
 
@@ -124,13 +127,24 @@ def _world_strength(value: float) -> None:
 
 
 def _set_mode(built: BuiltScene, mode: str, settings: CyclesSettings) -> None:
+    """Light the scene for the spotlight-only render (``uneven``: the spotlight, the world at ``ambient`` and the
+    room's lights at ``residual_light`` of their power) or the lamps-on ground truth (``gt``)."""
     spot = mode == "uneven"
+    dimmed = settings.residual_light if spot else 1.0
     built.spotlight.hide_render = not spot
     for fixture in built.fixtures:
-        fixture.hide_render = spot
+        power = fixture.get(_FULL_POWER)
+        if power is None:  # the built power, kept on the object so that dimming never compounds
+            power = fixture[_FULL_POWER] = float(fixture.data.energy)
+        fixture.data.energy = power * dimmed
+        fixture.hide_render = dimmed <= 0.0
     for socket, strength in built.emission_inputs:
-        socket.default_value = 0.0 if spot else strength
+        socket.default_value = strength * dimmed
     _world_strength(settings.ambient if spot else 0.0)
+
+
+#: Custom property on each ground-truth light: its full power (W) as built.
+_FULL_POWER = "spotless_full_power_w"
 
 
 #: Ray visibilities a mesh loses in the uniform ground truth: it is seen by camera rays only.
