@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import json
 import math
+import re
 import shutil
 import time
 
@@ -244,7 +245,11 @@ def test_figures_exist(tiny_run):
     for name in ("qualitative_bedroom-uneven.png", "qualitative_bedroom-saturated.png", "speed_vs_error.png"):
         with Image.open(out / "figures" / name) as img:
             assert img.width > 200 and img.height > 100
-    assert "![" in (out / "REPORT.md").read_text()
+    report = (out / "REPORT.md").read_text()
+    assert "![" in report
+    # the qualitative grid: input, every relighting, the ceiling and both ground truths
+    assert re.search(r"Qualitative comparison, bedroom-uneven \(Input / 3DGS / DarkGS[^/]* / Ours / Ours \(auto\) / "
+                     r"Ceiling \(true albedo\) / Ground truth / Uniform ground truth\)", report)
 
 
 def test_rerun_skips_everything_and_redoes_an_interrupted_stage(tiny_run):

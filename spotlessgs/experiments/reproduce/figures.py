@@ -10,20 +10,24 @@ import numpy as np
 
 from evaluation.plots import save_image_grid
 from spotlessgs.io.figures import pyplot, save_figure
+from spotlessgs.io.dataset import UNIFORM_GT_DIR
 from spotlessgs.io.images import read_image
 from spotlessgs.experiments.reproduce.tables import LABELS, best_darkgs
 
 
 def qualitative_grid(path: Path, data_dir: Path, runs_dir: Path, methods: dict[str, Any], test_views: list[str],
-                     max_rows: int = 3) -> list[str]:
-    """Write input / 3DGS / DarkGS (the better run) / ours / ours auto / GT for up to ``max_rows`` test views.
+                     max_rows: int = 3, ceiling_dir: Path | None = None) -> list[str]:
+    """Write input / 3DGS / DarkGS (the better run) / ours / ours auto / the ceiling / GT / the uniform GT for up to
+    ``max_rows`` test views.
 
     Args:
         path: output PNG.
-        data_dir: the dataset folder (``images/``, ``gt/``).
+        data_dir: the dataset folder (``images/``, ``gt/``, and ``gt_uniform/`` when it has the uniform ground truth).
         runs_dir: folder holding one run folder per method (``<method>/relit/<name>``).
         methods: the dataset's method entries (to choose the DarkGS run).
         test_views: file names of the test views.
+        ceiling_dir: the dataset's relighting ceiling (``albedo-sh/<name>``: the true albedo under the best light per
+            normal), drawn when it holds every picked view.
     Returns:
         the column titles actually drawn (methods that were not trained are left out).
     Raises:
@@ -37,8 +41,12 @@ def qualitative_grid(path: Path, data_dir: Path, runs_dir: Path, methods: dict[s
                        ("auto", "Ours (auto)")):
         if key and key in methods:
             columns.append((title, runs_dir / key / "relit"))
-    columns.append(("Ground truth", data_dir / "gt"))
     picks = [test_views[int(round(i))] for i in np.linspace(0, len(test_views) - 1, min(max_rows, len(test_views)))]
+    for title, folder in (("Ceiling (true albedo)", None if ceiling_dir is None else ceiling_dir / "albedo-sh"),
+                          ("Ground truth", data_dir / "gt"),
+                          ("Uniform ground truth", data_dir / UNIFORM_GT_DIR)):
+        if folder is not None and (title == "Ground truth" or all((folder / n).is_file() for n in picks)):
+            columns.append((title, folder))
     rows = [[read_image(folder / name, alpha="over_black") for _title, folder in columns] for name in picks]
     save_image_grid(path, rows, [t for t, _ in columns], picks)
     return [t for t, _ in columns]

@@ -134,7 +134,7 @@ def write_report(out: Path) -> dict[str, Any]:
         test_views = [f.name for f in read_dataset(data_dir).test_frames if f.gt_path is not None]
         rel = f"figures/qualitative_{ds}.png"
         columns = qualitative_grid(out / rel, data_dir, out / "runs" / ds, collected["datasets"][ds]["methods"],
-                                   test_views)
+                                   test_views, ceiling_dir=out / "ceiling" / ds)
         figures[f"Qualitative comparison, {ds} ({' / '.join(columns)})"] = rel
     speed_error_plot(out / "figures" / "speed_vs_error.png", collected)
     figures["Test PSNR (exposure-aligned) against training time; one point per curve milestone"] = \
