@@ -97,6 +97,46 @@ def test_darkgs_colour_by_hand():
     np.testing.assert_allclose(colour.detach().numpy()[0], expected, rtol=1e-5)
 
 
+def test_irradiance_shading_of_the_low_frequency_light_by_hand():
+    """A Gaussian whose normal is 60 degrees from the lamp (cosine 0.5): the paper's shading scales the ambient light
+    by that cosine, the "irradiance" shading does not (a Lambertian surface under light from all around returns its
+    albedo times that light); the spotlight's part is the same in both, and the two-light split sums to the colour."""
+    c2w = _look_at_c2w([0.0, -2.0, 0.0], [0.0, 0.0, 0.0], torch.float64)
+    tilt = math.radians(60.0)
+    g = GaussianParams.from_point_cloud(np.zeros((1, 3)), np.array([[0.2, 0.5, 0.8]]),
+                                        np.array([[math.sin(tilt), -math.cos(tilt), 0.0]]), rgb_is_srgb=False).double()
+    light, amb = SpotLight(seed=0).double(), ConstantAmbient(0.05).double()
+    spot = _scalar(light.rid_curve([0.0])[0]) / (0.3 + 4.0)
+    albedo = np.array([0.2, 0.5, 0.8])
+    paper = shade("darkgs", g, light, amb, LambertianBRDF(), c2w)
+    np.testing.assert_allclose(paper.detach().numpy()[0], albedo * 0.5 * (spot + 0.05), rtol=1e-5)
+    config = dataclasses.replace(MODEL_VARIANTS["darkgs"], low_frequency_shading="irradiance")
+    irradiance = shade(config, g, light, amb, LambertianBRDF(), c2w)
+    np.testing.assert_allclose(irradiance.detach().numpy()[0], albedo * (0.5 * spot + 0.05), rtol=1e-5)
+    parts = shade(config, g, light, amb, LambertianBRDF(), c2w, split_lights=True)
+    np.testing.assert_allclose(parts.detach().numpy()[0, 3:], albedo * 0.05, rtol=1e-5)
+    torch.testing.assert_close(parts[:, :3] + parts[:, 3:], irradiance)
+    with pytest.raises(ValueError, match="low_frequency_shading must be"):
+        dataclasses.replace(MODEL_VARIANTS["darkgs"], low_frequency_shading="cosine")
+
+
+def test_irradiance_shading_uses_the_relit_reflectance_of_a_learned_brdf():
+    """With the learned BRDF the low-frequency light's share of the spotlit colour (the split's second half) is the
+    directional albedo R times L_lf: the relit colour with L0 = 0, as relighting shades it."""
+    g = _scene()
+    config = dataclasses.replace(MODEL_VARIANTS["spotless"], low_frequency_shading="irradiance", brdf_hidden=16)
+    models = build_appearance_models(config, seed=1)
+    with torch.no_grad():
+        models.lf_light.coeffs.normal_(0.0, 0.3, generator=torch.Generator().manual_seed(4))
+    c2w = _look_at_c2w([0.0, -3.0, 0.5], [0.0, 0.0, 0.0])
+    parts = shade(config, g, models.light, models.lf_light, models.brdf, c2w, split_lights=True)
+    relit = shade(config, g, models.light, models.lf_light, models.brdf, c2w, relight_l0=[0.0, 0.0, 0.0])
+    assert float(relit.abs().sum()) > 0
+    torch.testing.assert_close(parts[:, 3:], relit, rtol=1e-5, atol=1e-6)
+    paper = shade("spotless", g, models.light, models.lf_light, models.brdf, c2w, split_lights=True)
+    assert not torch.allclose(paper[:, 3:], relit, atol=1e-3)  # the paper's shading differs
+
+
 def test_grazing_and_back_facing_light_give_zero_spot_colour_with_finite_gradients():
     # Normal ⟂ light direction (grazing) and pointing away from the lamp (one-sided normals).
     c2w = _look_at_c2w([0.0, -2.0, 0.0], [0.0, 0.0, 0.0])

@@ -226,6 +226,27 @@ def test_resume_equals_an_uninterrupted_run(bedroom, tmp_path):
 
 
 @pytest.mark.blender
+def test_a_run_from_before_a_setting_existed_resumes_with_its_default(bedroom, tmp_path):
+    """A run whose config.json predates a TrainConfig field and a ModelConfig switch (both absent from the file)
+    resumes: the missing settings take their defaults, which are what the run trained with. (A custom ModelConfig's
+    switches, kept in run.json, are completed with their defaults the same way.)"""
+    from spotlessgs.training.trainer import train
+
+    cfg = _tiny(iterations=40, image_width=40, densify_from=1000, checkpoint_every=20)
+    train(bedroom, tmp_path / "run", "darkgs+sh", cfg, seed=0, progress=False, stop_after=20)
+    path = tmp_path / "run" / "config.json"
+    saved = json.loads(path.read_text())
+    del saved["train"]["low_frequency_shading"]
+    del saved["model_config"]["low_frequency_shading"]
+    path.write_text(json.dumps(saved))
+    result = train(bedroom, tmp_path / "run", "darkgs+sh", cfg, seed=0, progress=False, resume=True)
+    assert result.steps == 40
+    with pytest.raises(ValueError, match="other settings"):  # a setting that differs from its default still counts
+        train(bedroom, tmp_path / "run", "darkgs+sh", cfg.replace(low_frequency_shading="irradiance"), seed=0,
+              progress=False, resume=True)
+
+
+@pytest.mark.blender
 def test_nan_stops_training_and_keeps_the_last_good_checkpoint(bedroom, tmp_path, monkeypatch):
     import spotlessgs.training.trainer as trainer_mod
 

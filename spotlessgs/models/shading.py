@@ -72,6 +72,11 @@ class ModelConfig:
     relight_directions: int = 16
     # Hidden width of the learned-BRDF MLP (paper: 256; CPU presets may use less, the MLP dominates shading time).
     brdf_hidden: int = 256
+    # How the low-frequency light shades a Gaussian under the spotlight. "spot_cosine" (the paper's equation):
+    # f̃ · max(0, n̂·l̂) · (L_spot + L_lf), the low-frequency light scaled by the spotlight's BRDF value and cosine;
+    # "irradiance": f̃ · max(0, n̂·l̂) · L_spot + R · L_lf, the low-frequency light as light from all around, shaded by
+    # the directional albedo R (relit_reflectance), exactly as relighting shades it.
+    low_frequency_shading: Literal["spot_cosine", "irradiance"] = "spot_cosine"
 
     def __post_init__(self) -> None:
         if self.light_model not in ("none", "spotlight"):
@@ -93,6 +98,9 @@ class ModelConfig:
             raise ValueError(f"ModelConfig {self.name!r}: relight_directions must be >= 1, got {self.relight_directions}")
         if self.brdf_hidden < 1:
             raise ValueError(f"ModelConfig {self.name!r}: brdf_hidden must be >= 1, got {self.brdf_hidden}")
+        if self.low_frequency_shading not in ("spot_cosine", "irradiance"):
+            raise ValueError(f"ModelConfig {self.name!r}: low_frequency_shading must be 'spot_cosine' or "
+                             f"'irradiance', got {self.low_frequency_shading!r}")
 
 
 MODEL_VARIANTS: dict[str, ModelConfig] = {
@@ -163,8 +171,10 @@ def spot_lit_colours(
     spot_radiance: torch.Tensor,
     low_frequency: torch.Tensor,
     brdf: nn.Module,
+    low_frequency_reflectance: torch.Tensor | None = None,
 ) -> torch.Tensor:
-    """c = f̃ · max(0, n̂·l̂) · (L_spot + L_lf).
+    """c = f̃ · max(0, n̂·l̂) · (L_spot + L_lf), or with ``low_frequency_reflectance`` R (N, 3) given (the
+    "irradiance" shading of ModelConfig.low_frequency_shading) c = f̃ · max(0, n̂·l̂) · L_spot + R · L_lf.
 
     Args:
         albedo (N, 3), roughness (N, 1), metalness (N, 1), normals/view_dirs/light_dirs (N, 3) unit vectors,
@@ -172,8 +182,10 @@ def spot_lit_colours(
     Returns:
         (N, 3) linear colours ≥ 0.
     """
-    reflectance = brdf(albedo, roughness, metalness, normals, view_dirs, light_dirs)
-    return reflectance * lambert_cosine(normals, light_dirs) * (spot_radiance + low_frequency)
+    lit = brdf(albedo, roughness, metalness, normals, view_dirs, light_dirs) * lambert_cosine(normals, light_dirs)
+    if low_frequency_reflectance is None:
+        return lit * (spot_radiance + low_frequency)
+    return lit * spot_radiance + low_frequency_reflectance * low_frequency
 
 
 def relit_reflectance(
@@ -253,11 +265,16 @@ def shade(
         reflect = relit_reflectance(albedo, rough, metal, normals, brdf, cfg.relight_directions)
         return reflect * (l0 + low_frequency)
     spot, light_dirs = light.incident(gaussians.means, c2w)
+    lf_reflect = None
+    if cfg.low_frequency_shading == "irradiance":
+        lf_reflect = relit_reflectance(albedo, rough, metal, normals, brdf, cfg.relight_directions)
     if split_lights:
         lit = spot_lit_colours(albedo, rough, metal, normals, view_dirs, light_dirs,
                                torch.ones_like(spot), torch.zeros_like(low_frequency), brdf)  # f̃·cos
-        return torch.cat([lit * spot, lit * low_frequency], dim=1)
-    return spot_lit_colours(albedo, rough, metal, normals, view_dirs, light_dirs, spot, low_frequency, brdf)
+        low = lit * low_frequency if lf_reflect is None else lf_reflect * low_frequency
+        return torch.cat([lit * spot, low], dim=1)
+    return spot_lit_colours(albedo, rough, metal, normals, view_dirs, light_dirs, spot, low_frequency, brdf,
+                            lf_reflect)
 
 
 def _check_modules(cfg: ModelConfig, light, lf_light, brdf, relit: bool) -> None:

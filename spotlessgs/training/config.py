@@ -71,6 +71,9 @@ class TrainConfig:
 
     # Hidden width of the learned BRDF MLP (paper 256; it dominates CPU shading time).
     brdf_hidden: int = 32
+    # How the low-frequency light shades a Gaussian in the spotlit training images (ModelConfig.low_frequency_shading):
+    # "spot_cosine" (the paper's equation) or "irradiance" (as relighting shades it).
+    low_frequency_shading: str = "spot_cosine"
     # Weight of the light-translation prior ‖t - t_prior‖ (used only when a prior is given).
     light_prior_weight: float = 1.0
 

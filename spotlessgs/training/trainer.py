@@ -80,12 +80,13 @@ class TrainResult:
 
 
 def model_config(variant: str | ModelConfig, config: TrainConfig) -> ModelConfig:
-    """The variant's ModelConfig (a preset name or a ModelConfig) with the CPU/GPU-dependent BRDF width of ``config``."""
-    if isinstance(variant, ModelConfig):
-        return dataclasses.replace(variant, brdf_hidden=config.brdf_hidden)
-    if variant not in MODEL_VARIANTS:
+    """The variant's ModelConfig (a preset name or a ModelConfig) with the CPU/GPU-dependent BRDF width and the
+    low-frequency shading of ``config``."""
+    if not isinstance(variant, ModelConfig) and variant not in MODEL_VARIANTS:
         raise ValueError(f"unknown model {variant!r}; choose one of {sorted(MODEL_VARIANTS)}")
-    return dataclasses.replace(MODEL_VARIANTS[variant], brdf_hidden=config.brdf_hidden)
+    base = variant if isinstance(variant, ModelConfig) else MODEL_VARIANTS[variant]
+    return dataclasses.replace(base, brdf_hidden=config.brdf_hidden,
+                               low_frequency_shading=config.low_frequency_shading)
 
 
 def resolve_device(name: str) -> torch.device:
@@ -407,8 +408,14 @@ def _train_locked(data_dir: Path, run_dir: Path, variant: str | ModelConfig, con
         # settings added since the run began take their defaults (what the run trained with)
         defaults = {f.name: f.default for f in dataclasses.fields(TrainConfig)}
         old_train = {**defaults, **old["train"]} if isinstance(old["train"], dict) else old["train"]
-        if json.loads(json.dumps(old_train)) != resolved["train"] or ({k: v for k, v in old["run"].items() if k not in moved}
-                                                 != {k: v for k, v in run_info.items() if k not in moved}):
+        old_run = dict(old["run"])
+        if isinstance(old_run.get("model_config"), dict):  # likewise the model's switches
+            model_defaults = {f.name: f.default for f in dataclasses.fields(ModelConfig)
+                              if f.default is not dataclasses.MISSING}
+            old_run["model_config"] = {**model_defaults, **old_run["model_config"]}
+        if json.loads(json.dumps(old_train)) != resolved["train"] or (
+                json.loads(json.dumps({k: v for k, v in old_run.items() if k not in moved}))
+                != json.loads(json.dumps({k: v for k, v in run_info.items() if k not in moved}))):
             raise ValueError(f"{run_dir}: --resume with other settings than the run was started with")
         write_json(run_dir / "run.json", run_info)  # where the dataset is now
 
