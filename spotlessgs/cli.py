@@ -56,6 +56,9 @@ def main(verbose: bool) -> None:
 @click.option("--photometric", type=click.Choice(["auto", "on", "off"]), default=None,
               help="Learn each frame's exposure and the lens's vignetting (spotlessgs.models.photometric); default "
                    "auto: on for real cameras' datasets, off for our simulator's fixed-exposure renders.")
+@click.option("--low-frequency-shading", type=click.Choice(["spot_cosine", "irradiance"]), default=None,
+              help="How the SH / ambient light shades the spotlit images: spot_cosine (the paper's equation, default) "
+                   "or irradiance (by the directional albedo, as relighting shades it).")
 @click.option("--refine-poses", is_flag=True,
               help="Learn a small correction of every training view's camera pose beside the scene (poses from VIO "
                    "or SfM a few cm off); test views are then aligned to their spotlit inputs (model frozen) before "
@@ -64,8 +67,8 @@ def main(verbose: bool) -> None:
 @click.option("--device", default="auto", show_default=True, type=click.Choice(["auto", "cpu", "cuda"]))
 @click.option("-q", "--quiet", is_flag=True, help="No progress bar.")
 def train(data_dir, run_dir, model, preset, iterations, image_width, seed, resume, light_prior, light_prior_weight,
-          linear_input, max_gaussians, tolerance_db, selection_search, gaussian_budget, photometric, refine_poses,
-          threads, device, quiet):
+          linear_input, max_gaussians, tolerance_db, selection_search, gaussian_budget, photometric,
+          low_frequency_shading, refine_poses, threads, device, quiet):
     """Train a relightable model (or a baseline) on the uneven images of a dataset."""
     # deferred (here and in the other commands): the torch-based library, kept out of `spotless --help`
     from spotlessgs.run import RunSpec, train as train_run
@@ -78,7 +81,7 @@ def train(data_dir, run_dir, model, preset, iterations, image_width, seed, resum
         overrides["refine_poses"] = True
     for key, value in (("iterations", iterations), ("image_width", image_width), ("num_threads", threads),
                        ("light_prior_weight", light_prior_weight), ("max_gaussians", max_gaussians),
-                       ("photometric", photometric)):
+                       ("photometric", photometric), ("low_frequency_shading", low_frequency_shading)):
         if value is not None:
             overrides[key] = value
     spec = RunSpec(data=data_dir, model=model, preset=preset, strategy="budget" if gaussian_budget else "default",

@@ -23,12 +23,14 @@ from spotlessgs.io.provenance import provenance
 VARIANTS = ("3dgs", "darkgs", "darkgs-calibrated", "darkgs+sh", "darkgs+brdf", "spotless")
 
 
-def child(data: str, run: str, variant: str, preset: str, iterations: int, threads: int, seed: int) -> None:
+def child(data: str, run: str, variant: str, preset: str, iterations: int, threads: int, seed: int,
+          low_frequency_shading: str | None = None) -> None:
     """Train, relight the test views and score them, in this (sub)process; prints one JSON line."""
     from spotlessgs.run import RunSpec, given_overrides, train  # torch: not needed by ``spotless --help``
 
     spec = RunSpec(data=Path(data), model=variant, preset=preset, seed=seed,
-                   overrides=given_overrides(iterations=iterations, num_threads=threads))
+                   overrides=given_overrides(iterations=iterations, num_threads=threads,
+                                             low_frequency_shading=low_frequency_shading))
     trained = train(spec, run, progress=False)
     summary = trained.summary
     row = {"variant": variant, "iterations": iterations, "ms_per_step": summary["ms_per_step"],
@@ -54,8 +56,9 @@ def child(data: str, run: str, variant: str, preset: str, iterations: int, threa
 
 
 def run_benchmark(data: Path, out: Path, variants: tuple[str, ...], preset: str, iterations: int, threads: int,
-                  seed: int = 0) -> list[dict]:
-    """Benchmark each variant in a subprocess; writes ``train_benchmark.json`` and ``.md`` to ``out``."""
+                  seed: int = 0, low_frequency_shading: str | None = None) -> list[dict]:
+    """Benchmark each variant in a subprocess (``low_frequency_shading``: every variant's, None for the default);
+    writes ``train_benchmark.json`` and ``.md`` to ``out``."""
     rows = []
     for variant in variants:
         run = out / variant.replace("+", "_")
@@ -64,7 +67,8 @@ def run_benchmark(data: Path, out: Path, variants: tuple[str, ...], preset: str,
             continue
         cmd = [sys.executable, "-m", "spotlessgs.cli", "benchmark", "models", "--child", "--data", str(data), "--out",
                str(run), "--variants", variant, "--preset", preset, "--iterations", str(iterations), "--threads",
-               str(threads), "--seed", str(seed)]
+               str(threads), "--seed", str(seed)] + (
+                   ["--low-frequency-shading", low_frequency_shading] if low_frequency_shading else [])
         proc = subprocess.run(cmd, capture_output=True, text=True)
         if proc.returncode != 0:
             raise RuntimeError(f"benchmark of {variant} failed:\n{proc.stderr[-3000:]}")
@@ -72,7 +76,8 @@ def run_benchmark(data: Path, out: Path, variants: tuple[str, ...], preset: str,
         write_json(run / "benchmark_row.json", row)
         rows.append(row)
     write_json(out / "train_benchmark.json", {"data": str(data), "preset": preset, "iterations": iterations,
-                                              "threads": threads, "rows": rows, "provenance": provenance(seed=seed)})
+                                              "threads": threads, "low_frequency_shading": low_frequency_shading,
+                                              "rows": rows, "provenance": provenance(seed=seed)})
     write_text(out / "train_benchmark.md", markdown_table(rows, iterations, threads))
     return rows
 

@@ -36,17 +36,19 @@ def benchmark() -> None:
 @click.option("--iterations", default=1500, show_default=True, type=click.IntRange(1))
 @click.option("--threads", default=1, show_default=True, type=click.IntRange(1))
 @click.option("--seed", default=0, show_default=True, type=int)
+@click.option("--low-frequency-shading", type=click.Choice(["spot_cosine", "irradiance"]), default=None,
+              help="Train every variant with this low-frequency shading (see `spotless train`).")
 @click.option("--child", is_flag=True, hidden=True, help="Train one variant in this process (used by the benchmark).")
-def models(data, out, variants, preset, iterations, threads, seed, child):
+def models(data, out, variants, preset, iterations, threads, seed, low_frequency_shading, child):
     """Training ms/step, relit FPS, peak memory and relit PSNR of each model variant after a fixed step budget."""
     # deferred (as in every command): the torch-based library, kept out of `spotless --help`
     from spotlessgs.experiments.benchmark import child as train_one, markdown_table, run_benchmark
 
     names = tuple(v for v in variants.split(",") if v)
     if child:
-        train_one(str(data), str(out), names[0], preset, iterations, threads, seed)
+        train_one(str(data), str(out), names[0], preset, iterations, threads, seed, low_frequency_shading)
         return
-    rows = run_benchmark(data, out, names, preset, iterations, threads, seed)
+    rows = run_benchmark(data, out, names, preset, iterations, threads, seed, low_frequency_shading)
     click.echo(markdown_table(rows, iterations, threads))
 
 
