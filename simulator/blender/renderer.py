@@ -158,7 +158,8 @@ def _uniform_light(built: BuiltScene):
     L0. The spotlight and the lamps' lights are off and no surface glows (the lamps are present, unlit); every mesh
     is visible to camera rays only, so every ray leaving a surface reaches the environment: each surface point sees
     it, unoccluded, over its whole hemisphere and returns its directional albedo (a Lambertian surface: exactly its
-    albedo), with no shadow and no interreflection. Restores every setting on exit."""
+    albedo), with no shadow and no interreflection. On exit the meshes' ray visibility and the world are restored; the
+    lights stay off until the next :func:`_set_mode` sets them for its render."""
     built.spotlight.hide_render = True
     for fixture in built.fixtures:
         fixture.hide_render = True
