@@ -22,6 +22,15 @@ def _shard(_ctx, _param, value: str) -> tuple[int, int]:
     return index, count
 
 
+#: ``--gt`` of ``render`` and ``render-many``.
+_ground_truth_option = click.option(
+    "--gt", "ground_truths", multiple=True, default=("lamps",), show_default=True,
+    type=click.Choice(["lamps", "uniform"]),
+    help="Ground truths to render. The lamps-on one (gt/) is always rendered; `--gt uniform` adds the room under even, "
+         "shadow-free environment light of radiance 1 with the lamps unlit (gt_uniform/): what the relighting "
+         "equation's constant L0 would show.")
+
+
 @click.group(cls=SafeGroup, context_settings={"help_option_names": ["-h", "--help"]})
 @click.version_option(package_name="spotlessgs")
 @click.option("-v", "--verbose", is_flag=True, help="Log debug messages.")
@@ -62,11 +71,7 @@ def main(verbose: bool) -> None:
 @click.option("--motion-blur", default=0.0, show_default=True, type=click.FloatRange(0, 1),
               help="Camera motion blur in the spotlit input: the shutter's open time as a fraction of the time "
                    "between two frames (0: sharp; the ground truth stays sharp).")
-@click.option("--gt", "ground_truths", multiple=True, default=("lamps",), show_default=True,
-              type=click.Choice(["lamps", "uniform"]),
-              help="Ground truths to render. The lamps-on one (gt/) is always rendered; `--gt uniform` adds the room "
-                   "under even, shadow-free environment light of radiance 1 with the lamps unlit (gt_uniform/): what "
-                   "the relighting equation's constant L0 would show.")
+@_ground_truth_option
 @click.option("--path", "camera_path", default="paper", show_default=True, type=click.Choice(["paper", "robot"]),
               help="Camera loop: the paper's (perpendicular to the path, 90° turns at the corners, 10 cm / 0.1 rad "
                    "pose noise) or a robot's (looks at the room's centre and turns smoothly, 2 cm / 0.02 rad).")
@@ -79,8 +84,8 @@ def main(verbose: bool) -> None:
 @click.option("--device", default="auto", show_default=True, type=click.Choice(["auto", "cpu", "gpu"]))
 @click.option("-q", "--quiet", is_flag=True, help="No progress bar, and no messages from Blender's device probing.")
 def render(scene_path, out_dir, future_dir, texture_dir, allow_missing, room, frames, width, height, h_fov_deg, samples,
-           no_denoise, bounces, ambient, residual_light, lambertian, motion_blur, ground_truths, camera_path, seed, preset, shard,
-           threads, device, quiet):
+           no_denoise, bounces, ambient, residual_light, lambertian, motion_blur, ground_truths, camera_path, seed,
+           preset, shard, threads, device, quiet):
     """Render the spotlight-only and the evenly lit image of every pose of a room's camera loop.
 
     Ctrl-C (or SIGTERM) stops within a second or two (exit 130 / 143) and keeps every finished frame: rerun the same
@@ -143,9 +148,7 @@ def generate(kind, out_dir, seed):
 @click.option("--path", "camera_path", default="paper", show_default=True, type=click.Choice(["paper", "robot"]),
               help="Camera loop (as for `render`).")
 @click.option("--seed", default=0, show_default=True, type=int)
-@click.option("--gt", "ground_truths", multiple=True, default=("lamps",), show_default=True,
-              type=click.Choice(["lamps", "uniform"]),
-              help="Ground truths to render (as `spotless-sim render --gt`): `--gt uniform` adds the uniform one.")
+@_ground_truth_option
 @click.option("--frames-per-task", default=20, show_default=True, type=click.IntRange(1),
               help="Consecutive frames rendered by one task (one Blender process).")
 @click.option("--executor", default="local", show_default=True, type=click.Choice(["local", "ray"]),

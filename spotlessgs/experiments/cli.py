@@ -22,6 +22,16 @@ import click
 from spotlessgs.experiments.benchmark import VARIANTS
 
 
+def row_names(rows: str | None, allowed: tuple[str, ...]) -> tuple[str, ...]:
+    """The rows a ``--rows`` value names (comma-separated; None: every row of ``allowed``, in order);
+    click.BadParameter naming the unknown ones."""
+    names = allowed if rows is None else tuple(r for r in rows.split(",") if r)
+    unknown = [r for r in names if r not in allowed]
+    if unknown:
+        raise click.BadParameter(f"unknown rows {unknown}; choose from {list(allowed)}", param_hint="--rows")
+    return names
+
+
 @click.group()
 def benchmark() -> None:
     """Benchmarks: per-model cost and quality (models); model selection and the Gaussian budget (selection); the
@@ -94,10 +104,7 @@ def robot(ideal, robot, out, rows, model, preset, iterations, threads, seed):
     from spotlessgs.experiments.robot_benchmark import ROWS, markdown_table, run_robot_benchmark
 
     logging.basicConfig(level=logging.INFO, format="%(levelname)s %(name)s: %(message)s")
-    names = tuple(ROWS) if rows is None else tuple(r for r in rows.split(",") if r)
-    unknown = [r for r in names if r not in ROWS]
-    if unknown:
-        raise click.BadParameter(f"unknown rows {unknown}; choose from {list(ROWS)}", param_hint="--rows")
+    names = row_names(rows, tuple(ROWS))
     results = run_robot_benchmark(ideal, robot, out, names, model, preset, threads, seed, iterations)
     click.echo(markdown_table(results))
 
@@ -129,10 +136,7 @@ def poses(data, out, translation_cm, rotation_deg, error_model, points, rows, mo
     from spotlessgs.experiments.pose_benchmark import ROWS, markdown_table, run_pose_benchmark
 
     logging.basicConfig(level=logging.INFO, format="%(levelname)s %(name)s: %(message)s")
-    names = tuple(ROWS) if rows is None else tuple(r for r in rows.split(",") if r)
-    unknown = [r for r in names if r not in ROWS]
-    if unknown:
-        raise click.BadParameter(f"unknown rows {unknown}; choose from {list(ROWS)}", param_hint="--rows")
+    names = row_names(rows, tuple(ROWS))
     results = run_pose_benchmark(data, out, translation_cm / 100.0, rotation_deg, names, model, preset, threads, seed,
                                  iterations, error_model=error_model, points=points)
     click.echo(markdown_table(results))

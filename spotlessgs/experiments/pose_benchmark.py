@@ -66,16 +66,23 @@ ERROR_MODELS = ("independent", "drift")
 POINT_SOURCES = ("kept", "triangulated")
 
 
+def moved_pose(c2w_opengl: np.ndarray, offset: np.ndarray, rotvec: np.ndarray) -> np.ndarray:
+    """(4, 4) a camera-to-world pose whose centre is moved by ``offset`` (3,) (world axes, metres) and which is turned
+    by the rotation vector ``rotvec`` (3,) (radians, world axes) about its centre."""
+    out = np.array(c2w_opengl, dtype=np.float64)
+    out[:3, 3] += offset
+    out[:3, :3] = axis_angle_to_matrix(rotvec) @ out[:3, :3]
+    return out
+
+
 def perturb_pose(c2w_opengl: np.ndarray, translation_m: float, rotation_deg: float,
                  rng: np.random.Generator) -> np.ndarray:
     """(4, 4) a camera-to-world pose moved by ``translation_m`` in a random direction and turned by ``rotation_deg``
     about a random axis through its centre (both uniform on the sphere)."""
     direction = rng.normal(size=3)
     axis = rng.normal(size=3)
-    out = np.array(c2w_opengl, dtype=np.float64)
-    out[:3, 3] += translation_m * direction / np.linalg.norm(direction)
-    out[:3, :3] = axis_angle_to_matrix(math.radians(rotation_deg) * axis / np.linalg.norm(axis)) @ out[:3, :3]
-    return out
+    return moved_pose(c2w_opengl, translation_m * direction / np.linalg.norm(direction),
+                      math.radians(rotation_deg) * axis / np.linalg.norm(axis))
 
 
 def drift_offsets(count: int, translation_m: float, rotation_deg: float,
@@ -103,13 +110,7 @@ def perturbed_poses(c2w_opengl: Sequence[np.ndarray], translation_m: float, rota
     if model != "drift":
         raise ValueError(f"unknown pose error model {model!r}; choose from {list(ERROR_MODELS)}")
     offsets, rotations = drift_offsets(len(c2w_opengl), translation_m, rotation_deg, rng)
-    out = []
-    for m, offset, rotvec in zip(c2w_opengl, offsets, rotations):
-        moved = np.array(m, dtype=np.float64)
-        moved[:3, 3] += offset
-        moved[:3, :3] = axis_angle_to_matrix(rotvec) @ moved[:3, :3]
-        out.append(moved)
-    return out
+    return [moved_pose(m, offset, rotvec) for m, offset, rotvec in zip(c2w_opengl, offsets, rotations)]
 
 
 def perturbed_copy(data: Path, out: Path, translation_m: float, rotation_deg: float, seed: int = 0,

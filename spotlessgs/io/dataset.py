@@ -12,6 +12,7 @@ from __future__ import annotations
 import glob
 import os
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -114,10 +115,16 @@ GROUND_TRUTHS = ("lamps", "uniform")
 UNIFORM_GT_DIR = "gt_uniform"
 
 
+def _ground_truth_folders(dataset: DatasetDescription) -> dict[str, Any]:
+    """The renderer settings' ``ground_truths`` map (kind -> folder of its PNGs), {} when the dataset has none."""
+    folders = (dataset.meta.get("renderer") or {}).get("ground_truths")
+    return folders if isinstance(folders, dict) else {}
+
+
 def available_ground_truths(dataset: DatasetDescription) -> tuple[str, ...]:
     """The ground truths of :data:`GROUND_TRUTHS` that ``dataset`` holds (``lamps`` when its frames have a
     ``gt_file_path``; the others when its renderer settings list their folder)."""
-    folders = (dataset.meta.get("renderer") or {}).get("ground_truths") or {}
+    folders = _ground_truth_folders(dataset)
     has_lamps = any(p is not None for p in dataset.gt_paths)
     return tuple(name for name in GROUND_TRUTHS if (has_lamps if name == "lamps" else name in folders))
 
@@ -133,8 +140,7 @@ def ground_truth_paths(dataset: DatasetDescription, which: str = "lamps") -> tup
         raise DatasetError(f"unknown ground truth {which!r}; choose from {list(GROUND_TRUTHS)}")
     if which == "lamps":
         return tuple(dataset.gt_paths)
-    folders = (dataset.meta.get("renderer") or {}).get("ground_truths") or {}
-    folder = folders.get(which)
+    folder = _ground_truth_folders(dataset).get(which)
     if not isinstance(folder, str) or not folder or Path(folder).is_absolute() or ".." in Path(folder).parts:
         raise DatasetError(f"{dataset.source}: the dataset has no {which!r} ground truth (render it with "
                            f"`spotless-sim render --gt {which}`)")

@@ -46,6 +46,8 @@ from spotlessgs.models.sh import check_sh_degree, eval_sh
 RELIGHT_L0_DEFAULT = (1.0, 1.0, 1.0)
 # 3DGS adds this offset to its SH colour before clamping at 0.
 SH_COLOUR_OFFSET = 0.5
+#: How the low-frequency light may shade the spotlit images (ModelConfig.low_frequency_shading).
+LOW_FREQUENCY_SHADINGS = ("spot_cosine", "irradiance")
 
 
 @dataclass(frozen=True)
@@ -98,7 +100,7 @@ class ModelConfig:
             raise ValueError(f"ModelConfig {self.name!r}: relight_directions must be >= 1, got {self.relight_directions}")
         if self.brdf_hidden < 1:
             raise ValueError(f"ModelConfig {self.name!r}: brdf_hidden must be >= 1, got {self.brdf_hidden}")
-        if self.low_frequency_shading not in ("spot_cosine", "irradiance"):
+        if self.low_frequency_shading not in LOW_FREQUENCY_SHADINGS:
             raise ValueError(f"ModelConfig {self.name!r}: low_frequency_shading must be 'spot_cosine' or "
                              f"'irradiance', got {self.low_frequency_shading!r}")
 

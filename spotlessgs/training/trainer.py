@@ -405,14 +405,11 @@ def _train_locked(data_dir: Path, run_dir: Path, variant: str | ModelConfig, con
             raise InputError(f"{run_dir / 'config.json'}: damaged run settings: 'run' is not a JSON object")
         # the dataset may have moved (--data DIR), an older version wrote the file: not another setting
         moved = ("data_dir", "data_dir_relative", "schema_version")
-        # settings added since the run began take their defaults (what the run trained with)
-        defaults = {f.name: f.default for f in dataclasses.fields(TrainConfig)}
-        old_train = {**defaults, **old["train"]} if isinstance(old["train"], dict) else old["train"]
+        # settings added since the run began take their defaults (what the run trained with), the model's too
+        old_train = _with_defaults(TrainConfig, old["train"]) if isinstance(old["train"], dict) else old["train"]
         old_run = dict(old["run"])
-        if isinstance(old_run.get("model_config"), dict):  # likewise the model's switches
-            model_defaults = {f.name: f.default for f in dataclasses.fields(ModelConfig)
-                              if f.default is not dataclasses.MISSING}
-            old_run["model_config"] = {**model_defaults, **old_run["model_config"]}
+        if isinstance(old_run.get("model_config"), dict):
+            old_run["model_config"] = _with_defaults(ModelConfig, old_run["model_config"])
         if json.loads(json.dumps(old_train)) != resolved["train"] or (
                 json.loads(json.dumps({k: v for k, v in old_run.items() if k not in moved}))
                 != json.loads(json.dumps({k: v for k, v in run_info.items() if k not in moved}))):
@@ -658,6 +655,12 @@ def read_metrics(path: Path) -> list[dict]:
         except json.JSONDecodeError:
             continue
     return records
+
+
+def _with_defaults(cls: type, saved: dict[str, Any]) -> dict[str, Any]:
+    """``saved``, the fields of a dataclass ``cls`` as an older run wrote them, completed with the defaults of the
+    fields added since."""
+    return {**{f.name: f.default for f in dataclasses.fields(cls) if f.default is not dataclasses.MISSING}, **saved}
 
 
 def saved_train_config(path: Path) -> TrainConfig:

@@ -17,11 +17,11 @@ import sys
 import time
 from dataclasses import asdict
 from pathlib import Path
-from typing import Any, Sequence
+from typing import Any, Callable, Sequence
 
 import spotlessgs
 from evaluation.ceiling import ceiling
-from evaluation.dataset import read_dataset
+from evaluation.dataset import DatasetFrame, DatasetViews, read_dataset
 from evaluation.folders import ImagePair
 from evaluation.report import write_results_json
 from evaluation.runner import (
@@ -157,6 +157,14 @@ def has_uniform_ground_truth(data_dir: str | Path) -> bool:
     return "uniform" in available_ground_truths(read_dataset_description(data_dir))
 
 
+def score_against_uniform(uniform: DatasetViews, image_of: Callable[[DatasetFrame], Path], lpips: bool,
+                          threads: int, label: str) -> dict[str, Any]:
+    """Image metrics (:func:`_uniform_config`) of a dataset's scored test views, read with its uniform ground truth
+    (``read_dataset(DATA, "uniform")``): the image ``image_of(frame)`` of each against the frame's ground truth."""
+    return score_pairs([ImagePair(f.name, image_of(f), f.gt_path, f.depth_path) for f in scored_test_frames(uniform)],
+                       _uniform_config(lpips, threads), label)
+
+
 def evaluate_inputs(data_dir: str, out_dir: str, sfm: bool, sfm_matcher: str, lpips: bool, seed: int,
                     threads: int) -> dict[str, Any]:
     """Score a dataset's original (uneven) inputs once for every method: the ``input`` block of
@@ -184,9 +192,8 @@ def evaluate_inputs(data_dir: str, out_dir: str, sfm: bool, sfm_matcher: str, lp
     results["provenance"] = provenance(extra_packages=("pycolmap", "kornia"))
     if has_uniform_ground_truth(data_dir):
         uniform = read_dataset(data_dir, "uniform")
-        results["uniform"] = score_pairs([ImagePair(f.name, f.input_path, f.gt_path, f.depth_path)
-                                          for f in scored_test_frames(uniform)],
-                                         _uniform_config(lpips, threads), "input vs uniform gt")
+        results["uniform"] = score_against_uniform(uniform, lambda f: f.input_path, lpips, threads,
+                                                   "input vs uniform gt")
         flicker = ground_truth_flicker(uniform, config)  # an evenly lit sequence without the lamps' fall-off
         if flicker is not None:
             results["uniform"]["gt_tmp_flicker"] = flicker
@@ -377,9 +384,8 @@ def evaluate_enhanced(data_dir: Path, enhanced_dir: Path, work_dir: Path, sfm: b
         raise ValueError(f"{data_dir}: no test view has a ground-truth image")
     results: dict[str, Any] = dict(score_pairs(pairs, config, "enhanced vs gt"))
     if has_uniform_ground_truth(data_dir):
-        results["uniform"] = score_pairs([ImagePair(f.name, enhanced_dir / f.name, f.gt_path, f.depth_path)
-                                          for f in scored_test_frames(read_dataset(data_dir, "uniform"))],
-                                         _uniform_config(lpips, threads), "enhanced vs uniform gt")
+        results["uniform"] = score_against_uniform(read_dataset(data_dir, "uniform"), lambda f: enhanced_dir / f.name,
+                                                   lpips, threads, "enhanced vs uniform gt")
     results.update(temporal_block([enhanced_dir / f.name for f in data.frames], config, "enhanced", data))
     if sfm:
         names = [f.name for f in data.frames]
