@@ -16,14 +16,14 @@ from .materials import PALETTES, Surface
 from .meshes import MeshData
 from .rooms import RECIPES, RoomPlan, model_counts, plan_room, yaw_quaternion
 
-ROOM_KINDS: tuple[str, ...] = ("bedroom", "living_room", "office", "storage_room", "corridor")
+ROOM_KINDS: tuple[str, ...] = ("bedroom", "living_room", "office", "storage_room", "corridor", "white_room")
 """Room kinds :func:`generate_room` knows."""
 
 GENERATOR_VERSION = 1
 """Bumped whenever the same seed would produce a different room."""
 
 _STYLES = {"bedroom": "Nordic", "living_room": "Modern", "office": "Minimalist", "storage_room": "Industrial",
-           "corridor": "Modern"}
+           "corridor": "Modern", "white_room": "Minimalist"}
 _IDENTITY_UV = [1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0]
 
 

@@ -164,6 +164,19 @@ PALETTES: dict[str, Palette] = {
             "ceiling_lamp": _LAMP, "wall_lamp": _LAMP, "floor_lamp": _LAMP,
         },
     ),
+    # White and matte everywhere (linear albedo about 0.75-0.8): strong interreflection.
+    "white_room": Palette(
+        floor=surf("tiles", 0.8, color=(235, 232, 226), count=5),
+        walls=surf("plaster", 0.9, aspect=6, color=(232, 231, 226)),
+        ceiling=surf("plaster", 0.9, color=(236, 236, 233)),
+        baseboard=surf("wood", 0.8, color=(240, 238, 232)),
+        door=surf("wood", 0.8, color=(236, 233, 226)),
+        default=surf("wood", 0.8, uv_span=1.2, color=(238, 235, 228)),
+        furniture={
+            "armchair": surf("fabric", 0.95, uv_span=0.8, color=(240, 238, 232), accent=(225, 222, 214)),
+            "painting": _PAINTING, "ceiling_lamp": _LAMP, "floor_lamp": _LAMP,
+        },
+    ),
     "corridor": Palette(
         floor=surf("tiles", 0.12, color=(205, 200, 190), count=6),
         walls=surf("plaster", 0.7, aspect=6, color=(222, 210, 190)),

@@ -501,6 +501,18 @@ RECIPES: dict[str, RoomRecipe] = {
             _it("ceiling_lamp", "ceiling"),
         ),
     ),
+    # Small and white: strong interreflection (most of what the spotlight lights bounces on to light the rest).
+    "white_room": RoomRecipe(
+        "OtherRoom", (3.3, 3.6), (3.1, 3.4), (2.6, 2.65), None, {0: 0.9}, 0.55, 1, False,
+        (
+            _it("dresser", "wall"),
+            _it("bookcase", "wall"),
+            _it("armchair", "wall", edges=(0,)),
+            _it("floor_lamp", "wall"),
+            _it("painting", "hang", height=1.3, required=False),
+            _it("ceiling_lamp", "ceiling"),
+        ),
+    ),
     "corridor": RoomRecipe(
         "Hallway", (8.0, 9.0), (2.7, 2.9), (2.6, 2.75), None, {}, 0.45, 1, True,
         (
