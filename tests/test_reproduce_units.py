@@ -144,7 +144,7 @@ def test_cli_options_to_config():
     assert c.scenes == ("office",) and c.gan_rooms == ("living_room", "bedroom") and c.seed == 3 and not c.sfm
     assert config_from_options("tiny", (), 0, None, False) == preset("tiny")
     with pytest.raises(ValueError, match="gan_rooms needs at least two rooms"):
-        config_from_options("quick", ("bedroom", "living_room", "office", "storage_room"), 0, None, False)
+        config_from_options("quick", ("bedroom", "living_room", "office", "storage_room", "corridor"), 0, None, False)
     assert c.sensor_noise is None  # the noisy copies serve Table III only
     assert config_from_options("tiny", (), 0, None, False, no_sensor_noise=True) == preset("tiny", sensor_noise=None)
 
@@ -158,7 +158,8 @@ def test_cli_reports_refused_folder_and_bad_options(tmp_path):
     result = CliRunner().invoke(main, ["reproduce", "--preset", "tiny", "--out", str(tmp_path)])
     assert result.exit_code == 2 and "made with other settings (differing: ['seed'])" in result.output
     result = CliRunner().invoke(main, ["reproduce", "--preset", "tiny", "--out", str(tmp_path), "--scenes", "bedroom",
-                                       "--scenes", "office", "--scenes", "living_room", "--scenes", "storage_room"])
+                                       "--scenes", "office", "--scenes", "living_room", "--scenes", "storage_room",
+                                       "--scenes", "corridor"])
     assert result.exit_code == 2 and "gan_rooms needs at least two rooms" in result.output
     result = CliRunner().invoke(main, ["reproduce", "--preset", "tiny", "--out", str(tmp_path), "--jobs", "0"])
     assert result.exit_code == 2 and "--jobs" in result.output
@@ -732,7 +733,7 @@ def test_collect_reads_the_inputs_once_per_dataset_from_their_stage(tmp_path):
     assert "ceiling" in [t.key for t in all_tables(collected)]
 
 
-@pytest.mark.parametrize("name", ["tiny", "quick", "paper"])
+@pytest.mark.parametrize("name", ["tiny", "quick", "paper", "components"])
 def test_every_preset_camera_loop_is_admissible(name):
     """The simulator can place every frame of every room a preset renders (the shipped bedroom, e.g., admits no
     40-48 or 316-frame loop with seed 0)."""
@@ -740,7 +741,7 @@ def test_every_preset_camera_loop_is_admissible(name):
     from simulator.render_pipeline import RenderConfig, plan_poses
 
     config = preset(name)
-    rooms = [(r, config.frames) for r in config.scenes] + [(r, config.gan_frames) for r in config.gan_rooms]
+    rooms = [(r, config.frames) for r, _ in config.datasets()] + [(r, config.gan_frames) for r in config.gan_rooms]
     for room, frames in rooms:
         render = RenderConfig.from_preset("uneven", frames=frames, seed=config.seed)
         poses = plan_poses(config.scene_file(room), render, LoadOptions())[3]

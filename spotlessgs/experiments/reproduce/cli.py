@@ -33,8 +33,10 @@ def config_from_options(preset_name: str, scenes: tuple[str, ...], seed: int, sc
 
 @click.command()
 @click.option("--preset", "preset_name", default="quick", show_default=True,
-              type=click.Choice(["tiny", "quick", "paper"]),
-              help="tiny: minutes (tests); quick: ~30 min on a 2-core CPU; paper: the paper's scale (GPU).")
+              type=click.Choice(["tiny", "quick", "paper", "components"]),
+              help="tiny: minutes (tests); quick: ~30 min on a 2-core CPU; paper: the paper's scale (GPU); "
+                   "components: the DarkGS ablation with three seeds on the rooms where the SH light, the BRDF and "
+                   "interreflection matter (storage room, white room, bedroom with residual light).")
 @click.option("--scenes", multiple=True, type=click.Choice(list(SHIPPED_ROOMS)),
               help="Test room(s) (repeat the option); default: the preset's.")
 @click.option("--out", "out_dir", required=True, type=click.Path(file_okay=False, path_type=Path),

@@ -1,7 +1,9 @@
 """Settings of ``spotless reproduce``: a frozen dataclass with a comment per field and three named presets.
 
 ``tiny`` finishes in a few minutes on a 2-core CPU (the tests run it), ``quick`` in about half an hour there (the
-README's main job), ``paper`` is the paper's scale (316 frames at native size, the full training schedule) for a GPU.
+README's main job), ``paper`` is the paper's scale (316 frames at native size, the full training schedule) for a GPU;
+``components`` trains the DarkGS ablation with three seeds on the rooms where the SH light, the BRDF and
+interreflection matter.
 """
 
 from __future__ import annotations
@@ -20,8 +22,13 @@ from spotlessgs.io.cameras import LENS_MODELS
 METHODS_3D: tuple[str, ...] = ("3dgs", "darkgs", "darkgs-calibrated", "darkgs+sh", "darkgs+brdf", "spotless", "auto")
 # Single-view 2D baselines (spotlessgs.baselines2d).
 METHODS_2D: tuple[str, ...] = ("clahe", "msrcr", "cyclegan")
-# Dataset variants of docs/method.md §11 (simulator spotlight presets).
-VARIANTS: tuple[str, ...] = ("uneven", "saturated")
+# Dataset variants: the simulator's spotlight presets of docs/method.md §11, and "residual": the uneven spotlight
+# with the room's own lamps left on at ReproduceConfig.residual_light of their power in the spotlit input (light the
+# spotlight does not explain: ``spotless-sim render --residual-light``).
+RESIDUAL_VARIANT = "residual"
+VARIANTS: tuple[str, ...] = ("uneven", "saturated", RESIDUAL_VARIANT)
+# The variants of the quick, tiny and paper presets (Tables I-IV).
+PAPER_VARIANTS: tuple[str, ...] = ("uneven", "saturated")
 # The copy of a room's ``uneven`` dataset with camera sensor noise (ReproduceConfig.sensor_noise): Table III's
 # robot-camera case.
 NOISY_VARIANT = "uneven-noisy"
@@ -32,9 +39,19 @@ INPUTS_STAGE = "eval-inputs"
 # Stage name prefix of the relighting ceiling of each dataset (tasks.evaluate_ceiling).
 CEILING_STAGE = "ceiling"
 # Room kinds shipped under scenes/<kind>/house.json.
-SHIPPED_ROOMS: tuple[str, ...] = ("bedroom", "living_room", "office", "storage_room", "corridor")
+SHIPPED_ROOMS: tuple[str, ...] = ("bedroom", "living_room", "office", "storage_room", "corridor", "white_room")
 # The default location of the shipped rooms (the repository's scenes/ folder).
 DEFAULT_SCENES_DIR = Path(__file__).resolve().parents[3] / "scenes"
+
+
+# Fields added after reproduction folders existed whose default is how those folders were made: a folder whose
+# reproduce.json lacks one of them is resumed when the field has its default (pipeline.check_or_record_config).
+NEUTRAL_NEW_FIELDS: tuple[str, ...] = ("extra_datasets", "residual_light", "extra_seeds")
+
+
+def dataset_id(room: str, variant: str) -> str:
+    """Name of a test dataset: ``bedroom-uneven``."""
+    return f"{room}-{variant}"
 
 
 def _is_shot_read(value: Any) -> bool:
@@ -51,7 +68,12 @@ class ReproduceConfig:
     # Test rooms (shipped room kinds): every 3D method and 2D baseline is scored on each.
     scenes: tuple[str, ...] = ("bedroom",)
     # Dataset variants rendered for every test room.
-    variants: tuple[str, ...] = VARIANTS
+    variants: tuple[str, ...] = PAPER_VARIANTS
+    # Test datasets besides every room x variant, as "room-variant" (e.g. "bedroom-residual"), rendered, trained and
+    # scored like them.
+    extra_datasets: tuple[str, ...] = ()
+    # The room's own lamps left on in the spotlit input of a "residual" dataset, as a fraction of their power.
+    residual_light: float = 0.1
     # Frames along the camera loop of a test room (every 11th is a test view). quick: 60, as scripts/demo.sh (with 36
     # the held-out test views were blurrier than the inputs by LPIPS: too few views to pin the geometry).
     frames: int = 60
@@ -123,6 +145,9 @@ class ReproduceConfig:
     lpips: bool = True
     # The command seed (renders, training, Cycle-GAN and SfM derive their own streams from it).
     seed: int = 0
+    # Training seeds besides ``seed``: every 3D method is trained again with each on every rendered test dataset
+    # (not the noisy or robot copies), and the seed table gives each method's mean, min and max over all the seeds.
+    extra_seeds: tuple[int, ...] = ()
     # Folder with the shipped rooms (scenes/<kind>/house.json).
     scenes_dir: Path = DEFAULT_SCENES_DIR
 
@@ -139,6 +164,19 @@ class ReproduceConfig:
 
         check_subset("scenes", SHIPPED_ROOMS)
         check_subset("variants", VARIANTS)
+        for name in self.extra_datasets:
+            room, _, variant = name.rpartition("-")
+            if room not in SHIPPED_ROOMS or variant not in VARIANTS:
+                raise ValueError(f"ReproduceConfig.extra_datasets: {name!r} is not ROOM-VARIANT with a room of "
+                                 f"{list(SHIPPED_ROOMS)} and a variant of {list(VARIANTS)}")
+        names = [dataset_id(room, variant) for room, variant in self.datasets()]
+        if len(set(names)) != len(names):
+            raise ValueError(f"ReproduceConfig.extra_datasets repeats a test dataset: {names}")
+        if not (math.isfinite(self.residual_light) and 0.0 < self.residual_light <= 1.0):
+            raise ValueError(f"ReproduceConfig.residual_light must lie in (0, 1], got {self.residual_light!r}")
+        if self.seed in self.extra_seeds or len(set(self.extra_seeds)) != len(self.extra_seeds):
+            raise ValueError(f"ReproduceConfig.extra_seeds must differ from each other and from seed {self.seed}, "
+                             f"got {list(self.extra_seeds)}")
         check_subset("methods", METHODS_3D)
         if self.baselines:
             check_subset("baselines", METHODS_2D)
@@ -202,8 +240,14 @@ class ReproduceConfig:
         return path
 
     def datasets(self) -> list[tuple[str, str]]:
-        """(room, variant) of every rendered test dataset, in table order."""
-        return [(room, variant) for room in self.scenes for variant in self.variants]
+        """(room, variant) of every rendered test dataset, in table order: every room x variant, then
+        ``extra_datasets``."""
+        extra = [tuple(name.rsplit("-", 1)) for name in self.extra_datasets]
+        return [(room, variant) for room in self.scenes for variant in self.variants] + extra
+
+    def seeds(self) -> tuple[int, ...]:
+        """Every training seed of the rendered test datasets: ``seed`` first, then ``extra_seeds``."""
+        return (self.seed,) + tuple(self.extra_seeds)
 
     def noisy_datasets(self) -> list[tuple[str, str]]:
         """(room, NOISY_VARIANT) of every sensor-noise copy (empty when ``sensor_noise`` is None)."""
@@ -251,12 +295,16 @@ PRESETS: dict[str, ReproduceConfig] = {
         curve_fractions=(0.1, 0.25, 0.5, 0.75), gan_frames=120, gan_width=640, gan_height=480, gan_samples=32,
         cyclegan_preset="paper", cyclegan_steps=None,
     ),
+    # Rooms where the relighting components matter (issue 18), at the quick preset's size, trained with three seeds:
+    # the bedroom with residual light (a dimmed ceiling light stays on in the spotlit input: the SH light has
+    # something to explain), the glossy and metallic storage room (the learned BRDF), and the small white room
+    # (interreflection). The DarkGS ablation only; no 2D baselines, camera copies or SfM.
+    "components": ReproduceConfig(
+        preset="components", scenes=("storage_room", "white_room"), variants=("uneven",),
+        extra_datasets=("bedroom-residual",), methods=("darkgs", "darkgs+sh", "darkgs+brdf", "spotless"),
+        extra_seeds=(1, 2), baselines=(), sensor_noise=None, robot_camera=False, sfm=False,
+    ),
 }
-
-
-def dataset_id(room: str, variant: str) -> str:
-    """Name of a test dataset: ``bedroom-uneven``."""
-    return f"{room}-{variant}"
 
 
 def preset(name: str, **overrides: Any) -> ReproduceConfig:
@@ -264,3 +312,9 @@ def preset(name: str, **overrides: Any) -> ReproduceConfig:
     if name not in PRESETS:
         raise ValueError(f"unknown reproduce preset {name!r}; choose one of {sorted(PRESETS)}")
     return PRESETS[name].replace(**overrides)
+
+
+def train_stage(ds: str, method: str, seed: int, config: ReproduceConfig) -> str:
+    """The stage that trains ``method`` on dataset ``ds`` with ``seed``: ``train/<ds>/<method>`` for the command
+    seed, ``train/<ds>/seed-<seed>/<method>`` for one of ``extra_seeds`` (its run folder: the same under runs/)."""
+    return f"train/{ds}/{method}" if seed == config.seed else f"train/{ds}/seed-{seed}/{method}"

@@ -10,6 +10,7 @@ Output folder layout::
     OUT/inputs/<room>-<variant>/          the uneven inputs' evaluation, once per dataset (results.json, sfm/)
     OUT/ceiling/<room>-<variant>/         the relighting ceiling's oracles and their scores (evaluation.ceiling;
                                           uniform/: the same against the uniform ground truth)
+    OUT/runs/<room>-<variant>/seed-<s>/<method>/  the same with each of ``extra_seeds``
     OUT/runs/<room>-<variant>/<method>/   training runs (+ relit/, eval/ without the inputs, eval-uniform/ against
                                           the uniform ground truth (image metrics), curve/; auto:
                                           model_selection.json, selection/ and gaussian_budget.json)
@@ -28,7 +29,8 @@ from spotlessgs.io.atomic import write_json
 from spotlessgs.io.folder_lock import folder_lock
 from spotlessgs.io.paths import refuse_overlap
 from spotlessgs.experiments.reproduce.config import (
-    CEILING_STAGE, INPUTS_STAGE, NOISY_VARIANT, ROBOT_VARIANT, ReproduceConfig, dataset_id,
+    CEILING_STAGE, INPUTS_STAGE, NEUTRAL_NEW_FIELDS, NOISY_VARIANT, RESIDUAL_VARIANT, ROBOT_VARIANT, ReproduceConfig, dataset_id,
+    train_stage,
 )
 from simulator.render_many import RENDER_MEMORY_MB
 from spotlessgs.jobs import ExecutorSpec, RunReport, Stage, StageGraph, StageResources, execute
@@ -76,7 +78,8 @@ def build_graph(config: ReproduceConfig, out: Path) -> StageGraph:
             resources=render_resources,
             kwargs={"scene_file": str(config.scene_file(room)), "out_dir": str(out / "datasets" / ds),
                     "variant": variant, "frames": config.frames, "width": config.width, "height": config.height,
-                    "samples": config.samples, "seed": config.seed, "uniform_gt": config.uniform_gt}))
+                    "samples": config.samples, "seed": config.seed, "uniform_gt": config.uniform_gt,
+                    "residual_light": config.residual_light if variant == RESIDUAL_VARIANT else 0.0}))
     if "cyclegan" in config.baselines:
         for room in config.gan_rooms:
             stages.append(Stage(
@@ -112,19 +115,22 @@ def build_graph(config: ReproduceConfig, out: Path) -> StageGraph:
             "shot": float(shot), "read": float(read), "sensitivity": float(config.robot_sensitivity),
             "lens": config.robot_lens, "distortion": [float(v) for v in config.robot_distortion],
             "matcher": config.sfm_matcher, "seed": config.seed}))
+    rendered = set(config.datasets())
     for room, variant in config.all_datasets():
         ds = dataset_id(room, variant)
-        for method in config.methods_for(variant):
-            run_dir = out / "runs" / ds / method
-            selection = ({"selection_min_proxy_iterations": config.selection_min_proxy_iterations}
-                         if method == AUTO else {})
-            stages.append(Stage(
-                f"train/{ds}/{method}", f"{TASKS}:train_method", deps=(dataset_stage(variant, ds),), output=run_dir,
-                clean_on_retry=False, resources=train_resources,  # resumes from its checkpoint
-                kwargs={"data_dir": str(out / "datasets" / ds), "run_dir": str(run_dir), "variant": method,
-                        "train_preset": config.train_preset, "iterations": config.train_iterations,
-                        "image_width": config.train_width, "curve_fractions": tuple(config.curve_fractions),
-                        **selection, **common}))
+        for seed in config.seeds() if (room, variant) in rendered else (config.seed,):
+            for method in config.methods_for(variant):
+                name = train_stage(ds, method, seed, config)
+                run_dir = out / "runs" / name.removeprefix("train/")
+                selection = ({"selection_min_proxy_iterations": config.selection_min_proxy_iterations}
+                             if method == AUTO else {})
+                stages.append(Stage(
+                    name, f"{TASKS}:train_method", deps=(dataset_stage(variant, ds),), output=run_dir,
+                    clean_on_retry=False, resources=train_resources,  # resumes from its checkpoint
+                    kwargs={"data_dir": str(out / "datasets" / ds), "run_dir": str(run_dir), "variant": method,
+                            "train_preset": config.train_preset, "iterations": config.train_iterations,
+                            "image_width": config.train_width, "curve_fractions": tuple(config.curve_fractions),
+                            **selection, **common, "seed": seed}))
     # once per dataset, after its dataset only: the inputs' evaluation, then the relighting ceiling
     for prefix, task, folder in ((INPUTS_STAGE, "evaluate_inputs", "inputs"),
                                  (CEILING_STAGE, "evaluate_ceiling", "ceiling")):
@@ -159,6 +165,8 @@ def check_or_record_config(config: ReproduceConfig, out: Path) -> None:
     wanted = json.loads(json.dumps(config.to_dict()))
     if path.is_file():
         old = json.loads(path.read_text(encoding="utf-8"))
+        defaults = json.loads(json.dumps(ReproduceConfig().to_dict()))
+        old.update({k: wanted[k] for k in NEUTRAL_NEW_FIELDS if k not in old and wanted[k] == defaults[k]})
         if old != wanted:
             fields = sorted(k for k in set(old) | set(wanted) if old.get(k) != wanted.get(k))
             raise ValueError(f"{path}: this folder was made with other settings (differing: {fields}); "

@@ -11,7 +11,8 @@ from spotlessgs.io.atomic import write_json, write_text
 from spotlessgs.io.provenance import provenance
 from spotlessgs.experiments.reproduce import paper
 from spotlessgs.experiments.reproduce.config import (
-    CEILING_STAGE, INPUTS_STAGE, NOISY_VARIANT, ROBOT_VARIANT, ReproduceConfig, dataset_id,
+    CEILING_STAGE, INPUTS_STAGE, NOISY_VARIANT, RESIDUAL_VARIANT, ROBOT_VARIANT, ReproduceConfig, dataset_id,
+    train_stage,
 )
 from spotlessgs.experiments.reproduce.figures import qualitative_grid, speed_error_plot
 from spotlessgs.jobs.graph import MARKER_DIR, read_marker
@@ -44,6 +45,7 @@ def collect(out: Path, config: ReproduceConfig) -> dict[str, Any]:
     if "cyclegan" in config.baselines:
         collected["cyclegan"] = read_marker(out, "cyclegan/train")["result"] | {
             "stage_seconds": read_marker(out, "cyclegan/train")["seconds"]}
+    rendered = set(config.datasets())
     for room, variant in config.all_datasets():
         ds = dataset_id(room, variant)
         entry: dict[str, Any] = {"room": room, "variant": variant, "methods": {}, "baselines2d": {},
@@ -59,11 +61,20 @@ def collect(out: Path, config: ReproduceConfig) -> dict[str, Any]:
             entry["methods"][method] = marker["result"]
             entry["methods"][method]["stage"] = {"seconds": marker["seconds"], "peak_rss_mb": marker["peak_rss_mb"]}
             entry["methods"][method]["decisions"] = run_decisions(out / "runs" / ds / method)
+        if config.extra_seeds and (room, variant) in rendered:
+            entry["seeds"] = {method: [_seed_result(out, ds, method, seed, config) for seed in config.seeds()]
+                              for method in config.methods_for(variant)}
         if variant in config.baseline_variants:
             for method in config.baselines:
                 entry["baselines2d"][method] = read_marker(out, f"baseline2d/{ds}/{method}")["result"]
         collected["datasets"][ds] = entry
     return collected
+
+
+def _seed_result(out: Path, ds: str, method: str, seed: int, config: ReproduceConfig) -> dict[str, Any]:
+    """One seed's run of ``method`` on ``ds``: {"seed", "metrics", "train"} from its training stage's marker."""
+    result = read_marker(out, train_stage(ds, method, seed, config))["result"]
+    return {"seed": seed, "metrics": result["metrics"], "train": result["train"]}
 
 
 def _stage_times(out: Path) -> dict[str, float]:
@@ -81,11 +92,16 @@ def render_markdown(config: ReproduceConfig, tables: list[Table], notes: list[Ag
     """The text of REPORT.md."""
     lines = [
         "# SpotlessGS reproduction report", "",
-        f"Preset `{config.preset}`: rooms {', '.join(config.scenes)}; variants {', '.join(config.variants)}; "
-        f"{config.frames} frames at {config.width}x{config.height}, {config.samples} samples; trainer preset "
+        f"Preset `{config.preset}`: rooms {', '.join(config.scenes)}; variants {', '.join(config.variants)}"
+        + (f"; also {', '.join(config.extra_datasets)}" if config.extra_datasets else "")
+        + (f" (residual: the room's lamps at {config.residual_light:g} of their power in the spotlit input)"
+           if any(v == RESIDUAL_VARIANT for _, v in config.datasets()) else "")
+        + f"; {config.frames} frames at {config.width}x{config.height}, {config.samples} samples; trainer preset "
         f"`{config.train_preset}`" + (f" with {config.train_iterations} iterations" if config.train_iterations else "")
-        + f"; Cycle-GAN preset `{config.cyclegan_preset}` trained on {', '.join(config.gan_rooms)}; "
-        f"seed {config.seed}."
+        + (f"; Cycle-GAN preset `{config.cyclegan_preset}` trained on {', '.join(config.gan_rooms)}"
+           if "cyclegan" in config.baselines else "")
+        + f"; seed {config.seed}" + (f", training also with seeds {', '.join(map(str, config.extra_seeds))}"
+                                     if config.extra_seeds else "") + "."
         + (f" Sensor-noise copies of the uneven datasets (`<room>-{NOISY_VARIANT}`, shot variance "
            f"{config.sensor_noise[0]:g}, read noise {config.sensor_noise[1]:g} in linear intensity; Table III's "
            f"robot-camera case, as the paper's SfM test is on a real camera): "

@@ -33,6 +33,7 @@ from simulator.sensor_noise import CameraEffects, SensorNoise, add_sensor_noise_
 from spotlessgs.baselines2d import enhance_folder
 from spotlessgs.baselines2d.cyclegan.config import preset as cyclegan_config
 from spotlessgs.baselines2d.cyclegan.train import train_cyclegan
+from spotlessgs.experiments.reproduce.config import RESIDUAL_VARIANT
 from spotlessgs.experiments.reproduce.report import write_report
 from spotlessgs.io.atomic import to_jsonable, write_json
 from spotlessgs.io.cameras import opengl_to_opencv_c2w
@@ -91,11 +92,14 @@ def relight_in_fresh_process(run_dir: Path, threads: int) -> dict[str, Any]:
 
 
 def render_room(scene_file: str, out_dir: str, variant: str, frames: int, width: int, height: int, samples: int,
-                seed: int, threads: int, uniform_gt: bool = False) -> dict[str, Any]:
-    """Render (or resume) one paired dataset with the simulator (``uniform_gt``: also the uniform ground truth);
-    RuntimeError when it is not complete afterwards."""
-    config = RenderConfig.from_preset(variant, frames=frames, width=width, height=height, samples=samples, seed=seed,
-                                      uniform_gt=uniform_gt)
+                seed: int, threads: int, uniform_gt: bool = False, residual_light: float = 0.0) -> dict[str, Any]:
+    """Render (or resume) one paired dataset with the simulator (``uniform_gt``: also the uniform ground truth;
+    variant "residual": the uneven spotlight with the room's lamps at ``residual_light`` of their power in the
+    spotlit input); RuntimeError when it is not complete afterwards."""
+    residual = {"residual_light": residual_light} if variant == RESIDUAL_VARIANT else {}
+    config = RenderConfig.from_preset("uneven" if variant == RESIDUAL_VARIANT else variant, frames=frames,
+                                      width=width, height=height, samples=samples, seed=seed, uniform_gt=uniform_gt,
+                                      **residual)
     execution = ExecutionOptions(threads=threads, progress=False, quiet=True)
     summary = render_dataset(scene_file, out_dir, config, execution=execution)
     if not summary["complete"]:
