@@ -36,7 +36,7 @@ from typing import Literal
 import torch
 from torch import nn
 
-from spotlessgs.models.brdf import LambertianBRDF, LearnedBRDF
+from spotlessgs.models.brdf import LambertianBRDF, LearnedBRDF, disney_brdf
 from spotlessgs.models.gaussians import GaussianParams
 from spotlessgs.models.geometry import check_c2w, orthonormal_basis, safe_normalize
 from spotlessgs.models.light import ConstantAmbient, LowFrequencyLight, SpotLight
@@ -77,7 +77,9 @@ class ModelConfig:
     # How the low-frequency light shades a Gaussian under the spotlight. "spot_cosine" (the paper's equation):
     # f̃ · max(0, n̂·l̂) · (L_spot + L_lf), the low-frequency light scaled by the spotlight's BRDF value and cosine;
     # "irradiance": f̃ · max(0, n̂·l̂) · L_spot + R · L_lf, the low-frequency light as light from all around, shaded by
-    # the directional albedo R (relit_reflectance), exactly as relighting shades it.
+    # the directional albedo R, and relit with the same R. R is the albedo for a Lambertian BRDF and the analytic
+    # Disney model's directional albedo for the learned one (analytic_reflectance: no network pass; its MLP residual
+    # shapes the spotlight's term only).
     low_frequency_shading: Literal["spot_cosine", "irradiance"] = "spot_cosine"
 
     def __post_init__(self) -> None:
@@ -215,6 +217,44 @@ def relit_reflectance(
     return total / directions
 
 
+def analytic_reflectance(
+    albedo: torch.Tensor,
+    roughness: torch.Tensor,
+    metalness: torch.Tensor,
+    directions: int = 16,
+) -> torch.Tensor:
+    """Directional albedo of the clamped analytic Disney model seen along the normal, (N, 3):
+    (1/D) Σ_d clamp(π f_Disney(v̂ = n̂, l̂_d), 0, 1) over `hemisphere_directions(D)`: the learned BRDF's R
+    (`relit_reflectance`) without its MLP residual. The model is isotropic, so R depends on the material only and is
+    computed in the normal's own frame: D elementwise evaluations, no network pass.
+
+    Args:
+        albedo (N, 3), roughness (N, 1), metalness (N, 1); directions: D.
+    """
+    count = albedo.shape[0]
+    up = albedo.new_tensor([0.0, 0.0, 1.0]).expand(count, 3)
+    total = torch.zeros_like(albedo)
+    for d in hemisphere_directions(directions, dtype=albedo.dtype).to(albedo.device):
+        total = total + (math.pi * disney_brdf(albedo, roughness, metalness, up, up, d.expand(count, 3))).clamp(0.0, 1.0)
+    return total / directions
+
+
+def model_reflectance(
+    cfg: ModelConfig,
+    albedo: torch.Tensor,
+    roughness: torch.Tensor,
+    metalness: torch.Tensor,
+    normals: torch.Tensor,
+    brdf: nn.Module,
+) -> torch.Tensor:
+    """The directional albedo R (N, 3) that relights a variant and, with the "irradiance" shading, shades its
+    low-frequency light in training: `analytic_reflectance` for a learned BRDF with that shading, `relit_reflectance`
+    otherwise (the albedo itself for a Lambertian one)."""
+    if cfg.low_frequency_shading == "irradiance" and isinstance(brdf, LearnedBRDF):
+        return analytic_reflectance(albedo, roughness, metalness, cfg.relight_directions)
+    return relit_reflectance(albedo, roughness, metalness, normals, brdf, cfg.relight_directions)
+
+
 def relight_radiance(relight_l0: torch.Tensor | Sequence[float], like: torch.Tensor) -> torch.Tensor:
     """Validate L0 (3,) (finite, ≥ 0) and return it as a (1, 3) tensor with the dtype/device of `like`."""
     l0 = torch.as_tensor(relight_l0, dtype=like.dtype, device=like.device)
@@ -264,12 +304,11 @@ def shade(
     low_frequency = lf_light.radiance(normals)
     if relight_l0 is not None:
         l0 = relight_radiance(relight_l0, albedo)
-        reflect = relit_reflectance(albedo, rough, metal, normals, brdf, cfg.relight_directions)
-        return reflect * (l0 + low_frequency)
+        return model_reflectance(cfg, albedo, rough, metal, normals, brdf) * (l0 + low_frequency)
     spot, light_dirs = light.incident(gaussians.means, c2w)
     lf_reflect = None
     if cfg.low_frequency_shading == "irradiance":
-        lf_reflect = relit_reflectance(albedo, rough, metal, normals, brdf, cfg.relight_directions)
+        lf_reflect = model_reflectance(cfg, albedo, rough, metal, normals, brdf)
     if split_lights:
         lit = spot_lit_colours(albedo, rough, metal, normals, view_dirs, light_dirs,
                                torch.ones_like(spot), torch.zeros_like(low_frequency), brdf)  # f̃·cos
