@@ -339,3 +339,30 @@ def test_spotless_gradients_match_central_differences():
             param[idx] = old
         numeric = _scalar((up - down) / (2 * h))
         assert _scalar(param.grad[idx]) == pytest.approx(numeric, rel=1e-4, abs=1e-8), f"gradient of {tuple(param.shape)}{idx}"
+
+
+def test_falloff_initial_values_and_freezing():
+    """The fall-off starts at the config's τ and γ; frozen, it gets no gradient and the trainer leaves it out of the
+    optimiser; τ or γ that is not > 0 is refused."""
+    from spotlessgs.training.config import TrainConfig
+    from spotlessgs.models.relightable import RelightableScene
+    from spotlessgs.training.trainer import build_optimizers, model_config
+
+    config = dataclasses.replace(MODEL_VARIANTS["darkgs"], falloff_tau=0.01, falloff_gamma=1.0, learn_falloff=False)
+    light = build_appearance_models(config).light
+    assert _scalar(light.tau) == pytest.approx(0.01) and _scalar(light.gamma) == pytest.approx(1.0)
+    assert not light.log_tau.requires_grad and not light.log_gamma.requires_grad
+    x_l = torch.tensor([[0.0, 0.0, 2.0]])
+    assert _scalar(light.falloff(x_l)) == pytest.approx(1.0 / 4.01)  # (τ + d²)^(-γ) by hand
+    assert build_appearance_models("darkgs").light.log_tau.requires_grad  # learns by default
+    with pytest.raises(ValueError, match="falloff_tau and falloff_gamma must be finite and > 0"):
+        dataclasses.replace(MODEL_VARIANTS["darkgs"], falloff_tau=0.0)
+    train = TrainConfig(falloff_tau=0.02, learn_falloff=False)
+    frozen = model_config("darkgs", train)
+    assert (frozen.falloff_tau, frozen.learn_falloff) == (0.02, False)
+    scene = RelightableScene.create(frozen, _scene(), seed=0)
+    optimised = {id(p) for opt in build_optimizers(scene, train, extent=1.0).values()
+                 for group in opt.param_groups for p in group["params"]}
+    light = scene.appearance.light
+    assert id(light.log_tau) not in optimised and id(light.log_gamma) not in optimised
+    assert id(next(light.rid.parameters())) in optimised

@@ -114,6 +114,11 @@ class SpotLight(nn.Module):
         self.rotvec.requires_grad_(trainable)
         self.translation.requires_grad_(trainable)
 
+    def set_falloff_trainable(self, trainable: bool) -> None:
+        """Freeze (False) or unfreeze (True) the fall-off parameters `log_gamma` and `log_tau`."""
+        self.log_gamma.requires_grad_(trainable)
+        self.log_tau.requires_grad_(trainable)
+
     def origin_world(self, c2w: torch.Tensor) -> torch.Tensor:
         """Light origin o = C + R_cw t in world coordinates, (3,)."""
         check_c2w(c2w)

@@ -81,6 +81,11 @@ class ModelConfig:
     # Disney model's directional albedo for the learned one (analytic_reflectance: no network pass; its MLP residual
     # shapes the spotlight's term only).
     low_frequency_shading: Literal["spot_cosine", "irradiance"] = "spot_cosine"
+    # The spotlight's distance fall-off Ψ = (τ + d²)^(-γ) (SpotLight): initial τ (m²) and γ, and whether they learn.
+    # τ = 0, γ = 1 is a point light's inverse square; a learned τ and γ can trade against the light's axial offset.
+    falloff_tau: float = 0.3
+    falloff_gamma: float = 1.0
+    learn_falloff: bool = True
 
     def __post_init__(self) -> None:
         if self.light_model not in ("none", "spotlight"):
@@ -102,6 +107,10 @@ class ModelConfig:
             raise ValueError(f"ModelConfig {self.name!r}: relight_directions must be >= 1, got {self.relight_directions}")
         if self.brdf_hidden < 1:
             raise ValueError(f"ModelConfig {self.name!r}: brdf_hidden must be >= 1, got {self.brdf_hidden}")
+        if not (math.isfinite(self.falloff_tau) and self.falloff_tau > 0 and math.isfinite(self.falloff_gamma)
+                and self.falloff_gamma > 0):
+            raise ValueError(f"ModelConfig {self.name!r}: falloff_tau and falloff_gamma must be finite and > 0, got "
+                             f"{self.falloff_tau} and {self.falloff_gamma}")
         if self.low_frequency_shading not in LOW_FREQUENCY_SHADINGS:
             raise ValueError(f"ModelConfig {self.name!r}: low_frequency_shading must be 'spot_cosine' or "
                              f"'irradiance', got {self.low_frequency_shading!r}")
@@ -371,7 +380,9 @@ def build_appearance_models(
     cfg = resolve_variant(variant)
     if cfg.light_model == "none":
         return AppearanceModels(None, None, None)
-    light = SpotLight(rotation=light_rotation, translation=light_translation, seed=seed)
+    light = SpotLight(rotation=light_rotation, translation=light_translation, gamma=cfg.falloff_gamma,
+                      tau=cfg.falloff_tau, seed=seed)
+    light.set_falloff_trainable(cfg.learn_falloff)
     if cfg.calibrated:
         if cone is None or light_translation is None:
             raise ValueError(f"variant {cfg.name!r} is calibrated: pass light_translation (and rotation) and cone")

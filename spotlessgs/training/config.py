@@ -74,6 +74,10 @@ class TrainConfig:
     # How the low-frequency light shades a Gaussian in the spotlit training images (ModelConfig.low_frequency_shading):
     # "spot_cosine" (the paper's equation) or "irradiance" (as relighting shades it).
     low_frequency_shading: str = "spot_cosine"
+    # The spotlight's fall-off (τ + d²)^(-γ): initial τ (m²) and γ, and whether they learn (ModelConfig.falloff_*).
+    falloff_tau: float = 0.3
+    falloff_gamma: float = 1.0
+    learn_falloff: bool = True
     # Weight of the light-translation prior ‖t - t_prior‖ (used only when a prior is given).
     light_prior_weight: float = 1.0
 

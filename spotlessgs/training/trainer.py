@@ -80,13 +80,14 @@ class TrainResult:
 
 
 def model_config(variant: str | ModelConfig, config: TrainConfig) -> ModelConfig:
-    """The variant's ModelConfig (a preset name or a ModelConfig) with the CPU/GPU-dependent BRDF width and the
-    low-frequency shading of ``config``."""
+    """The variant's ModelConfig (a preset name or a ModelConfig) with the CPU/GPU-dependent BRDF width, the
+    low-frequency shading and the spotlight fall-off settings of ``config``."""
     if not isinstance(variant, ModelConfig) and variant not in MODEL_VARIANTS:
         raise ValueError(f"unknown model {variant!r}; choose one of {sorted(MODEL_VARIANTS)}")
     base = variant if isinstance(variant, ModelConfig) else MODEL_VARIANTS[variant]
     return dataclasses.replace(base, brdf_hidden=config.brdf_hidden,
-                               low_frequency_shading=config.low_frequency_shading)
+                               low_frequency_shading=config.low_frequency_shading, falloff_tau=config.falloff_tau,
+                               falloff_gamma=config.falloff_gamma, learn_falloff=config.learn_falloff)
 
 
 def resolve_device(name: str) -> torch.device:
@@ -174,8 +175,8 @@ def build_optimizers(scene: RelightableScene, config: TrainConfig, extent: float
         pose = [p for p in (app.light.rotvec, app.light.translation) if p.requires_grad]
         if pose:
             groups.append({"params": pose, "lr": config.lr_light_pose})
-        groups.append({"params": [app.light.log_gamma, app.light.log_tau, *app.light.rid.parameters()],
-                       "lr": config.lr_light})
+        groups.append({"params": [p for p in (app.light.log_gamma, app.light.log_tau) if p.requires_grad]
+                       + list(app.light.rid.parameters()), "lr": config.lr_light})
     if app.lf_light is not None:
         groups.append({"params": list(app.lf_light.parameters()),
                        "lr": config.lr_light if config.lr_lf_light is None else config.lr_lf_light})
