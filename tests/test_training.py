@@ -37,16 +37,45 @@ def test_clipped_pixels_only_penalise_darker_predictions():
     assert float(clipped_l1(brighter.detach(), target, ~sat)) == pytest.approx(2.0)
 
 
+@pytest.mark.parametrize("space", ["linear", "srgb"])
 @pytest.mark.parametrize("frame", ["black", "saturated"])
-def test_photometric_loss_is_finite_on_black_and_saturated_frames(frame):
+def test_photometric_loss_is_finite_on_black_and_saturated_frames(frame, space):
     value = 0.0 if frame == "black" else 1.0
     target = torch.full((16, 16, 3), value)
     sat = torch.full((16, 16), frame == "saturated")
     pred = torch.rand(16, 16, 3, generator=torch.Generator().manual_seed(0)).requires_grad_(True)
-    loss, parts = photometric_loss(pred, target, sat, 0.2)
+    loss, parts = photometric_loss(pred, target, sat, 0.2, space)
     loss.backward()
     assert math.isfinite(float(loss.detach())) and torch.isfinite(pred.grad).all()
     assert 0.0 <= parts["l1"] <= 1.0
+
+
+def test_srgb_loss_weighs_dim_pixels_as_they_show():
+    """In sRGB space an error of 0.01 on a dim pixel (linear 0.02) costs several times one on a bright pixel (0.8),
+    in linear light the same; above 1 the encoding continues with its slope at 1 (1.055 / 2.4), so an overshooting
+    render keeps a gradient; clipped pixels stay one-sided."""
+    from spotlessgs.training.losses import srgb_encoded
+
+    def l1(pred, target, space):
+        return float(photometric_loss(torch.tensor([[pred]]), torch.tensor([[target]]), torch.tensor([[False]]),
+                                      0.0, space)[0])
+
+    dim, bright = [0.02] * 3, [0.8] * 3
+    plus = [0.03] * 3, [0.81] * 3
+    assert l1(plus[0], dim, "linear") == pytest.approx(l1(plus[1], bright, "linear"), rel=1e-4)
+    ratio = l1(plus[0], dim, "srgb") / l1(plus[1], bright, "srgb")
+    srgb = lambda v: 1.055 * v ** (1 / 2.4) - 0.055  # noqa: E731 - the encoding by hand
+    assert ratio == pytest.approx((srgb(0.03) - srgb(0.02)) / (srgb(0.81) - srgb(0.8)), rel=1e-3) and ratio > 5
+    x = torch.tensor([0.5, 1.0, 1.5], requires_grad=True)
+    y = srgb_encoded(x)
+    assert float(y[2]) == pytest.approx(1.0 + 0.5 * 1.055 / 2.4)
+    y.sum().backward()
+    assert float(x.grad[2]) == pytest.approx(1.055 / 2.4)
+    sat = torch.tensor([[True]])
+    over = photometric_loss(torch.tensor([[[1.4] * 3]]), torch.tensor([[[1.0] * 3]]), sat, 0.0, "srgb")[0]
+    assert float(over) == 0.0
+    with pytest.raises(ValueError, match="unknown loss space 'log'"):
+        photometric_loss(torch.zeros(2, 2, 3), torch.zeros(2, 2, 3), torch.zeros(2, 2, dtype=torch.bool), 0.2, "log")
 
 
 # ---- densification strategy -----------------------------------------------------------------------------------------

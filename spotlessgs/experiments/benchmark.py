@@ -16,6 +16,7 @@ import resource
 import subprocess
 import sys
 from pathlib import Path
+from typing import Any
 
 from spotlessgs.io.atomic import write_json, write_text
 from spotlessgs.io.provenance import provenance
@@ -24,13 +25,13 @@ VARIANTS = ("3dgs", "darkgs", "darkgs-calibrated", "darkgs+sh", "darkgs+brdf", "
 
 
 def child(data: str, run: str, variant: str, preset: str, iterations: int, threads: int, seed: int,
-          low_frequency_shading: str | None = None) -> None:
-    """Train, relight the test views and score them, in this (sub)process; prints one JSON line."""
+          settings: tuple[tuple[str, Any], ...] = ()) -> None:
+    """Train (with the trainer ``settings``: (TrainConfig field, value) pairs), relight the test views and score
+    them, in this (sub)process; prints one JSON line."""
     from spotlessgs.run import RunSpec, given_overrides, train  # torch: not needed by ``spotless --help``
 
     spec = RunSpec(data=Path(data), model=variant, preset=preset, seed=seed,
-                   overrides=given_overrides(iterations=iterations, num_threads=threads,
-                                             low_frequency_shading=low_frequency_shading))
+                   overrides=given_overrides(iterations=iterations, num_threads=threads) + tuple(settings))
     trained = train(spec, run, progress=False)
     summary = trained.summary
     row = {"variant": variant, "iterations": iterations, "ms_per_step": summary["ms_per_step"],
@@ -56,8 +57,8 @@ def child(data: str, run: str, variant: str, preset: str, iterations: int, threa
 
 
 def run_benchmark(data: Path, out: Path, variants: tuple[str, ...], preset: str, iterations: int, threads: int,
-                  seed: int = 0, low_frequency_shading: str | None = None) -> list[dict]:
-    """Benchmark each variant in a subprocess (``low_frequency_shading``: every variant's, None for the default);
+                  seed: int = 0, settings: tuple[tuple[str, Any], ...] = ()) -> list[dict]:
+    """Benchmark each variant in a subprocess (``settings``: (TrainConfig field, value) pairs for every variant);
     writes ``train_benchmark.json`` and ``.md`` to ``out``."""
     rows = []
     for variant in variants:
@@ -67,8 +68,8 @@ def run_benchmark(data: Path, out: Path, variants: tuple[str, ...], preset: str,
             continue
         cmd = [sys.executable, "-m", "spotlessgs.cli", "benchmark", "models", "--child", "--data", str(data), "--out",
                str(run), "--variants", variant, "--preset", preset, "--iterations", str(iterations), "--threads",
-               str(threads), "--seed", str(seed)] + (
-                   ["--low-frequency-shading", low_frequency_shading] if low_frequency_shading else [])
+               str(threads), "--seed", str(seed)] + [arg for key, value in settings
+                                                     for arg in ("--set", f"{key}={value}")]
         proc = subprocess.run(cmd, capture_output=True, text=True)
         if proc.returncode != 0:
             raise RuntimeError(f"benchmark of {variant} failed:\n{proc.stderr[-3000:]}")
@@ -76,18 +77,20 @@ def run_benchmark(data: Path, out: Path, variants: tuple[str, ...], preset: str,
         write_json(run / "benchmark_row.json", row)
         rows.append(row)
     write_json(out / "train_benchmark.json", {"data": str(data), "preset": preset, "iterations": iterations,
-                                              "threads": threads, "low_frequency_shading": low_frequency_shading,
+                                              "threads": threads, "settings": dict(settings),
                                               "rows": rows, "provenance": provenance(seed=seed)})
-    write_text(out / "train_benchmark.md", markdown_table(rows, iterations, threads))
+    write_text(out / "train_benchmark.md", markdown_table(rows, iterations, threads, settings))
     return rows
 
 
-def markdown_table(rows: list[dict], iterations: int, threads: int) -> str:
-    """The benchmark as a Markdown table."""
+def markdown_table(rows: list[dict], iterations: int, threads: int,
+                   settings: tuple[tuple[str, Any], ...] = ()) -> str:
+    """The benchmark as a Markdown table (``settings``: the trainer settings every variant had, named above it)."""
     def fmt(value, spec):
         return "–" if value is None else format(value, spec)
 
-    lines = [f"{iterations} iterations per variant, {threads} thread(s)", "",
+    given = "; settings: " + ", ".join(f"{k}={v}" for k, v in settings) if settings else ""
+    lines = [f"{iterations} iterations per variant, {threads} thread(s){given}", "",
              "| model | ms / step | train s | Gaussians | relit FPS | peak RSS (MB) | test PSNR recon. | "
              "relit PSNR | relit PSNR aligned | relit SSIM aligned | PSNR aligned, uniform GT | "
              "SSIM aligned, uniform GT |",

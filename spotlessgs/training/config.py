@@ -23,6 +23,9 @@ class TrainConfig:
     image_width: int | None = 160
     # Weight λ of the (1 - SSIM) term: loss = (1 - λ) L1 + λ (1 - SSIM).
     ssim_lambda: float = 0.2
+    # Space of the photometric loss (spotlessgs.training.losses.LOSS_SPACES): "linear" light (the paper's) or "srgb"
+    # encoded values, in which the dim periphery counts about as much as it shows after relighting.
+    loss_space: str = "linear"
     # sRGB value at or above which an input pixel counts as clipped: there the loss only penalises predictions darker
     # than the observation (the true radiance is at least the clipped value), so clipping cannot drag the light down.
     saturation_threshold: float = 250.0 / 255.0
@@ -171,6 +174,8 @@ class TrainConfig:
     def __post_init__(self) -> None:
         if self.photometric not in ("auto", "on", "off"):
             raise ValueError(f"TrainConfig: photometric must be 'auto', 'on' or 'off', got {self.photometric!r}")
+        if self.loss_space not in ("linear", "srgb"):
+            raise ValueError(f"TrainConfig: loss_space must be 'linear' or 'srgb', got {self.loss_space!r}")
         if self.pose_texture_weight < 0 or self.pose_penalty < 0 or self.lr_pose <= 0:
             raise ValueError(f"TrainConfig: pose_texture_weight and pose_penalty must be >= 0 and lr_pose > 0, got "
                              f"{self.pose_texture_weight}, {self.pose_penalty}, {self.lr_pose}")
@@ -259,3 +264,30 @@ def preset(name: str, strategy: str = "default", **overrides: Any) -> TrainConfi
             if field not in overrides and getattr(base, field) > 0:
                 overrides[field] = max(1, round(getattr(base, field) * factor))
     return base.replace(**overrides)
+
+
+def parse_setting(text: str) -> tuple[str, Any]:
+    """``"KEY=VALUE"`` → (KEY, VALUE typed like the TrainConfig field's default: bool from true/false/1/0, int,
+    float or str; a field whose default is None takes an int, else a float, else the text). ValueError naming the
+    problem for an unknown field or a value of the wrong type."""
+    key, sep, raw = text.partition("=")
+    fields = {f.name: f for f in dataclasses.fields(TrainConfig)}
+    if not sep or key not in fields:
+        raise ValueError(f"{text!r} is not KEY=VALUE with KEY a TrainConfig field "
+                         f"(e.g. loss_space=srgb, falloff_tau=0.01)")
+    default = fields[key].default
+    try:
+        if isinstance(default, bool):
+            if raw.lower() not in ("true", "false", "1", "0"):
+                raise ValueError(raw)
+            return key, raw.lower() in ("true", "1")
+        if isinstance(default, (int, float, str)):
+            return key, type(default)(raw)
+        for kind in (int, float):
+            try:
+                return key, kind(raw)
+            except ValueError:
+                continue
+        return key, raw
+    except ValueError:
+        raise ValueError(f"{key}: {raw!r} is not a {type(default).__name__}") from None

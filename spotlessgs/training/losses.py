@@ -1,10 +1,24 @@
-"""Photometric loss: (1 - λ) L1 + λ (1 - SSIM), with clipped input pixels handled one-sidedly."""
+"""Photometric loss: (1 - λ) L1 + λ (1 - SSIM), with clipped input pixels handled one-sidedly, in linear light or
+in sRGB-encoded values."""
 
 from __future__ import annotations
 
 import torch
 
+from spotlessgs.io.colorspace import linear_to_srgb
 from spotlessgs.metrics import ssim
+
+#: Spaces the photometric loss compares images in (TrainConfig.loss_space).
+LOSS_SPACES = ("linear", "srgb")
+# Slope of the sRGB encoding at 1, continued linearly above 1 by :func:`srgb_encoded` (1.055 / 2.4).
+_SRGB_SLOPE_AT_ONE = 1.055 / 2.4
+
+
+def srgb_encoded(x: torch.Tensor) -> torch.Tensor:
+    """The sRGB encoding of linear values ≥ 0 (any shape), continued above 1 by its tangent there, so that a render
+    brighter than the sensor's range still has a gradient (the encoding itself clamps at 1). Its slope is at most
+    12.92, in the darkest values."""
+    return torch.where(x <= 1.0, linear_to_srgb(x), 1.0 + _SRGB_SLOPE_AT_ONE * (x - 1.0))
 
 
 def clipped_l1(pred: torch.Tensor, target: torch.Tensor, saturated: torch.Tensor) -> torch.Tensor:
@@ -25,16 +39,23 @@ def clipped_l1(pred: torch.Tensor, target: torch.Tensor, saturated: torch.Tensor
 
 
 def photometric_loss(
-    pred: torch.Tensor, target: torch.Tensor, saturated: torch.Tensor, ssim_lambda: float = 0.2
+    pred: torch.Tensor, target: torch.Tensor, saturated: torch.Tensor, ssim_lambda: float = 0.2,
+    space: str = "linear",
 ) -> tuple[torch.Tensor, dict[str, float]]:
     """(1 - λ) clipped L1 + λ (1 - SSIM) between a render and an input view.
 
     SSIM compares the render clamped to the recordable range [0, 1] with the input (where the input is clipped, a
-    brighter render clamps to the same value). Shapes: pred, target (H, W, 3); saturated (H, W).
+    brighter render clamps to the same value). Shapes: pred, target (H, W, 3) linear; saturated (H, W).
+    ``space`` "srgb" compares both after :func:`srgb_encoded` (monotonic, so clipped pixels keep their one-sided
+    error): a dim pixel then counts about as much as it shows, not about ten times less than the hot spot.
 
     Returns:
         the loss (scalar tensor) and its parts as floats (``l1``, ``ssim``).
     """
+    if space not in LOSS_SPACES:
+        raise ValueError(f"unknown loss space {space!r}; choose one of {LOSS_SPACES}")
+    if space == "srgb":
+        pred, target = srgb_encoded(pred), srgb_encoded(target)
     l1 = clipped_l1(pred, target, saturated)
     if ssim_lambda > 0:
         s = ssim(pred.clamp(0.0, 1.0).permute(2, 0, 1)[None], target.permute(2, 0, 1)[None])[0]

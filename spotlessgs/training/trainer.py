@@ -526,7 +526,7 @@ def _train_locked(data_dir: Path, run_dir: Path, variant: str | ModelConfig, con
             if ignored is not None:
                 target = torch.where(ignored[k][..., None], recorded.detach().clamp(0.0, 1.0), target)
                 clipped = clipped | ignored[k]
-            loss, parts = photometric_loss(recorded, target, clipped, config.ssim_lambda)
+            loss, parts = photometric_loss(recorded, target, clipped, config.ssim_lambda, config.loss_space)
             if prior is not None and scene.appearance.light is not None:
                 loss = loss + scene.appearance.light.light_prior_loss(prior, config.light_prior_weight)
             if refining:  # a texture term, which the light moving with a pose hypothesis hardly changes, + a penalty
