@@ -366,3 +366,21 @@ def test_falloff_initial_values_and_freezing():
     light = scene.appearance.light
     assert id(light.log_tau) not in optimised and id(light.log_gamma) not in optimised
     assert id(next(light.rid.parameters())) in optimised
+
+
+def test_unclamped_learned_brdf_relights_with_the_tabulated_directional_albedo():
+    """brdf_upper_clamp=False: the relit colour is the Disney model's directional albedo × (L0 + L_lf), in both
+    low-frequency shadings; the clamped default keeps the quadrature of the clamped model."""
+    from spotlessgs.models.brdf import disney_directional_albedo
+
+    g = _scene()
+    for shading in ("spot_cosine", "irradiance"):
+        config = dataclasses.replace(MODEL_VARIANTS["spotless"], brdf_hidden=16, brdf_upper_clamp=False,
+                                     low_frequency_shading=shading)
+        models = build_appearance_models(config, seed=1)
+        assert not models.brdf.upper_clamp
+        relit = shade(config, g, None, models.lf_light, models.brdf, CAM, relight_l0=[1.0, 1.0, 1.0])
+        expected = disney_directional_albedo(g.albedo, g.roughness, g.metalness)  # L_lf starts at 0
+        torch.testing.assert_close(relit, expected, rtol=1e-5, atol=1e-6)
+    models = build_appearance_models(dataclasses.replace(MODEL_VARIANTS["spotless"], brdf_hidden=16), seed=1)
+    assert models.brdf.upper_clamp

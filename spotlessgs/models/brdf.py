@@ -105,6 +105,60 @@ class LambertianBRDF(nn.Module):
         return albedo
 
 
+# Roughness samples of the directional-albedo table (directional_albedo_table) and the quadrature points per entry.
+ALBEDO_TABLE_SIZE = 257
+ALBEDO_TABLE_SAMPLES = 4096
+
+
+def directional_albedo_table(size: int = ALBEDO_TABLE_SIZE, samples: int = ALBEDO_TABLE_SAMPLES) -> torch.Tensor:
+    """The unclamped Disney model's directional albedo seen along the normal (v̂ = n̂), split so that it is linear in
+    the material: R = (1 - η) a C(ρ) + F0 A(ρ) + B(ρ), F0 = lerp(0.04, a, η). Returns (size, 3) float64 rows
+    [A, B, C] at ρ = linspace(0, 1, size).
+
+    With v̂ = n̂ everything is symmetric about n̂, so each term is a 1-D midpoint quadrature with ``samples`` points:
+    the specular one importance-samples the GGX half-vector (cos²θ_h = (1 - u) / (1 + (α² - 1) u), u uniform; then
+    f cos / pdf = 4 V(n·l) n·l with l̂ the mirror of n̂ about ĥ and V the visibility term of :func:`disney_brdf`),
+    exact for any roughness where a cosine-weighted quadrature misses a sharp lobe; the diffuse one integrates Burley's
+    factor over μ = n·l (C = 2 ∫ F_B(μ) μ dμ, (l·h)² = (1 + μ) / 2).
+    """
+    rough = torch.linspace(0.0, 1.0, size, dtype=torch.float64)[:, None]
+    u = (torch.arange(samples, dtype=torch.float64)[None] + 0.5) / samples
+    alpha_sq = (rough * rough).clamp_min(ALPHA_MIN) ** 2
+    cos_h = torch.sqrt((1.0 - u) / (1.0 + (alpha_sq - 1.0) * u))
+    n_l = 2.0 * cos_h * cos_h - 1.0
+    k = (rough + 1.0) ** 2 / 8.0
+    vis = 1.0 / (4.0 * (n_l.clamp(COS_EPS, 1.0) * (1.0 - k) + k) * 1.0)
+    weight = torch.where(n_l > 0, 4.0 * vis * n_l, torch.zeros_like(n_l))
+    schlick = (1.0 - cos_h) ** 5
+    spec_a = (weight * (1.0 - schlick)).mean(1)
+    spec_b = (weight * schlick).mean(1)
+    mu = u
+    fd90 = 0.5 + 2.0 * rough * (1.0 + mu) / 2.0
+    diffuse = 2.0 * ((1.0 + (fd90 - 1.0) * (1.0 - mu) ** 5) * mu).mean(1)
+    return torch.stack([spec_a, spec_b, diffuse], dim=1)
+
+
+_ALBEDO_TABLE: torch.Tensor | None = None
+
+
+def disney_directional_albedo(albedo: torch.Tensor, roughness: torch.Tensor, metalness: torch.Tensor) -> torch.Tensor:
+    """The unclamped Disney model's directional albedo under uniform light seen along the normal,
+    R = (1/π) ∫ π f cos dω, (N, 3), from :func:`directional_albedo_table` (linear in ρ between its rows, so
+    differentiable in a, ρ and η). Shapes as in :func:`disney_brdf`."""
+    global _ALBEDO_TABLE
+    if _ALBEDO_TABLE is None:  # 257 x 4096 quadrature, about 0.3 s; once per process
+        _ALBEDO_TABLE = directional_albedo_table()
+    rough = _column(roughness, "roughness").clamp(0.0, 1.0)
+    metal = _column(metalness, "metalness")
+    table = _ALBEDO_TABLE.to(device=albedo.device, dtype=albedo.dtype)
+    position = rough * (table.shape[0] - 1)
+    low = position.floor().clamp(max=table.shape[0] - 2).long().squeeze(1)
+    frac = position - low[:, None].to(position.dtype)
+    row = table[low] * (1.0 - frac) + table[low + 1] * frac  # (N, 3): A, B, C
+    f0 = F0_DIELECTRIC * (1.0 - metal) + albedo * metal
+    return (1.0 - metal) * albedo * row[:, 2:3] + f0 * row[:, 0:1] + row[:, 1:2]
+
+
 class LearnedBRDF(nn.Module):
     """SpotlessGS learned BRDF: clamp(π f_Disney · (1 + 0.2 tanh(MLP(γ(v), γ(l), γ(n)))), 0, 1), shared by all Gaussians.
 
@@ -113,6 +167,9 @@ class LearnedBRDF(nn.Module):
         hidden: hidden width.
         residual: modulation strength (0.2: the learned factor stays in [0.8, 1.2]).
         seed: seed of the hidden-layer initialisation (stage "brdf_mlp").
+        upper_clamp: clamp f̃ at 1 (the research code's bound). It is no white-furnace bound: a glossy lobe's peak is
+            far above 1, so the clamp flattens glossy and metallic surfaces (a metal of ρ = 0.1 and a = 0.7 reflects
+            3 % of uniform light instead of 70 %). False: f̃ = π f_Disney · modulation, only kept ≥ 0.
     """
 
     def __init__(
@@ -121,8 +178,10 @@ class LearnedBRDF(nn.Module):
         hidden: int = BRDF_HIDDEN,
         residual: float = BRDF_RESIDUAL,
         seed: int = 0,
+        upper_clamp: bool = True,
     ) -> None:
         super().__init__()
+        self.upper_clamp = upper_clamp
         if not 0.0 <= residual < 1.0:
             raise ValueError(f"LearnedBRDF residual must be in [0, 1) to keep the factor positive, got {residual}")
         self.num_frequencies = num_frequencies
@@ -154,7 +213,8 @@ class LearnedBRDF(nn.Module):
     ) -> torch.Tensor:
         """π-scaled reflectance f̃ (N, 3) in [0, 1]; argument shapes as in `disney_brdf`."""
         analytic = math.pi * disney_brdf(albedo, roughness, metalness, normals, view_dirs, light_dirs)
-        return (analytic * self.modulation(normals, view_dirs, light_dirs)).clamp(0.0, 1.0)
+        reflectance = analytic * self.modulation(normals, view_dirs, light_dirs)
+        return reflectance.clamp(0.0, 1.0) if self.upper_clamp else reflectance
 
 
 def _column(x: torch.Tensor, name: str) -> torch.Tensor:

@@ -36,7 +36,7 @@ from typing import Literal
 import torch
 from torch import nn
 
-from spotlessgs.models.brdf import LambertianBRDF, LearnedBRDF, disney_brdf
+from spotlessgs.models.brdf import LambertianBRDF, LearnedBRDF, disney_brdf, disney_directional_albedo
 from spotlessgs.models.gaussians import GaussianParams
 from spotlessgs.models.geometry import check_c2w, orthonormal_basis, safe_normalize
 from spotlessgs.models.light import ConstantAmbient, LowFrequencyLight, SpotLight
@@ -86,6 +86,10 @@ class ModelConfig:
     falloff_tau: float = 0.3
     falloff_gamma: float = 1.0
     learn_falloff: bool = True
+    # The learned BRDF's f̃ clamped at 1 (the research code's; LearnedBRDF.upper_clamp). False: unclamped, and its
+    # directional albedo R is the Disney model's, tabulated with an importance-sampled quadrature
+    # (brdf.disney_directional_albedo), in relighting and in the irradiance shading alike.
+    brdf_upper_clamp: bool = True
 
     def __post_init__(self) -> None:
         if self.light_model not in ("none", "spotlight"):
@@ -257,8 +261,11 @@ def model_reflectance(
     brdf: nn.Module,
 ) -> torch.Tensor:
     """The directional albedo R (N, 3) that relights a variant and, with the "irradiance" shading, shades its
-    low-frequency light in training: `analytic_reflectance` for a learned BRDF with that shading, `relit_reflectance`
-    otherwise (the albedo itself for a Lambertian one)."""
+    low-frequency light in training: the unclamped Disney model's (`disney_directional_albedo`) for an unclamped
+    learned BRDF, `analytic_reflectance` for a clamped one with that shading, `relit_reflectance` otherwise (the albedo
+    itself for a Lambertian one)."""
+    if isinstance(brdf, LearnedBRDF) and not brdf.upper_clamp:
+        return disney_directional_albedo(albedo, roughness, metalness)
     if cfg.low_frequency_shading == "irradiance" and isinstance(brdf, LearnedBRDF):
         return analytic_reflectance(albedo, roughness, metalness, cfg.relight_directions)
     return relit_reflectance(albedo, roughness, metalness, normals, brdf, cfg.relight_directions)
@@ -389,5 +396,6 @@ def build_appearance_models(
         light.fit_rid_to_cone(*cone)
         light.set_pose_trainable(False)
     lf_light = ConstantAmbient(ambient_init) if cfg.ambient == "constant" else LowFrequencyLight(cfg.sh_degree)
-    brdf = LambertianBRDF() if cfg.brdf == "lambert" else LearnedBRDF(hidden=cfg.brdf_hidden, seed=seed)
+    brdf = LambertianBRDF() if cfg.brdf == "lambert" else LearnedBRDF(hidden=cfg.brdf_hidden, seed=seed,
+                                                                     upper_clamp=cfg.brdf_upper_clamp)
     return AppearanceModels(light, lf_light, brdf)

@@ -81,6 +81,8 @@ class TrainConfig:
     falloff_tau: float = 0.3
     falloff_gamma: float = 1.0
     learn_falloff: bool = True
+    # The learned BRDF's f̃ clamped at 1 (the research code's) or not (ModelConfig.brdf_upper_clamp).
+    brdf_upper_clamp: bool = True
     # Weight of the light-translation prior ‖t - t_prior‖ (used only when a prior is given).
     light_prior_weight: float = 1.0
 

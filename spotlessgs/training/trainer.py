@@ -87,7 +87,8 @@ def model_config(variant: str | ModelConfig, config: TrainConfig) -> ModelConfig
     base = variant if isinstance(variant, ModelConfig) else MODEL_VARIANTS[variant]
     return dataclasses.replace(base, brdf_hidden=config.brdf_hidden,
                                low_frequency_shading=config.low_frequency_shading, falloff_tau=config.falloff_tau,
-                               falloff_gamma=config.falloff_gamma, learn_falloff=config.learn_falloff)
+                               falloff_gamma=config.falloff_gamma, learn_falloff=config.learn_falloff,
+                               brdf_upper_clamp=config.brdf_upper_clamp)
 
 
 def resolve_device(name: str) -> torch.device:
