@@ -36,7 +36,7 @@ from typing import Literal
 import torch
 from torch import nn
 
-from spotlessgs.models.brdf import LambertianBRDF, LearnedBRDF, disney_brdf, disney_directional_albedo
+from spotlessgs.models.brdf import LambertianBRDF, LearnedBRDF, disney_directional_albedo
 from spotlessgs.models.gaussians import GaussianParams
 from spotlessgs.models.geometry import check_c2w, orthonormal_basis, safe_normalize
 from spotlessgs.models.light import ConstantAmbient, LowFrequencyLight, SpotLight
@@ -77,9 +77,9 @@ class ModelConfig:
     # How the low-frequency light shades a Gaussian under the spotlight. "spot_cosine" (the paper's equation):
     # f̃ · max(0, n̂·l̂) · (L_spot + L_lf), the low-frequency light scaled by the spotlight's BRDF value and cosine;
     # "irradiance": f̃ · max(0, n̂·l̂) · L_spot + R · L_lf, the low-frequency light as light from all around, shaded by
-    # the directional albedo R, and relit with the same R. R is the albedo for a Lambertian BRDF and the analytic
-    # Disney model's directional albedo for the learned one (analytic_reflectance: no network pass; its MLP residual
-    # shapes the spotlight's term only).
+    # the directional albedo R, and relit with the same R. R is the albedo for a Lambertian BRDF and the Disney
+    # model's directional albedo for the learned one (brdf.disney_directional_albedo: a table lookup, no network
+    # pass; its MLP residual shapes the spotlight's term only).
     low_frequency_shading: Literal["spot_cosine", "irradiance"] = "spot_cosine"
     # The spotlight's distance fall-off Ψ = (τ + d²)^(-γ) (SpotLight): initial τ (m²) and γ, and whether they learn.
     # τ = 0, γ = 1 is a point light's inverse square; a learned τ and γ can trade against the light's axial offset.
@@ -230,28 +230,6 @@ def relit_reflectance(
     return total / directions
 
 
-def analytic_reflectance(
-    albedo: torch.Tensor,
-    roughness: torch.Tensor,
-    metalness: torch.Tensor,
-    directions: int = 16,
-) -> torch.Tensor:
-    """Directional albedo of the clamped analytic Disney model seen along the normal, (N, 3):
-    (1/D) Σ_d clamp(π f_Disney(v̂ = n̂, l̂_d), 0, 1) over `hemisphere_directions(D)`: the learned BRDF's R
-    (`relit_reflectance`) without its MLP residual. The model is isotropic, so R depends on the material only and is
-    computed in the normal's own frame: D elementwise evaluations, no network pass.
-
-    Args:
-        albedo (N, 3), roughness (N, 1), metalness (N, 1); directions: D.
-    """
-    count = albedo.shape[0]
-    up = albedo.new_tensor([0.0, 0.0, 1.0]).expand(count, 3)
-    total = torch.zeros_like(albedo)
-    for d in hemisphere_directions(directions, dtype=albedo.dtype).to(albedo.device):
-        total = total + (math.pi * disney_brdf(albedo, roughness, metalness, up, up, d.expand(count, 3))).clamp(0.0, 1.0)
-    return total / directions
-
-
 def model_reflectance(
     cfg: ModelConfig,
     albedo: torch.Tensor,
@@ -261,13 +239,11 @@ def model_reflectance(
     brdf: nn.Module,
 ) -> torch.Tensor:
     """The directional albedo R (N, 3) that relights a variant and, with the "irradiance" shading, shades its
-    low-frequency light in training: the unclamped Disney model's (`disney_directional_albedo`) for an unclamped
-    learned BRDF, `analytic_reflectance` for a clamped one with that shading, `relit_reflectance` otherwise (the albedo
-    itself for a Lambertian one)."""
-    if isinstance(brdf, LearnedBRDF) and not brdf.upper_clamp:
+    low-frequency light in training: for a learned BRDF that is unclamped or has that shading, the unclamped Disney
+    model's (`disney_directional_albedo`: a table lookup, no network pass, right for glossy lobes that the clamp
+    f̃ ≤ 1 flattens); otherwise `relit_reflectance` (the albedo itself for a Lambertian BRDF)."""
+    if isinstance(brdf, LearnedBRDF) and (not brdf.upper_clamp or cfg.low_frequency_shading == "irradiance"):
         return disney_directional_albedo(albedo, roughness, metalness)
-    if cfg.low_frequency_shading == "irradiance" and isinstance(brdf, LearnedBRDF):
-        return analytic_reflectance(albedo, roughness, metalness, cfg.relight_directions)
     return relit_reflectance(albedo, roughness, metalness, normals, brdf, cfg.relight_directions)
 
 

@@ -1,4 +1,4 @@
-"""Settings of ``spotless reproduce``: a frozen dataclass with a comment per field and three named presets.
+"""Settings of ``spotless reproduce``: a frozen dataclass with a comment per field and four named presets.
 
 ``tiny`` finishes in a few minutes on a 2-core CPU (the tests run it), ``quick`` in about half an hour there (the
 README's main job), ``paper`` is the paper's scale (316 frames at native size, the full training schedule) for a GPU;
