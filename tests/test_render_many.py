@@ -19,7 +19,8 @@ SCENES = ROOT / "scenes"
 
 def test_scenes_from_globs_paths_comma_lists_and_list_files(tmp_path):
     everything = find_scenes([str(SCENES / "*" / "house.json")])
-    assert [p.parent.name for p in everything] == ["bedroom", "corridor", "living_room", "office", "storage_room"]
+    assert [p.parent.name for p in everything] == ["bedroom", "corridor", "living_room", "office", "storage_room",
+                                                   "white_room"]
     listed = tmp_path / "rooms.txt"
     listed.write_text(f"# two rooms\n{SCENES / 'office' / 'house.json'}\n\n{SCENES / 'bedroom' / 'house.json'}  # x\n")
     assert [p.parent.name for p in find_scenes([str(listed)])] == ["office", "bedroom"]

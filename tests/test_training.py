@@ -282,9 +282,9 @@ def test_nan_stops_training_and_keeps_the_last_good_checkpoint(bedroom, tmp_path
     real = trainer_mod.photometric_loss
     calls = {"n": 0}
 
-    def poisoned(pred, target, saturated, lam):
+    def poisoned(pred, target, saturated, lam, space):
         calls["n"] += 1
-        loss, parts = real(pred, target, saturated, lam)
+        loss, parts = real(pred, target, saturated, lam, space)
         return (loss * float("nan") if calls["n"] == 25 else loss), parts
 
     monkeypatch.setattr(trainer_mod, "photometric_loss", poisoned)
@@ -319,12 +319,12 @@ def test_a_nan_parameter_never_reaches_a_checkpoint(bedroom, tmp_path, monkeypat
 
     calls = {"n": 0}
 
-    def poison_after_step_24(pred, target, saturated, lam):
+    def poison_after_step_24(pred, target, saturated, lam, space):
         calls["n"] += 1
         if calls["n"] == 25:
             with torch.no_grad():
                 scenes[0].gaussians.params["shN"][0, 0, 0] = float("nan")
-        return real_loss(pred, target, saturated, lam)
+        return real_loss(pred, target, saturated, lam, space)
 
     monkeypatch.setattr(trainer_mod, "build_optimizers", capture)
     monkeypatch.setattr(trainer_mod, "photometric_loss", poison_after_step_24)

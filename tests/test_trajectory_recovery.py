@@ -99,7 +99,7 @@ def test_every_shipped_room_places_admissible_loops(rooms, scene, n_frames):
 
 
 def test_shipped_scene_count():
-    assert SCENES == ["bedroom", "corridor", "living_room", "office", "storage_room"]
+    assert SCENES == ["bedroom", "corridor", "living_room", "office", "storage_room", "white_room"]
 
 
 def test_render_pipeline_plans_the_bedroom_loop_that_used_to_fail(rooms):
