@@ -186,7 +186,8 @@ def test_unclamped_brdf_keeps_glossy_lobes_and_their_albedo():
     metal = torch.tensor([[1.0]], dtype=F64, requires_grad=True)
     r = disney_directional_albedo(a, rough, metal)
     torch.testing.assert_close(r.detach(), a.detach(), rtol=0.01, atol=0.0)
-    clamped_r = relit_reflectance(a.detach(), rough.detach(), metal.detach(), torch.tensor([[0.0, 0.0, 1.0]], dtype=F64),
+    normal = torch.tensor([[0.0, 0.0, 1.0]], dtype=F64)
+    clamped_r = relit_reflectance(a.detach(), rough.detach(), metal.detach(), normal,
                                   LearnedBRDF(seed=0, hidden=8).double())
     assert _scalar(clamped_r.max()) < 0.1  # the clamped model's 16-direction quadrature: dark
     r.sum().backward()

@@ -29,8 +29,8 @@ from spotlessgs.io.atomic import write_json
 from spotlessgs.io.folder_lock import folder_lock
 from spotlessgs.io.paths import refuse_overlap
 from spotlessgs.experiments.reproduce.config import (
-    CEILING_STAGE, INPUTS_STAGE, NEUTRAL_NEW_FIELDS, NOISY_VARIANT, RESIDUAL_VARIANT, ROBOT_VARIANT, ReproduceConfig, dataset_id,
-    train_stage,
+    CEILING_STAGE, INPUTS_STAGE, NEUTRAL_NEW_FIELDS, NOISY_VARIANT, RESIDUAL_VARIANT, ROBOT_VARIANT, ReproduceConfig,
+    dataset_id, train_stage,
 )
 from simulator.render_many import RENDER_MEMORY_MB
 from spotlessgs.jobs import ExecutorSpec, RunReport, Stage, StageGraph, StageResources, execute
