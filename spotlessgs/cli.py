@@ -13,7 +13,7 @@ from spotlessgs.clitools import SafeGroup
 
 from evaluation.cli import ceiling_command, eval_command, sfm_rings_command
 from spotlessgs.baselines2d.cli import baseline2d
-from spotlessgs.experiments.cli import benchmark
+from spotlessgs.experiments.cli import benchmark, trainer_settings
 from spotlessgs.experiments.reproduce.cli import reproduce
 
 MODELS = ["3dgs", "darkgs", "darkgs-calibrated", "darkgs+sh", "darkgs+brdf", "spotless"]
@@ -63,7 +63,7 @@ def main(verbose: bool) -> None:
               help="Learn a small correction of every training view's camera pose beside the scene (poses from VIO "
                    "or SfM a few cm off); test views are then aligned to their spotlit inputs (model frozen) before "
                    "they are relit and scored. The refined poses: RUN/poses.json.")
-@click.option("--set", "settings", multiple=True, metavar="KEY=VALUE",
+@click.option("--set", "settings", multiple=True, metavar="KEY=VALUE", callback=trainer_settings,
               help="Any other trainer setting (a TrainConfig field of spotlessgs/training/config.py; repeat the "
                    "option), e.g. --set loss_space=srgb (the photometric loss on sRGB-encoded values) or "
                    "--set falloff_tau=0.01 --set learn_falloff=false (the spotlight's fall-off).")
@@ -76,16 +76,11 @@ def train(data_dir, run_dir, model, preset, iterations, image_width, seed, resum
     """Train a relightable model (or a baseline) on the uneven images of a dataset."""
     # deferred (here and in the other commands): the torch-based library, kept out of `spotless --help`
     from spotlessgs.run import RunSpec, train as train_run
-    from spotlessgs.training.config import parse_setting
     from spotlessgs.training.selection import format_selection_table, selection_config
 
     if model != "auto" and (tolerance_db is not None or selection_search is not None):
         raise click.UsageError("--tolerance-db and --selection-search only apply to --model auto")
-    try:
-        overrides = dict(parse_setting(text) for text in settings)
-    except ValueError as exc:
-        raise click.BadParameter(str(exc), param_hint="--set") from exc
-    overrides.update({"device": device, "linear_input": linear_input})
+    overrides = {**dict(settings), "device": device, "linear_input": linear_input}
     if refine_poses:
         overrides["refine_poses"] = True
     for key, value in (("iterations", iterations), ("image_width", image_width), ("num_threads", threads),

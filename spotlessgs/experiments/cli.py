@@ -16,10 +16,23 @@ from __future__ import annotations
 
 import logging
 from pathlib import Path
+from typing import Any
 
 import click
 
 from spotlessgs.experiments.benchmark import VARIANTS
+
+
+def trainer_settings(_ctx: Any, _param: Any, texts: tuple[str, ...]) -> tuple[tuple[str, Any], ...]:
+    """click callback of a repeatable ``--set KEY=VALUE`` option: the (TrainConfig field, typed value) pairs
+    (spotlessgs.training.config.parse_setting); click.BadParameter naming a bad one. `spotless train` and
+    `spotless benchmark models` both use it."""
+    from spotlessgs.training.config import parse_setting  # deferred: commands load without the library
+
+    try:
+        return tuple(parse_setting(text) for text in texts)
+    except ValueError as exc:
+        raise click.BadParameter(str(exc)) from exc
 
 
 def row_names(rows: str | None, allowed: tuple[str, ...]) -> tuple[str, ...]:
@@ -48,7 +61,7 @@ def benchmark() -> None:
 @click.option("--seed", default=0, show_default=True, type=int)
 @click.option("--low-frequency-shading", type=click.Choice(["spot_cosine", "irradiance"]), default=None,
               help="Train every variant with this low-frequency shading (see `spotless train`).")
-@click.option("--set", "settings", multiple=True, metavar="KEY=VALUE",
+@click.option("--set", "settings", multiple=True, metavar="KEY=VALUE", callback=trainer_settings,
               help="Train every variant with this trainer setting (a TrainConfig field; repeat the option), e.g. "
                    "--set loss_space=srgb --set falloff_tau=0.01 --set learn_falloff=false.")
 @click.option("--child", is_flag=True, hidden=True, help="Train one variant in this process (used by the benchmark).")
@@ -56,14 +69,9 @@ def models(data, out, variants, preset, iterations, threads, seed, low_frequency
     """Training ms/step, relit FPS, peak memory and relit PSNR of each model variant after a fixed step budget."""
     # deferred (as in every command): the torch-based library, kept out of `spotless --help`
     from spotlessgs.experiments.benchmark import child as train_one, markdown_table, run_benchmark
-    from spotlessgs.training.config import parse_setting
 
     names = tuple(v for v in variants.split(",") if v)
-    try:
-        parsed = tuple(parse_setting(text) for text in settings)
-    except ValueError as exc:
-        raise click.BadParameter(str(exc), param_hint="--set") from exc
-    parsed += (("low_frequency_shading", low_frequency_shading),) if low_frequency_shading else ()
+    parsed = settings + ((("low_frequency_shading", low_frequency_shading),) if low_frequency_shading else ())
     if child:
         train_one(str(data), str(out), names[0], preset, iterations, threads, seed, parsed)
         return

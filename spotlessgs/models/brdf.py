@@ -127,7 +127,7 @@ def directional_albedo_table(size: int = ALBEDO_TABLE_SIZE, samples: int = ALBED
     cos_h = torch.sqrt((1.0 - u) / (1.0 + (alpha_sq - 1.0) * u))
     n_l = 2.0 * cos_h * cos_h - 1.0
     k = (rough + 1.0) ** 2 / 8.0
-    vis = 1.0 / (4.0 * (n_l.clamp(COS_EPS, 1.0) * (1.0 - k) + k) * 1.0)
+    vis = 1.0 / (4.0 * (n_l.clamp(COS_EPS, 1.0) * (1.0 - k) + k))  # the n·v factor is 1 (v̂ = n̂)
     weight = torch.where(n_l > 0, 4.0 * vis * n_l, torch.zeros_like(n_l))
     schlick = (1.0 - cos_h) ** 5
     spec_a = (weight * (1.0 - schlick)).mean(1)

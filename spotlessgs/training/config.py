@@ -11,6 +11,10 @@ from dataclasses import dataclass
 from typing import Any
 
 
+#: Spaces the photometric loss compares images in (TrainConfig.loss_space; spotlessgs.training.losses).
+LOSS_SPACES = ("linear", "srgb")
+
+
 @dataclass(frozen=True)
 class TrainConfig:
     """Everything that determines a training run besides the data, the model variant and the seed."""
@@ -23,8 +27,7 @@ class TrainConfig:
     image_width: int | None = 160
     # Weight λ of the (1 - SSIM) term: loss = (1 - λ) L1 + λ (1 - SSIM).
     ssim_lambda: float = 0.2
-    # Space of the photometric loss (spotlessgs.training.losses.LOSS_SPACES): "linear" light (the paper's) or "srgb"
-    # encoded values, in which the dim periphery counts about as much as it shows after relighting.
+    # Space of the photometric loss (LOSS_SPACES): "linear" light (the paper's) or "srgb" encoded values, in which the dim periphery counts about as much as it shows after relighting.
     loss_space: str = "linear"
     # sRGB value at or above which an input pixel counts as clipped: there the loss only penalises predictions darker
     # than the observation (the true radiance is at least the clipped value), so clipping cannot drag the light down.
@@ -176,7 +179,7 @@ class TrainConfig:
     def __post_init__(self) -> None:
         if self.photometric not in ("auto", "on", "off"):
             raise ValueError(f"TrainConfig: photometric must be 'auto', 'on' or 'off', got {self.photometric!r}")
-        if self.loss_space not in ("linear", "srgb"):
+        if self.loss_space not in LOSS_SPACES:
             raise ValueError(f"TrainConfig: loss_space must be 'linear' or 'srgb', got {self.loss_space!r}")
         if self.pose_texture_weight < 0 or self.pose_penalty < 0 or self.lr_pose <= 0:
             raise ValueError(f"TrainConfig: pose_texture_weight and pose_penalty must be >= 0 and lr_pose > 0, got "

@@ -7,9 +7,7 @@ import torch
 
 from spotlessgs.io.colorspace import linear_to_srgb
 from spotlessgs.metrics import ssim
-
-#: Spaces the photometric loss compares images in (TrainConfig.loss_space).
-LOSS_SPACES = ("linear", "srgb")
+from spotlessgs.training.config import LOSS_SPACES
 # Slope of the sRGB encoding at 1, continued linearly above 1 by :func:`srgb_encoded` (1.055 / 2.4).
 _SRGB_SLOPE_AT_ONE = 1.055 / 2.4
 

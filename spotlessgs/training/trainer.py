@@ -79,16 +79,19 @@ class TrainResult:
     validation_psnr_dark: float | None = None
 
 
+#: The ModelConfig fields that a TrainConfig sets (the fields the two dataclasses share).
+MODEL_SETTINGS: tuple[str, ...] = tuple(sorted({f.name for f in dataclasses.fields(ModelConfig)}
+                                               & {f.name for f in dataclasses.fields(TrainConfig)}))
+
+
 def model_config(variant: str | ModelConfig, config: TrainConfig) -> ModelConfig:
-    """The variant's ModelConfig (a preset name or a ModelConfig) with the CPU/GPU-dependent BRDF width, the
-    low-frequency shading and the spotlight fall-off settings of ``config``."""
+    """The variant's ModelConfig (a preset name or a ModelConfig) with every field that ``config`` also has taken from
+    it (:data:`MODEL_SETTINGS`: the CPU/GPU-dependent BRDF width, the low-frequency shading, the spotlight fall-off,
+    the BRDF's clamp)."""
     if not isinstance(variant, ModelConfig) and variant not in MODEL_VARIANTS:
         raise ValueError(f"unknown model {variant!r}; choose one of {sorted(MODEL_VARIANTS)}")
     base = variant if isinstance(variant, ModelConfig) else MODEL_VARIANTS[variant]
-    return dataclasses.replace(base, brdf_hidden=config.brdf_hidden,
-                               low_frequency_shading=config.low_frequency_shading, falloff_tau=config.falloff_tau,
-                               falloff_gamma=config.falloff_gamma, learn_falloff=config.learn_falloff,
-                               brdf_upper_clamp=config.brdf_upper_clamp)
+    return dataclasses.replace(base, **{name: getattr(config, name) for name in MODEL_SETTINGS})
 
 
 def resolve_device(name: str) -> torch.device:
