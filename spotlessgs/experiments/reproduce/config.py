@@ -54,6 +54,12 @@ def dataset_id(room: str, variant: str) -> str:
     return f"{room}-{variant}"
 
 
+def split_dataset_id(name: str) -> tuple[str, str]:
+    """(room, variant) of a test dataset's name (the inverse of :func:`dataset_id` for a variant without "-")."""
+    room, _, variant = name.rpartition("-")
+    return room, variant
+
+
 def _is_shot_read(value: Any) -> bool:
     """Is ``value`` (shot, read) of simulator.sensor_noise.SensorNoise: two finite numbers >= 0?"""
     return len(value) == 2 and all(isinstance(v, (int, float)) and math.isfinite(v) and v >= 0 for v in value)
@@ -165,7 +171,7 @@ class ReproduceConfig:
         check_subset("scenes", SHIPPED_ROOMS)
         check_subset("variants", VARIANTS)
         for name in self.extra_datasets:
-            room, _, variant = name.rpartition("-")
+            room, variant = split_dataset_id(name)
             if room not in SHIPPED_ROOMS or variant not in VARIANTS:
                 raise ValueError(f"ReproduceConfig.extra_datasets: {name!r} is not ROOM-VARIANT with a room of "
                                  f"{list(SHIPPED_ROOMS)} and a variant of {list(VARIANTS)}")
@@ -242,8 +248,8 @@ class ReproduceConfig:
     def datasets(self) -> list[tuple[str, str]]:
         """(room, variant) of every rendered test dataset, in table order: every room x variant, then
         ``extra_datasets``."""
-        extra = [tuple(name.rsplit("-", 1)) for name in self.extra_datasets]
-        return [(room, variant) for room in self.scenes for variant in self.variants] + extra
+        return ([(room, variant) for room in self.scenes for variant in self.variants]
+                + [split_dataset_id(name) for name in self.extra_datasets])
 
     def seeds(self) -> tuple[int, ...]:
         """Every training seed of the rendered test datasets: ``seed`` first, then ``extra_seeds``."""

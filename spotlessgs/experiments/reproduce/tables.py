@@ -499,8 +499,10 @@ def seed_gains(ds: dict[str, Any], method: str, path: Sequence[str]) -> tuple[fl
     if method not in runs or "darkgs" not in runs:
         return None
     base = {r["seed"]: _get(r["metrics"], *path) for r in runs["darkgs"]}
-    gains = [_get(r["metrics"], *path) - base[r["seed"]] if _finite(_get(r["metrics"], *path))
-             and _finite(base.get(r["seed"])) else None for r in runs[method]]
+    gains = []
+    for run in runs[method]:
+        value, reference = _get(run["metrics"], *path), base.get(run["seed"])
+        gains.append(value - reference if _finite(value) and _finite(reference) else None)
     return seed_spread(gains)
 
 
