@@ -94,7 +94,7 @@ def gaussian_kernel1d(window_size: int = 11, sigma: float = 1.5, dtype: torch.dt
 def _filter_valid(x: Tensor, kernel: Tensor) -> Tensor:
     """Separable 2-D filtering of every channel of (B, C, H, W) with ``kernel`` (K,), no padding → (B, C, H-K+1, W-K+1)."""
     c = x.shape[1]
-    k = kernel.to(x.dtype)
+    k = kernel.to(device=x.device, dtype=x.dtype)
     x = F.conv2d(x, k.view(1, 1, 1, -1).expand(c, 1, 1, -1), groups=c)
     return F.conv2d(x, k.view(1, 1, -1, 1).expand(c, 1, -1, 1), groups=c)
 
@@ -201,7 +201,7 @@ def masked_ssim(pred: Tensor, gt: Tensor, mask: Tensor, window_size: int = 11, s
     if mask.shape != pred.shape[-2:]:
         raise ValueError(f"mask shape {tuple(mask.shape)} does not match image size {tuple(pred.shape[-2:])}")
     smap = ssim_map(pred, gt, window_size=window_size, sigma=sigma)[0]  # (C, H', W')
-    box = torch.ones(window_size, dtype=torch.float64)
+    box = torch.ones(window_size, dtype=torch.float64, device=mask.device)
     m = mask.to(torch.float64)[None, None]
     inside = F.conv2d(F.conv2d(m, box.view(1, 1, 1, -1)), box.view(1, 1, -1, 1))[0, 0] >= window_size**2 - 0.5
     n = int(inside.sum())

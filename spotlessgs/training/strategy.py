@@ -123,6 +123,9 @@ class DensifyStrategy:
         if self.grad_accum is None or self.grad_accum.shape[0] != n:
             self.grad_accum = torch.zeros(n, device=gaussians.means.device)
             self.count = torch.zeros(n, device=gaussians.means.device)
+        elif self.grad_accum.device != gaussians.means.device:  # restored from a checkpoint (CPU tensors)
+            self.grad_accum = self.grad_accum.to(gaussians.means.device)
+            self.count = self.count.to(gaussians.means.device)
         if means2d_grad is not None:
             visible = radii > 0
             # pixels -> normalised device coordinates: d/d(ndc) = d/d(px) * (size / 2)

@@ -701,8 +701,9 @@ def evaluate_reconstruction(scene: RelightableScene, views: TrainingViews, confi
     their known ones, else the reference); at their ``aligned`` poses when given (a run that refined its poses)."""
     if not views.test:
         return None
-    cameras = views.cameras.to(views.images.device)
-    unseen = _unseen(views, views.images.device)
+    device = scene.gaussians.means.device  # the model's (views.images stay on the CPU)
+    cameras = views.cameras.to(device)
+    unseen = _unseen(views, device)
     values = []
     for k in views.test:
         camera = cameras[k]
@@ -710,7 +711,7 @@ def evaluate_reconstruction(scene: RelightableScene, views: TrainingViews, confi
             camera = corrected_camera(camera, aligned[k].delta.to(camera.device))
         out = scene.render(camera, backend=config.raster_backend, num_threads=config.num_threads)
         image = out.image if photometric is None else photometric(out.image, k)
-        values.append(_psnr(image, views.images[k], None if unseen is None else unseen[k]))
+        values.append(_psnr(image, views.images[k].to(device), None if unseen is None else unseen[k]))
     return float(np.mean(values))
 
 
