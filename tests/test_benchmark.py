@@ -23,7 +23,9 @@ def test_a_benchmark_row_scores_the_relit_test_views_against_the_ground_truth(bo
     (row,) = rows
     assert row["variant"] == "darkgs" and row["iterations"] == 10 and row["gaussians"] > 0
     relit = sorted((tmp_path / "bench" / "darkgs" / "relit_test").glob("*.png"))
-    assert relit and row["relit_fps"] > 0
+    assert relit and row["relit_fps"] > 0 and row["render_fps"] > 0
+    assert (row["render_device"], row["render_views"]) == ("cpu", 14)  # every view is timed
+    assert "peak_gpu_train_mb" not in row  # device memory is reported on CUDA only
     expected = [float(psnr(torch.from_numpy(read_image(p)).permute(2, 0, 1),
                            torch.from_numpy(read_image(box / "gt" / p.name)).permute(2, 0, 1))[0]) for p in relit]
     assert row["psnr"] == pytest.approx(sum(expected) / len(expected), abs=1e-4)
@@ -53,3 +55,28 @@ def test_benchmark_settings_reach_every_variant(box, tmp_path):
         result = CliRunner().invoke(main, ["benchmark", "models", "--data", str(box), "--out", str(tmp_path / "x"),
                                            "--set", bad])
         assert result.exit_code == 2 and message in result.output and not (tmp_path / "x").exists()
+
+
+@pytest.mark.parametrize("variant", ["3dgs", "spotless"])
+def test_the_timed_relit_frame_is_the_image_relight_writes(box, tmp_path, variant):
+    """`render_fps` times the image `spotless relight --l0 1,1,1` writes (before its PNG encoding): the frame kept on
+    the device equals the written file to 8-bit rounding, for the relit model and for 3DGS's ordinary render."""
+    from spotlessgs.io.colorspace import linear_to_srgb
+    from spotlessgs.rendering import render_run, select_views
+    from spotlessgs.run import RunSpec, given_overrides, train
+    from spotlessgs.experiments.benchmark import relit_frame_renderer
+    from spotlessgs.training.trainer import load_run
+
+    run = tmp_path / variant
+    train(RunSpec(data=box, model=variant, preset="tiny", seed=0, overrides=given_overrides(iterations=10)), run,
+          progress=False)
+    render_run(run, "relit", "test", tmp_path / "relit", l0=[1.0, 1.0, 1.0], progress=False)
+    scene, views, config, _ = load_run(run)
+    indices = select_views(views, "test")
+    with torch.no_grad():
+        frame = relit_frame_renderer(scene, views.cameras, config, indices[0])
+        for k in indices[:3]:
+            written = read_image(tmp_path / "relit" / views.names[k])
+            timed = linear_to_srgb(frame(k).float().numpy())
+            assert timed.shape == written.shape
+            assert abs(timed.clip(0, 1) - written).max() <= 0.5 / 255 + 1e-6
