@@ -1,13 +1,14 @@
 """The relighting ceiling: what the best relighting of the form albedo × light can score against the ground truth.
 
 SpotlessGS relights as albedo × BRDF × (L0 + L_lf); the lamps-on ground truth also holds what no such relighting
-produces (glowing lamp surfaces, lamp fall-off and shadows, a warm tint). Two oracles use the renderer's own albedo
-(the diffuse colour pass in each frame's EXR, :class:`spotlessgs.io.exr.FrameEXR`), scored like every method on the
-same test views:
+produces (glowing lamp surfaces, lamp fall-off and shadows, a warm tint). Two oracles use the renderer's own
+reflectance ``a`` of the visible surfaces: the diffuse plus the glossy colour pass in each frame's EXR
+(:meth:`spotlessgs.io.exr.FrameEXR.reflectance`; the diffuse colour alone for datasets rendered before the glossy
+pass, on which a metal reflects nothing), scored like every method on the same test views:
 
-* ``albedo``: the albedo and one best gain for the whole sequence: the aligned metrics of
+* ``albedo``: the reflectance and one best gain for the whole sequence: the aligned metrics of
   :func:`evaluation.runner.score_pairs` apply exactly that gain;
-* ``albedo-sh``: the albedo times the best light per surface normal, ``a · max(0, cᵀY(n))`` with real SH of degree
+* ``albedo-sh``: the reflectance times the best light per surface normal, ``a · max(0, cᵀY(n))`` with real SH of degree
   3 (the form of the relighting's L0 + L_lf), ``c`` fitted per colour channel by least squares against the linear
   ground truth over every test pixel that is not an emitter (:meth:`FrameEXR.emitters`).
 
@@ -41,7 +42,7 @@ from spotlessgs.models.sh import sh_basis
 #: SH degree of the oracle's light per normal (the relighting's low-frequency light uses up to 3).
 ORACLE_SH_DEGREE = 3
 #: The oracles, in the order they are scored: folder name -> what it is.
-ORACLES = {"albedo": "true albedo x one gain", "albedo-sh": "true albedo x best light per normal (SH 3)"}
+ORACLES = {"albedo": "true reflectance x one gain", "albedo-sh": "true reflectance x best light per normal (SH 3)"}
 
 
 def _test_frames(data_dir: Path, ground_truth: str = "lamps"):
@@ -78,14 +79,15 @@ def normal_basis(exr, degree: int = ORACLE_SH_DEGREE) -> tuple[np.ndarray, np.nd
 
 
 def fit_light_per_normal(frames, bases, ground_truth: str = "lamps") -> np.ndarray:
-    """(3, B) SH coefficients ``c`` of the light per normal minimising Σ (a · cᵀY(n) − g)² per channel over the
+    """(3, B) SH coefficients ``c`` of the light per normal minimising Σ (a · cᵀY(n) − g)² per channel (a the
+    reflectance) over the
     pixels of ``frames`` (FrameEXRs) that show a surface and no emitter, g the ``ground_truth`` kind; ``bases``: each
     frame's :func:`normal_basis`."""
     albedo, basis, gt = [], [], []
     for exr, (frame_basis, surface) in zip(frames, bases):
         lamps = exr.emitters()
         use = surface if lamps is None else surface & ~lamps
-        albedo.append(exr.albedo[use])
+        albedo.append(exr.reflectance()[use])
         basis.append(frame_basis[use])
         gt.append(linear_ground_truth(exr, ground_truth)[use])
     albedo, gt = np.concatenate(albedo).astype(np.float64), np.concatenate(gt).astype(np.float64)
@@ -111,8 +113,9 @@ def write_oracles(data_dir: str | Path, out: str | Path, ground_truth: str = "la
     pairs = []
     for (frame, exr), (basis, _surface) in zip(frames, bases):
         light = np.maximum(basis @ coefficients.T, 0.0)  # (H, W, 3)
-        write_png(out / "albedo" / frame.name, linear_to_srgb(np.clip(exr.albedo, 0.0, 1.0)))
-        write_png(out / "albedo-sh" / frame.name, linear_to_srgb(np.clip(exr.albedo * light, 0.0, 1.0)))
+        reflectance = exr.reflectance()
+        write_png(out / "albedo" / frame.name, linear_to_srgb(np.clip(reflectance, 0.0, 1.0)))
+        write_png(out / "albedo-sh" / frame.name, linear_to_srgb(np.clip(reflectance * light, 0.0, 1.0)))
         with atomic_path(out / "gt" / frame.name) as tmp:
             shutil.copy2(frame.gt_path, tmp)
         pairs.append(ImagePair(frame.name, out / "albedo" / frame.name, out / "gt" / frame.name, frame.depth_path))
@@ -126,11 +129,13 @@ def ceiling(data_dir: str | Path, out: str | Path, config: EvalConfig = EvalConf
     returns the results by oracle name."""
     out = Path(out)
     pairs = write_oracles(data_dir, out, config.ground_truth)
+    glossy = all(read_frame_exr(p.exr).glossy is not None for p in pairs)
     results = {}
     for name in ORACLES:
         oracle = [dataclasses.replace(p, pred=out / name / p.name) for p in pairs]
         results[name] = {"mode": "ceiling", "oracle": name, "what": ORACLES[name], "data": str(data_dir),
                          "ground_truth": config.ground_truth,
+                         "reflectance": "diffuse + glossy colour" if glossy else "diffuse colour (no glossy pass)",
                          **score_pairs(oracle, config, name)}
         write_results_json(out / f"eval-{name}" / "results.json", results[name])
         write_markdown(out / f"eval-{name}" / "results.md", results[name], f"Ceiling: {ORACLES[name]}")

@@ -6,7 +6,7 @@ Output folder (the dataset contract, see ``docs/dataset.md``)::
     OUT/images/frame_00042.png  spotlight-only (uneven) input, 8-bit sRGB
     OUT/gt/frame_00042.png      lamps-on ground truth, 8-bit sRGB
     OUT/gt_uniform/frame_00042.png  with ``uniform_gt``: the uniform ground truth (even, shadow-free light), 8-bit sRGB
-    OUT/exr/frame_00042.exr     linear uneven.RGB, gt.RGB, depth.Z (planar, m), normal.XYZ (world), albedo.RGB,
+    OUT/exr/frame_00042.exr     linear uneven.RGB, gt.RGB, depth.Z (planar, m), normal.XYZ (world), albedo.RGB, glossy.RGB,
                                 emission.RGB (the ground truth's glowing surfaces), with ``uniform_gt`` gt_uniform.RGB
     OUT/points3d.ply            initial coloured point cloud back-projected from depth
     OUT/sparse/0/*.txt          COLMAP text model (true poses)
@@ -693,7 +693,7 @@ def _render_frames(conn, out_dir: Path, config: RenderConfig, execution: Executi
             paths = frame_paths(out_dir, k, config.uniform_gt)
             write_frame_exr(paths["exr"], FrameEXR(uneven=pair.uneven, gt=pair.gt, depth=pair.depth,
                                                    normal=pair.normal, albedo=pair.albedo, emission=pair.emission,
-                                                   gt_uniform=pair.gt_uniform))
+                                                   gt_uniform=pair.gt_uniform, glossy=pair.glossy))
             write_png(paths["gt"], linear_to_srgb(pair.gt))
             if pair.gt_uniform is not None:
                 write_png(paths["gt_uniform"], linear_to_srgb(pair.gt_uniform))

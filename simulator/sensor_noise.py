@@ -272,7 +272,7 @@ def add_sensor_noise_to_dataset(data: str | Path, out: str | Path, noise: Sensor
                     normal=remap_nearest(rendered.normal, *lens_maps),
                     albedo=None if rendered.albedo is None else remap(rendered.albedo, *lens_maps),
                     emission=None if rendered.emission is None else remap(rendered.emission, *lens_maps),
-                    gt_uniform=uniform))
+                    gt_uniform=uniform, glossy=None if rendered.glossy is None else remap(rendered.glossy, *lens_maps)))
                 if frame.gt_file_path is not None:
                     write_png(out / frame.gt_file_path, linear_to_srgb(np.clip(gt, 0, 1)))
                 if uniform is not None and frame.gt_file_path is not None:

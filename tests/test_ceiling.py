@@ -17,11 +17,13 @@ from spotlessgs.io.images import read_image, write_png
 from spotlessgs.io.transforms import DatasetMeta, FrameRecord, write_transforms
 
 
-def _dataset(root, with_albedo=True, frames=12, light_per_normal=False, uniform=False):
+def _dataset(root, with_albedo=True, frames=12, light_per_normal=False, uniform=False, glossy=None):
     """``frames`` views of 16 x 12 pixels (test views 0 and 11) with random unit normals: each frame's ground truth is
     its albedo (random colours) times 0.5, or with ``light_per_normal`` times a light that depends on the normal,
     (0.5 + 0.3 n_z, 0.4, 0.6 - 0.2 n_x) per channel; the input is a dimmer copy. With ``uniform`` the dataset also
-    has the uniform ground truth, the albedo itself (gt_uniform/, the EXRs' gt_uniform channels)."""
+    has the uniform ground truth, the albedo itself (gt_uniform/, the EXRs' gt_uniform channels). ``glossy``
+    (True / False): the surfaces' reflectance is split into a diffuse colour (the albedo pass) and a glossy colour of
+    random share, stored as the glossy pass (True) or left out of the EXR (False, a dataset from before the pass)."""
     rng = np.random.default_rng(1)
     records = []
     for k in range(frames):
@@ -31,9 +33,11 @@ def _dataset(root, with_albedo=True, frames=12, light_per_normal=False, uniform=
         normal = (normal / np.linalg.norm(normal, axis=-1, keepdims=True)).astype(np.float32)
         light = np.stack([0.5 + 0.3 * normal[..., 2], np.full((12, 16), 0.4), 0.6 - 0.2 * normal[..., 0]], -1)
         gt = (albedo * (light if light_per_normal else 0.5)).astype(np.float32)
+        share = rng.uniform(0.0, 1.0, (12, 16, 1)).astype(np.float32) if glossy is not None else 0.0
         write_frame_exr(root / "exr" / f"{name}.exr", FrameEXR(
             uneven=0.2 * gt, gt=gt, depth=np.ones((12, 16), np.float32), normal=normal,
-            albedo=albedo if with_albedo else None, gt_uniform=albedo if uniform else None))
+            albedo=(1 - share) * albedo if with_albedo else None, gt_uniform=albedo if uniform else None,
+            glossy=share * albedo if glossy else None))
         if uniform:
             write_png(root / "gt_uniform" / f"{name}.png", linear_to_srgb(albedo))
         write_png(root / "images" / f"{name}.png", linear_to_srgb(0.2 * gt))
@@ -60,6 +64,22 @@ def test_albedo_times_one_gain_is_scored_on_the_test_views(tmp_path):
     assert scores["psnr_aligned"] > 40.0 and scores["psnr"] < scores["psnr_aligned"] - 10.0
     np.testing.assert_array_equal(read_image(tmp_path / "ceiling" / "gt" / "frame_00011.png"),
                                   read_image(data / "gt" / "frame_00011.png"))
+
+
+def test_the_oracles_reflect_with_the_diffuse_and_the_glossy_colour(tmp_path):
+    """Surfaces whose reflectance is part diffuse, part glossy colour (a metal's is all glossy): with the glossy pass
+    the oracle is their sum and exact; a dataset rendered before the pass has only the diffuse colour, which the
+    oracle then uses (and says so), far below."""
+    runs = {}
+    for glossy in (True, False):
+        data = _dataset(tmp_path / f"data-{glossy}", glossy=glossy)
+        result = CliRunner().invoke(main, ["ceiling", str(data), "--out", str(tmp_path / f"ceiling-{glossy}"),
+                                           "--no-lpips", "--quiet"])
+        assert result.exit_code == 0, result.output + repr(result.exception)
+        runs[glossy] = json.loads((tmp_path / f"ceiling-{glossy}" / "eval-albedo" / "results.json").read_text())
+    assert runs[True]["reflectance"] == "diffuse + glossy colour" and runs[True]["psnr_aligned"] > 40.0
+    assert runs[False]["reflectance"] == "diffuse colour (no glossy pass)"
+    assert runs[False]["psnr_aligned"] < runs[True]["psnr_aligned"] - 15.0
 
 
 def test_the_light_per_normal_is_fitted_and_explains_a_normal_dependent_ground_truth(tmp_path):

@@ -184,7 +184,7 @@ def _look_at_blender(eye, target) -> np.ndarray:
     return c2w
 
 
-def _floor_radiance_from_two_directions(lambertian: bool) -> tuple[float, float, np.ndarray]:
+def _floor_radiance_from_two_directions(lambertian: bool) -> tuple[float, float, np.ndarray, np.ndarray]:
     """Lamp-lit radiance of one floor point seen from straight above and from a grazing 20 deg elevation, and the
     albedo (diffuse colour) pass at that point seen from above.
 
@@ -211,24 +211,28 @@ def _floor_radiance_from_two_directions(lambertian: bool) -> tuple[float, float,
     built = scene_builder.build_scene(scene, SpotlightConfig(), 0.0, Intrinsics.from_fov(30.0, 24, 18),
                                       lambertian=lambertian)
     target = np.array([0.4, 0.0, 0.0])
-    radiance, albedo = [], []
+    radiance, albedo, glossy = [], [], []
     for eye in (target + [0.0, 0.0, 2.0], target + 2.0 * np.array([np.cos(np.radians(20)), 0.0,
                                                                     np.sin(np.radians(20))])):
         pair = renderer.render_pair(built, _look_at_blender(eye, target), settings, seed=0)
         radiance.append(float(pair.gt[7:11, 10:14].mean()))  # the pixels around the image centre = the target
         albedo.append(pair.albedo[7:11, 10:14].reshape(-1, 3).mean(0))
-    return radiance[0], radiance[1], albedo[0]
+        glossy.append(pair.glossy[7:11, 10:14].reshape(-1, 3).mean(0))
+    return radiance[0], radiance[1], albedo[0], glossy[0]
 
 
 def test_lambertian_option_makes_radiance_independent_of_the_view_direction():
     """An ideal diffuse reflector has the same radiance in every direction; Blender's metal does not."""
-    top, grazing, albedo = _floor_radiance_from_two_directions(lambertian=True)
+    top, grazing, albedo, glossy = _floor_radiance_from_two_directions(lambertian=True)
     assert top > 0.05 and abs(grazing / top - 1.0) < 0.05, (top, grazing)
-    # the albedo pass is the base colour 0.6 of the (now diffuse) floor; a metal has no diffuse colour
+    # the albedo pass is the base colour 0.6 of the (now diffuse) floor, which has no specular layer; a metal has no
+    # diffuse colour, and its glossy colour is its specular reflectance: about its base colour, seen from above
     np.testing.assert_allclose(albedo, 0.6, atol=0.01)
-    top, grazing, albedo = _floor_radiance_from_two_directions(lambertian=False)
+    np.testing.assert_allclose(glossy, 0.0, atol=0.01)
+    top, grazing, albedo, glossy = _floor_radiance_from_two_directions(lambertian=False)
     assert abs(grazing / top - 1.0) > 0.3, (top, grazing)
     np.testing.assert_allclose(albedo, 0.0, atol=0.01)
+    assert np.all((glossy > 0.45) & (glossy < 0.7)), glossy
 
 
 def test_every_frame_stores_the_albedo_and_the_glowing_lamps_of_the_ground_truth(dataset):
@@ -464,6 +468,34 @@ def test_the_uniform_ground_truth_is_the_albedo_without_shadows_and_restores_the
     assert all(ob.visible_shadow and ob.visible_diffuse and ob.visible_glossy for ob in built.meshes)
     background = scene_state.world.node_tree.nodes["Background"].inputs["Strength"].default_value
     assert background == 0.0
+
+
+def test_the_uniform_ground_truth_of_a_metal_is_its_diffuse_plus_glossy_colour():
+    """What a surface reflects of the uniform ground truth's even light is the sum of the renderer's diffuse and glossy
+    colour passes (FrameEXR.reflectance, the ceiling's oracle), for a metal too, whose diffuse colour is zero."""
+    from simulator.blender import renderer, scene_builder
+    from simulator.lighting import SpotlightConfig
+    from simulator.scene_model import LightFixture, Material, MeshObject, Scene
+    from spotlessgs.io.cameras import Intrinsics
+
+    scene_builder.reset_blender()
+    settings = renderer.CyclesSettings(width=24, height=18, samples=64, denoise=False, max_bounces=3, threads=2,
+                                       uniform_gt=True)
+    renderer.configure(settings)
+    metal = Material(name="gold", base_color=(0.9, 0.6, 0.2), roughness=0.4, metallic=1.0)
+    floor = MeshObject(name="Floor", source="test", category="Floor",
+                       vertices=np.array([[-5, -5, 0], [5, -5, 0], [5, 5, 0], [-5, 5, 0]], float),
+                       faces=np.array([[0, 1, 2], [0, 2, 3]]), material=metal)
+    scene = Scene(scene_id="metal", source=Path("metal"), objects=[floor], rooms=[],
+                  lights=[LightFixture(name="bulb", kind="point", position=(0.0, 0.0, 1.5), power_w=30.0, size=0.05)])
+    built = scene_builder.build_scene(scene, SpotlightConfig(), 0.0, Intrinsics.from_fov(30.0, 24, 18),
+                                      lambertian=False)
+    pair = renderer.render_pair(built, _look_at_blender([0.0, -1.0, 1.5], [0.0, 0.5, 0.0]), settings, seed=0)
+    np.testing.assert_allclose(pair.albedo, 0.0, atol=0.01)
+    assert pair.glossy.mean(axis=(0, 1))[0] > 0.6  # the gold's colour, red above blue
+    assert pair.glossy.mean(axis=(0, 1))[0] > 2 * pair.glossy.mean(axis=(0, 1))[2]
+    reflectance = pair.albedo + pair.glossy
+    np.testing.assert_allclose(pair.gt_uniform.mean(axis=(0, 1)), reflectance.mean(axis=(0, 1)), rtol=0.05)
 
 
 def test_a_dataset_with_the_uniform_ground_truth_keeps_the_other_renders_bit_for_bit(dataset, tmp_path):

@@ -110,6 +110,7 @@ def configure(settings: CyclesSettings) -> str:
     layer.use_pass_z = True
     layer.use_pass_normal = True
     layer.use_pass_diffuse_color = True  # the albedo (diffuse colour) of what each pixel sees
+    layer.use_pass_glossy_color = True  # its specular reflectance (a metal's colour; a dielectric's Fresnel share)
     layer.use_pass_emit = True  # the light that visible surfaces emit (the glowing lamps of the ground truth)
     img = scene.render.image_settings
     img.media_type = "MULTI_LAYER_IMAGE"
@@ -190,6 +191,9 @@ class RenderedPair:
             colour scaled by its diffuse share, so a metal's is dark), linear.
         emission: (H, W, 3) linear radiance emitted by the visible surfaces in the ground truth (Cycles' Emission pass).
         gt_uniform: (H, W, 3) the uniform ground truth (:func:`_uniform_light`), linear RGB, or None when not asked.
+        glossy: (H, W, 3) glossy colour of the visible surfaces (Cycles' Glossy Color pass: the specular layer's
+            directional albedo towards the camera), linear; diffuse + glossy colour is what a surface reflects of an
+            even, unoccluded light.
     """
 
     uneven: np.ndarray
@@ -199,6 +203,7 @@ class RenderedPair:
     albedo: np.ndarray
     emission: np.ndarray
     gt_uniform: np.ndarray | None = None
+    glossy: np.ndarray | None = None
 
 
 def _channels(chans: dict[str, np.ndarray], suffixes: tuple[str, ...], path: Path) -> np.ndarray:
@@ -327,6 +332,7 @@ def render_pair(built: BuiltScene, c2w_blender: np.ndarray, settings: CyclesSett
         albedo=_channels(gt, (".Diffuse Color.R", ".Diffuse Color.G", ".Diffuse Color.B"), work).astype(np.float32),
         emission=_channels(gt, (".Emission.R", ".Emission.G", ".Emission.B"), work).astype(np.float32),
         gt_uniform=None if uniform is None else _channels(uniform, combined, work).astype(np.float32),
+        glossy=_channels(gt, (".Glossy Color.R", ".Glossy Color.G", ".Glossy Color.B"), work).astype(np.float32),
     )
 
 

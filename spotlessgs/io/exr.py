@@ -10,7 +10,9 @@ The dataset's per-frame EXR holds linear renders and geometry of one view (see `
 ``uneven.R/G/B`` (linear spotlight-only render), ``gt.R/G/B`` (linear ground truth), ``depth.Z`` (planar depth along the
 optical axis in metres, inf for background) and ``normal.X/Y/Z`` (world-space unit normals); datasets rendered from
 2026-11-24 on also ``albedo.R/G/B`` (the diffuse colour of the visible surfaces) and ``emission.R/G/B`` (the radiance
-that visible surfaces emit in the ground truth: its glowing lamps); datasets rendered with ``--gt uniform`` also
+that visible surfaces emit in the ground truth: its glowing lamps); datasets rendered from 2026-11-26 on also
+``glossy.R/G/B`` (the glossy colour of the visible surfaces: their specular reflectance, a metal's colour); datasets
+rendered with ``--gt uniform`` also
 ``gt_uniform.R/G/B`` (the uniform ground truth: even, shadow-free environment light, lamps unlit).
 """
 
@@ -39,6 +41,7 @@ DEPTH_CHANNEL = "depth.Z"
 NORMAL_CHANNELS = ("normal.X", "normal.Y", "normal.Z")
 ALBEDO_CHANNELS = ("albedo.R", "albedo.G", "albedo.B")
 EMISSION_CHANNELS = ("emission.R", "emission.G", "emission.B")
+GLOSSY_CHANNELS = ("glossy.R", "glossy.G", "glossy.B")
 UNIFORM_GT_CHANNELS = ("gt_uniform.R", "gt_uniform.G", "gt_uniform.B")
 # A pixel shows an emitter when the emitted radiance is at least this share of its ground-truth radiance (the lamp
 # surfaces; anti-aliased edge pixels that are mostly lamp count too).
@@ -143,6 +146,9 @@ class FrameEXR:
         emission: (H, W, 3) float32 linear radiance emitted by the visible surfaces in the ground truth, or None.
         gt_uniform: (H, W, 3) float32 linear uniform ground truth (even, shadow-free environment light of radiance 1,
             no glowing lamps), or None (rendered only with ``spotless-sim render --gt uniform``).
+        glossy: (H, W, 3) float32 linear glossy colour of the visible surfaces (Cycles' Glossy Color pass: the
+            specular layer's directional albedo towards the camera, Fresnel included), or None (datasets rendered
+            before 2026-11-26).
     """
 
     uneven: np.ndarray
@@ -152,12 +158,13 @@ class FrameEXR:
     albedo: np.ndarray | None = None
     emission: np.ndarray | None = None
     gt_uniform: np.ndarray | None = None
+    glossy: np.ndarray | None = None
 
     def __post_init__(self) -> None:
         if self.depth.ndim != 2:
             raise ValueError(f"FrameEXR: depth must be (H, W), got shape {self.depth.shape}")
         expected = self.depth.shape + (3,)
-        for name in ("uneven", "gt", "normal", "albedo", "emission", "gt_uniform"):
+        for name in ("uneven", "gt", "normal", "albedo", "emission", "gt_uniform", "glossy"):
             value = getattr(self, name)
             if value is not None and value.shape != expected:
                 raise ValueError(f"FrameEXR: {name} must have shape {expected} (from depth), got {value.shape}")
@@ -166,6 +173,14 @@ class FrameEXR:
         """(H, W) bool: pixels whose ground-truth radiance is at least EMITTER_SHARE emitted light (the lamps), or
         None when the frame has no emission pass."""
         return None if self.emission is None else emitter_mask(self.emission, self.gt)
+
+    def reflectance(self) -> np.ndarray | None:
+        """(H, W, 3) what the visible surfaces reflect of an even, unoccluded light of radiance 1: the diffuse colour
+        plus the glossy colour (the diffuse colour alone for a frame without the glossy pass); None without an albedo
+        pass. Under the uniform ground truth's light it is that ground truth, up to the renderer's noise."""
+        if self.albedo is None:
+            return None
+        return self.albedo if self.glossy is None else self.albedo + self.glossy
 
 
 def emitter_mask(emission: np.ndarray, gt: np.ndarray) -> np.ndarray:
@@ -189,7 +204,7 @@ def write_frame_exr(path: str | os.PathLike, frame: FrameEXR, compression: str =
     channels: dict[str, np.ndarray] = {}
     for names, image in ((UNEVEN_CHANNELS, frame.uneven), (GT_CHANNELS, frame.gt), (NORMAL_CHANNELS, frame.normal),
                          (ALBEDO_CHANNELS, frame.albedo), (EMISSION_CHANNELS, frame.emission),
-                         (UNIFORM_GT_CHANNELS, frame.gt_uniform)):
+                         (UNIFORM_GT_CHANNELS, frame.gt_uniform), (GLOSSY_CHANNELS, frame.glossy)):
         if image is None:
             continue
         for k, name in enumerate(names):
@@ -220,4 +235,5 @@ def read_frame_exr(path: str | os.PathLike) -> FrameEXR:
         albedo=optional(ALBEDO_CHANNELS),
         emission=optional(EMISSION_CHANNELS),
         gt_uniform=optional(UNIFORM_GT_CHANNELS),
+        glossy=optional(GLOSSY_CHANNELS),
     )
