@@ -148,3 +148,25 @@ def test_errors():
         g.normals(torch.zeros(1, 3))
     with pytest.raises(ValueError, match=r"roughness must be in \(0.09, 0.99"):
         logit_roughness(0.05)
+
+
+def test_the_shortest_axis_is_a_flat_splats_normal_and_the_normal_shape_term_measures_the_angle():
+    """A splat flat along its local y axis (scales 1, 0.01, 1), rotated 90° about x: its shortest axis is world ±z.
+    The normal-shape term is 1 - |cos| of the angle between normal and axis, over the visible Gaussians only."""
+    from spotlessgs.training.losses import normal_shape_loss
+
+    half = math.sqrt(0.5)
+    g = GaussianParams.from_point_cloud(np.array([[0.0, 0.0, 0.0], [1.0, 0.0, 0.0]]), np.full((2, 3), 128, np.uint8),
+                                        normals=np.array([[0.0, 0.0, -1.0], [1.0, 0.0, 1.0]]))
+    with torch.no_grad():
+        g.params["quats"].copy_(torch.tensor([[half, half, 0.0, 0.0], [1.0, 0.0, 0.0, 0.0]]))
+        g.params["log_scales"].copy_(torch.log(torch.tensor([[1.0, 0.01, 1.0], [1.0, 1.0, 0.01]])))
+    axes = g.shortest_axes()
+    np.testing.assert_allclose(axes.abs().detach().numpy(), [[0.0, 0.0, 1.0], [0.0, 0.0, 1.0]], atol=1e-6)
+    normals = g.normals(torch.tensor([0.0, 0.0, 5.0]))
+    both = normal_shape_loss(normals, axes, torch.tensor([True, True]))
+    assert _scalar(both) == pytest.approx((0.0 + (1.0 - half)) / 2, abs=1e-6)  # anti-parallel counts as aligned
+    assert float(normal_shape_loss(normals, axes, torch.tensor([True, False]))) == pytest.approx(0.0, abs=1e-6)
+    assert float(normal_shape_loss(normals, axes, torch.tensor([False, False]))) == 0.0
+    both.backward()
+    assert g.params["quats"].grad.abs().sum() > 0 and g.params["normals_raw"].grad.abs().sum() > 0

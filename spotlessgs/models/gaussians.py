@@ -31,6 +31,7 @@ from torch import nn
 from spotlessgs.io.colorspace import srgb_to_linear
 from spotlessgs.models.geometry import safe_normalize
 from spotlessgs.models.sh import SH_C0
+from spotlessgs.rasterizer.projection import quat_to_rotmat
 
 ROUGHNESS_MIN = 0.09  # roughness = ROUGHNESS_MIN + ROUGHNESS_SPAN · sigmoid(raw)
 ROUGHNESS_SPAN = 0.9
@@ -193,6 +194,13 @@ class GaussianParams(nn.Module):
     def metalness(self) -> torch.Tensor:
         """(N, 1) in (0, 1)."""
         return torch.sigmoid(self.params["metalness_raw"]).unsqueeze(-1)
+
+    def shortest_axes(self) -> torch.Tensor:
+        """(N, 3) unit vectors along each Gaussian's shortest axis, world frame (sign arbitrary): a flat splat's
+        surface normal. Differentiable in the rotation (the choice of axis is not)."""
+        rotations = quat_to_rotmat(self.params["quats"])  # (N, 3, 3): columns are the local axes
+        shortest = self.params["log_scales"].detach().argmin(dim=1)
+        return rotations[torch.arange(len(shortest), device=shortest.device), :, shortest]
 
     def sh_colour_coeffs(self) -> torch.Tensor:
         """(N, 16, 3) SH colour coefficients of vanilla 3DGS."""

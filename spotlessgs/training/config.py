@@ -7,6 +7,7 @@
 from __future__ import annotations
 
 import dataclasses
+import math
 from dataclasses import dataclass
 from typing import Any
 
@@ -88,6 +89,9 @@ class TrainConfig:
     brdf_upper_clamp: bool = True
     # Weight of the light-translation prior ‖t - t_prior‖ (used only when a prior is given).
     light_prior_weight: float = 1.0
+    # Weight of the normal-shape term mean(1 - |n̂·â|) over the visible Gaussians, â each one's shortest axis
+    # (losses.normal_shape_loss): ties the free shading normals to the splats' shape (0: off, the paper's).
+    normal_axis_weight: float = 0.0
 
     # Photometric camera (spotlessgs.models.photometric): learn a per-frame exposure and the lens's vignetting.
     # "auto": on for datasets from real cameras (no "spotless" block), off for our simulator's renders (one fixed
@@ -179,6 +183,8 @@ class TrainConfig:
     def __post_init__(self) -> None:
         if self.photometric not in ("auto", "on", "off"):
             raise ValueError(f"TrainConfig: photometric must be 'auto', 'on' or 'off', got {self.photometric!r}")
+        if not (math.isfinite(self.normal_axis_weight) and self.normal_axis_weight >= 0):
+            raise ValueError(f"TrainConfig: normal_axis_weight must be finite and >= 0, got {self.normal_axis_weight}")
         if self.loss_space not in LOSS_SPACES:
             raise ValueError(f"TrainConfig: loss_space must be 'linear' or 'srgb', got {self.loss_space!r}")
         if self.pose_texture_weight < 0 or self.pose_penalty < 0 or self.lr_pose <= 0:

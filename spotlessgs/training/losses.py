@@ -19,6 +19,14 @@ def srgb_encoded(x: torch.Tensor) -> torch.Tensor:
     return torch.where(x <= 1.0, linear_to_srgb(x), 1.0 + _SRGB_SLOPE_AT_ONE * (x - 1.0))
 
 
+def normal_shape_loss(normals: torch.Tensor, axes: torch.Tensor, visible: torch.Tensor) -> torch.Tensor:
+    """mean(1 - |n̂·â|) over the ``visible`` (N,) bool Gaussians: 0 when every shading normal n̂ (N, 3) lies along its
+    Gaussian's shortest axis â (N, 3) (either sign; both unit vectors), 1 when perpendicular; 0 with none visible."""
+    if not bool(visible.any()):
+        return normals.sum() * 0.0
+    return (1.0 - (normals[visible] * axes[visible]).sum(-1).abs()).mean()
+
+
 def clipped_l1(pred: torch.Tensor, target: torch.Tensor, saturated: torch.Tensor) -> torch.Tensor:
     """Mean absolute error where clipped pixels only penalise predictions darker than the observation.
 

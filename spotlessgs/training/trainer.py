@@ -42,7 +42,7 @@ from spotlessgs.training.checkpoint import (
 from spotlessgs.training.config import TrainConfig
 from spotlessgs.training.data import TrainingViews, initial_point_cloud, load_training_views
 from spotlessgs.training.light_report import write_light_report
-from spotlessgs.training.losses import photometric_loss, pose_refinement_terms
+from spotlessgs.training.losses import normal_shape_loss, photometric_loss, pose_refinement_terms
 from spotlessgs.training.pose_alignment import AlignedView, align_views
 from spotlessgs.training.pose_file import write_refined_poses
 from spotlessgs.training.strategy import DensifyConfig, DensifyStrategy
@@ -533,6 +533,11 @@ def _train_locked(data_dir: Path, run_dir: Path, variant: str | ModelConfig, con
             loss, parts = photometric_loss(recorded, target, clipped, config.ssim_lambda, config.loss_space)
             if prior is not None and scene.appearance.light is not None:
                 loss = loss + scene.appearance.light.light_prior_loss(prior, config.light_prior_weight)
+            if config.normal_axis_weight > 0:
+                g = scene.gaussians
+                visible = (out.radii > 0).reshape(len(g), -1).all(dim=-1)
+                loss = loss + config.normal_axis_weight * normal_shape_loss(g.normals(camera.c2w[:3, 3]),
+                                                                            g.shortest_axes(), visible)
             if refining:  # a texture term, which the light moving with a pose hypothesis hardly changes, + a penalty
                 loss = loss + pose_refinement_terms(recorded, target, clipped, row, config.pose_texture_weight,
                                                     config.pose_penalty)
