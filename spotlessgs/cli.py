@@ -57,9 +57,8 @@ def main(verbose: bool) -> None:
               help="Learn each frame's exposure and the lens's vignetting (spotlessgs.models.photometric); default "
                    "auto: on for real cameras' datasets, off for our simulator's fixed-exposure renders.")
 @click.option("--low-frequency-shading", type=click.Choice(["spot_cosine", "irradiance"]), default=None,
-              help="How the SH / ambient light shades the spotlit images: spot_cosine (the paper's equation) or "
-                   "irradiance (by the directional albedo, as relighting shades it). Default: the model's own "
-                   "(SpotlessGS irradiance, the DarkGS variants spot_cosine).")
+              help="How the SH / ambient light shades the spotlit images: spot_cosine (the paper's equation, default) "
+                   "or irradiance (by the directional albedo, as relighting shades it).")
 @click.option("--refine-poses", is_flag=True,
               help="Learn a small correction of every training view's camera pose beside the scene (poses from VIO "
                    "or SfM a few cm off); test views are then aligned to their spotlit inputs (model frozen) before "

@@ -126,13 +126,10 @@ MODEL_VARIANTS: dict[str, ModelConfig] = {
     "darkgs-calibrated": ModelConfig("darkgs-calibrated", ambient="constant", brdf="lambert", calibrated=True),
     "darkgs+sh": ModelConfig("darkgs+sh", ambient="sh", brdf="lambert"),
     "darkgs+brdf": ModelConfig("darkgs+brdf", ambient="constant", brdf="mlp"),
-    "spotless": ModelConfig("spotless", ambient="sh", brdf="mlp", low_frequency_shading="irradiance"),
+    "spotless": ModelConfig("spotless", ambient="sh", brdf="mlp"),
 }
 """The variants of the paper's tables; `darkgs-calibrated` is DarkGS with the light pose and cone taken from the
-dataset's light truth and frozen (the paper reports the better of it and jointly optimised `darkgs`). SpotlessGS
-shades its SH light by the directional albedo in training too ("irradiance", as it relights), which beat the paper's
-equation on every room measured (docs/results.md); the DarkGS variants keep the paper's, which the same change made
-worse against the uniform ground truth."""
+dataset's light truth and frozen (the paper reports the better of it and jointly optimised `darkgs`)."""
 
 
 def resolve_variant(variant: str | ModelConfig) -> ModelConfig:

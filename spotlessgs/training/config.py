@@ -16,10 +16,6 @@ from typing import Any
 LOSS_SPACES = ("linear", "srgb")
 
 
-#: ``TrainConfig.low_frequency_shading``'s value that keeps each model variant's own shading.
-VARIANT_SHADING = "variant"
-
-
 @dataclass(frozen=True)
 class TrainConfig:
     """Everything that determines a training run besides the data, the model variant and the seed."""
@@ -83,9 +79,8 @@ class TrainConfig:
     # Hidden width of the learned BRDF MLP (paper 256; it dominates CPU shading time).
     brdf_hidden: int = 32
     # How the low-frequency light shades a Gaussian in the spotlit training images (ModelConfig.low_frequency_shading):
-    # "spot_cosine" (the paper's equation), "irradiance" (as relighting shades it) or "variant": the model variant's
-    # own (MODEL_VARIANTS: SpotlessGS "irradiance", every other variant "spot_cosine").
-    low_frequency_shading: str = VARIANT_SHADING
+    # "spot_cosine" (the paper's equation) or "irradiance" (as relighting shades it).
+    low_frequency_shading: str = "spot_cosine"
     # The spotlight's fall-off (τ + d²)^(-γ): initial τ (m²) and γ, and whether they learn (ModelConfig.falloff_*).
     falloff_tau: float = 0.3
     falloff_gamma: float = 1.0

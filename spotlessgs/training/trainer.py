@@ -39,7 +39,7 @@ from spotlessgs.training.checkpoint import (
     RUN_SCHEMA_VERSION, check_schema_version, checkpoint_path, data_dir_fields, existing_checkpoint, load_checkpoint,
     read_run_info, resolve_data_dir, save_checkpoint, truncate_metrics,
 )
-from spotlessgs.training.config import VARIANT_SHADING, TrainConfig
+from spotlessgs.training.config import TrainConfig
 from spotlessgs.training.data import TrainingViews, initial_point_cloud, load_training_views
 from spotlessgs.training.light_report import write_light_report
 from spotlessgs.training.losses import normal_shape_loss, photometric_loss, pose_refinement_terms
@@ -86,15 +86,12 @@ MODEL_SETTINGS: tuple[str, ...] = tuple(sorted({f.name for f in dataclasses.fiel
 
 def model_config(variant: str | ModelConfig, config: TrainConfig) -> ModelConfig:
     """The variant's ModelConfig (a preset name or a ModelConfig) with every field that ``config`` also has taken from
-    it (:data:`MODEL_SETTINGS`: the CPU/GPU-dependent BRDF width, the low-frequency shading unless it is
-    ``VARIANT_SHADING``, the spotlight fall-off, the BRDF's clamp)."""
+    it (:data:`MODEL_SETTINGS`: the CPU/GPU-dependent BRDF width, the low-frequency shading, the spotlight fall-off,
+    the BRDF's clamp)."""
     if not isinstance(variant, ModelConfig) and variant not in MODEL_VARIANTS:
         raise ValueError(f"unknown model {variant!r}; choose one of {sorted(MODEL_VARIANTS)}")
     base = variant if isinstance(variant, ModelConfig) else MODEL_VARIANTS[variant]
-    settings = {name: getattr(config, name) for name in MODEL_SETTINGS}
-    if settings["low_frequency_shading"] == VARIANT_SHADING:
-        del settings["low_frequency_shading"]
-    return dataclasses.replace(base, **settings)
+    return dataclasses.replace(base, **{name: getattr(config, name) for name in MODEL_SETTINGS})
 
 
 def resolve_device(name: str) -> torch.device:
