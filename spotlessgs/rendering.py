@@ -108,6 +108,15 @@ class RelitColours:
         facing_away = ((center - g.means) * normals).sum(-1, keepdim=True) < 0
         return torch.where(facing_away, self.back, self.front)
 
+    def render(self, camera, config) -> torch.Tensor:
+        """(H, W, 6) the images [I_R, I_low] of [R, R·L_lf] seen by ``camera`` (one view of a camera batch, on the
+        model's device; ``config``: the run's TrainConfig, for the rasterizer backend and threads): the relit image is
+        I_R·L0 + I_low, or I_R·L0 without the low-frequency light."""
+        g = self.scene.gaussians
+        return rasterize(g.means, g.quats, g.scales, g.opacities, self.features(camera.c2w), camera.viewmat, camera.K,
+                         camera.width, camera.height, backend=config.raster_backend,
+                         num_threads=config.num_threads).image
+
 
 def auto_l0(images_r: list[np.ndarray], images_low: list[np.ndarray]) -> list[float]:
     """A white L0 = s·(1, 1, 1) that puts the AUTO_L0_PERCENTILE of relit luminance at AUTO_L0_TARGET.
@@ -372,18 +381,15 @@ def _render_into(run_dir: Path, data_dir: Path, mode: str, which: str, out: Path
     if mode == "relit" and scene.config.light_model != "none":  # 3dgs "relit" = its ordinary render
         parts = RelitColours(scene, cameras.c2w[indices[0]])
 
-    def raster(k: int, feats: torch.Tensor) -> np.ndarray:
-        view = cameras[k]
-        res = rasterize(g.means, g.quats, g.scales, g.opacities, feats, view.viewmat, view.K, view.width, view.height,
-                        backend=config.raster_backend, num_threads=config.num_threads)
-        return res.image.float().cpu().numpy()
+    def raster(k: int) -> np.ndarray:
+        return parts.render(cameras[k], config).float().cpu().numpy()
 
     def relit_image(k: int, light: list[float] | None) -> np.ndarray:
         if parts is None:  # 3dgs: its ordinary render
             res = scene.render(cameras[k], relight_l0=[1.0, 1.0, 1.0], backend=config.raster_backend,
                                num_threads=config.num_threads)
             return res.image.float().cpu().numpy()
-        both = raster(k, parts.features(cameras.c2w[k]))
+        both = raster(k)
         return both[..., :3] * np.asarray(light, dtype=np.float32) + low_part(both)
 
     def low_part(both: np.ndarray) -> np.ndarray:
@@ -394,7 +400,7 @@ def _render_into(run_dir: Path, data_dir: Path, mode: str, which: str, out: Path
     if mode == "relit" and parts is not None:
         if isinstance(l0, str):
             sample = [indices[i] for i in np.linspace(0, len(indices) - 1, min(AUTO_L0_VIEWS, len(indices))).astype(int)]
-            both = [raster(k, parts.features(cameras.c2w[k])) for k in sample]
+            both = [raster(k) for k in sample]
             relight = auto_l0([b[..., :3] for b in both], [low_part(b) for b in both])
         else:
             relight = [float(v) for v in l0]

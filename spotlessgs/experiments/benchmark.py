@@ -79,10 +79,8 @@ def relit_frame_renderer(scene, cameras, config, first_view: int):
     low-frequency light (3DGS: its ordinary render): the image ``spotless relight --l0 1,1,1`` writes, before it is
     resampled into the input camera and encoded. The relit colours are made once, from view ``first_view``'s camera
     (as ``spotless relight`` makes them). ``cameras``: the views' batch on the model's device."""
-    from spotlessgs.rasterizer import rasterize  # torch: not needed by ``spotless --help``
-    from spotlessgs.rendering import RelitColours
+    from spotlessgs.rendering import RelitColours  # torch: not needed by ``spotless --help``
 
-    g = scene.gaussians
     relit = RelitColours(scene, cameras.c2w[first_view]) if scene.config.light_model != "none" else None
 
     def frame(k: int) -> torch.Tensor:
@@ -90,8 +88,7 @@ def relit_frame_renderer(scene, cameras, config, first_view: int):
         if relit is None:
             return scene.render(view, relight_l0=[1.0, 1.0, 1.0], backend=config.raster_backend,
                                 num_threads=config.num_threads).image
-        both = rasterize(g.means, g.quats, g.scales, g.opacities, relit.features(cameras.c2w[k]), view.viewmat, view.K,
-                         view.width, view.height, backend=config.raster_backend, num_threads=config.num_threads).image
+        both = relit.render(view, config)
         return both[..., :3] + both[..., 3:]
 
     return frame
