@@ -11,7 +11,8 @@ held-out views. Timings are wall clock on the machine that runs it: compare rows
 Two relit frame rates are reported: ``relit_fps`` is ``spotless relight``'s (each view rendered, copied to the host,
 resampled into its input camera and written as a PNG), ``render_fps`` is the relit image alone, kept on the model's
 device (:func:`time_relit_render`): the figure a real-time relighting, and the paper's FPS, measure. On a CUDA device
-the peak device memory of training and of the relit render are reported too.
+the peak device memory is reported too: of training and the scored relighting after it (``peak_gpu_train_mb``), and
+of the timed relit render (``peak_gpu_render_mb``).
 """
 
 from __future__ import annotations
