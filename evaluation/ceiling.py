@@ -95,11 +95,11 @@ def fit_light_per_normal(frames, bases, ground_truth: str = "lamps") -> np.ndarr
     return np.stack([np.linalg.lstsq(albedo[:, ch, None] * basis, gt[:, ch], rcond=None)[0] for ch in range(3)])
 
 
-def write_oracles(data_dir: str | Path, out: str | Path, ground_truth: str = "lamps") -> list[ImagePair]:
+def write_oracles(data_dir: str | Path, out: str | Path, ground_truth: str = "lamps") -> tuple[list[ImagePair], str]:
     """Each oracle's images of every scored test view (sRGB PNGs named as the inputs) in ``out/<oracle>`` and their
     ground truths (copies) in ``out/gt``; returns the image pairs of the first oracle (the others: the same names in
-    their folders), each with its frame's EXR (for the lamp-masked metrics); ``ground_truth``: the kind fitted and
-    copied.
+    their folders), each with its frame's EXR (for the lamp-masked metrics), and what the reflectance was made of
+    (every EXR with the glossy pass or not); ``ground_truth``: the kind fitted and copied.
 
     Raises:
         InputError: a test view has no EXR, or its EXR has no albedo pass (rendered before 2026-11-24: render the
@@ -119,7 +119,8 @@ def write_oracles(data_dir: str | Path, out: str | Path, ground_truth: str = "la
         with atomic_path(out / "gt" / frame.name) as tmp:
             shutil.copy2(frame.gt_path, tmp)
         pairs.append(ImagePair(frame.name, out / "albedo" / frame.name, out / "gt" / frame.name, frame.depth_path))
-    return pairs
+    glossy = all(exr.glossy is not None for _, exr in frames)
+    return pairs, "diffuse + glossy colour" if glossy else "diffuse colour (no glossy pass)"
 
 
 def ceiling(data_dir: str | Path, out: str | Path, config: EvalConfig = EvalConfig()) -> dict[str, dict]:
@@ -128,14 +129,13 @@ def ceiling(data_dir: str | Path, out: str | Path, config: EvalConfig = EvalConf
     ``out/eval-<oracle>/results.json`` and ``.md``; ``config.ground_truth``: which of the dataset's ground truths);
     returns the results by oracle name."""
     out = Path(out)
-    pairs = write_oracles(data_dir, out, config.ground_truth)
-    glossy = all(read_frame_exr(p.exr).glossy is not None for p in pairs)
+    pairs, reflectance = write_oracles(data_dir, out, config.ground_truth)
     results = {}
     for name in ORACLES:
         oracle = [dataclasses.replace(p, pred=out / name / p.name) for p in pairs]
         results[name] = {"mode": "ceiling", "oracle": name, "what": ORACLES[name], "data": str(data_dir),
                          "ground_truth": config.ground_truth,
-                         "reflectance": "diffuse + glossy colour" if glossy else "diffuse colour (no glossy pass)",
+                         "reflectance": reflectance,
                          **score_pairs(oracle, config, name)}
         write_results_json(out / f"eval-{name}" / "results.json", results[name])
         write_markdown(out / f"eval-{name}" / "results.md", results[name], f"Ceiling: {ORACLES[name]}")

@@ -6,8 +6,9 @@ Output folder (the dataset contract, see ``docs/dataset.md``)::
     OUT/images/frame_00042.png  spotlight-only (uneven) input, 8-bit sRGB
     OUT/gt/frame_00042.png      lamps-on ground truth, 8-bit sRGB
     OUT/gt_uniform/frame_00042.png  with ``uniform_gt``: the uniform ground truth (even, shadow-free light), 8-bit sRGB
-    OUT/exr/frame_00042.exr     linear uneven.RGB, gt.RGB, depth.Z (planar, m), normal.XYZ (world), albedo.RGB, glossy.RGB,
-                                emission.RGB (the ground truth's glowing surfaces), with ``uniform_gt`` gt_uniform.RGB
+    OUT/exr/frame_00042.exr     linear uneven.RGB, gt.RGB, depth.Z (planar, m), normal.XYZ (world), albedo.RGB,
+                                glossy.RGB, emission.RGB (the ground truth's glowing surfaces), with ``uniform_gt``
+                                gt_uniform.RGB
     OUT/points3d.ply            initial coloured point cloud back-projected from depth
     OUT/sparse/0/*.txt          COLMAP text model (true poses)
     OUT/transforms.json         nerfstudio-compatible + our "spotless" block (written last: the dataset is complete)

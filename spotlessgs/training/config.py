@@ -28,7 +28,8 @@ class TrainConfig:
     image_width: int | None = 160
     # Weight λ of the (1 - SSIM) term: loss = (1 - λ) L1 + λ (1 - SSIM).
     ssim_lambda: float = 0.2
-    # Space of the photometric loss (LOSS_SPACES): "linear" light (the paper's) or "srgb" encoded values, in which the dim periphery counts about as much as it shows after relighting.
+    # Space of the photometric loss (LOSS_SPACES): "linear" light (the paper's) or "srgb" encoded values, in which the
+    # dim periphery counts about as much as it shows after relighting.
     loss_space: str = "linear"
     # sRGB value at or above which an input pixel counts as clipped: there the loss only penalises predictions darker
     # than the observation (the true radiance is at least the clipped value), so clipping cannot drag the light down.
@@ -81,7 +82,8 @@ class TrainConfig:
     # How the low-frequency light shades a Gaussian in the spotlit training images (ModelConfig.low_frequency_shading):
     # "spot_cosine" (the paper's equation) or "irradiance" (as relighting shades it).
     low_frequency_shading: str = "spot_cosine"
-    # The spotlight's fall-off (τ + d²)^(-γ): initial τ (m²) and γ, and whether they learn (ModelConfig.falloff_*).
+    # The spotlight's fall-off (τ + d²)^(-γ): initial τ (m²) and γ, and whether they learn
+    # (ModelConfig.falloff_*).
     falloff_tau: float = 0.3
     falloff_gamma: float = 1.0
     learn_falloff: bool = True

@@ -535,9 +535,8 @@ def _train_locked(data_dir: Path, run_dir: Path, variant: str | ModelConfig, con
                 loss = loss + scene.appearance.light.light_prior_loss(prior, config.light_prior_weight)
             if config.normal_axis_weight > 0:
                 g = scene.gaussians
-                visible = (out.radii > 0).reshape(len(g), -1).all(dim=-1)
                 loss = loss + config.normal_axis_weight * normal_shape_loss(g.normals(camera.c2w[:3, 3]),
-                                                                            g.shortest_axes(), visible)
+                                                                            g.shortest_axes(), out.visible)
             if refining:  # a texture term, which the light moving with a pose hypothesis hardly changes, + a penalty
                 loss = loss + pose_refinement_terms(recorded, target, clipped, row, config.pose_texture_weight,
                                                     config.pose_penalty)
