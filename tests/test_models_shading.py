@@ -381,3 +381,67 @@ def test_unclamped_learned_brdf_relights_with_the_tabulated_directional_albedo()
         torch.testing.assert_close(relit, expected, rtol=1e-5, atol=1e-6)
     models = build_appearance_models(dataclasses.replace(MODEL_VARIANTS["spotless"], brdf_hidden=16), seed=1)
     assert models.brdf.upper_clamp
+
+
+def _rotated(g: GaussianParams, q: np.ndarray) -> GaussianParams:
+    """The Gaussians' positions and normals turned by the rotation q (3, 3) about the origin (same colours)."""
+    with torch.no_grad():
+        means, normals = g.means.double().numpy() @ q.T, g.normals(torch.zeros(3)).double().numpy() @ q.T
+        albedo = g.albedo.double().numpy()
+    return GaussianParams.from_point_cloud(means, albedo, normals, rgb_is_srgb=False)
+
+
+def test_bounce_light_moves_with_the_camera_and_is_left_out_of_relighting():
+    """The bounce light is an SH of the normal in the camera frame: turning the whole scene and the camera together
+    leaves the colour unchanged (the spotlight is camera-borne too), which a world-frame SH light does not; it adds to
+    the low-frequency half of the split; relighting never sees it; by hand, head-on: a (L_spot + A + b)."""
+    config = dataclasses.replace(MODEL_VARIANTS["darkgs+sh"], bounce_light_degree=2)
+    models = build_appearance_models(config, seed=1)
+    assert isinstance(models.bounce_light, LowFrequencyLight) and models.bounce_light.degree == 2
+    assert "bounce_light" in models.module_dict()
+    g = _scene()
+    q = Rotation.from_rotvec([0.4, -0.7, 1.1]).as_matrix()
+    turned_cam = CAM.clone()
+    turned_cam[:3, :3] = torch.as_tensor(q, dtype=CAM.dtype) @ CAM[:3, :3]
+    turned_cam[:3, 3] = torch.as_tensor(q, dtype=CAM.dtype) @ CAM[:3, 3]
+    at_zero = shade(config, g, models.light, models.lf_light, models.brdf, CAM, bounce_light=models.bounce_light)
+    torch.testing.assert_close(at_zero, shade("darkgs+sh", g, models.light, models.lf_light, models.brdf, CAM))
+    with torch.no_grad():
+        models.bounce_light.coeffs.normal_(0.0, 0.3, generator=torch.Generator().manual_seed(5))
+        models.bounce_light.coeffs[0] = 0.5  # positive somewhere
+
+    def colour(scene, cam):
+        return shade(config, scene, models.light, models.lf_light, models.brdf, cam, bounce_light=models.bounce_light)
+
+    with_bounce = colour(g, CAM)
+    assert float((with_bounce - at_zero).abs().max()) > 1e-2
+    torch.testing.assert_close(colour(_rotated(g, q), turned_cam), with_bounce, rtol=1e-4, atol=1e-5)
+    with torch.no_grad():  # a world-frame light is not invariant: the check above can fail
+        models.lf_light.coeffs[:9] = models.bounce_light.coeffs
+    assert float((colour(_rotated(g, q), turned_cam) - colour(g, CAM)).abs().max()) > 1e-2
+    parts = shade(config, g, models.light, models.lf_light, models.brdf, CAM, split_lights=True,
+                  bounce_light=models.bounce_light)
+    torch.testing.assert_close(parts[:, :3] + parts[:, 3:], colour(g, CAM))
+    relit = shade(config, g, models.light, models.lf_light, models.brdf, CAM, relight_l0=[1.0, 1.0, 1.0],
+                  bounce_light=models.bounce_light)
+    torch.testing.assert_close(relit, shade(config, g, models.light, models.lf_light, models.brdf, CAM,
+                                            relight_l0=[1.0, 1.0, 1.0]))
+    # By hand: a Gaussian facing the camera head-on has the camera-frame normal (0, 0, -1); a degree-0 bounce light
+    # b adds to DarkGS's constant ambient A inside the spotlight's cosine (the paper's shading).
+    c2w = _look_at_c2w([0.0, -2.0, 0.0], [0.0, 0.0, 0.0], torch.float64)
+    one = GaussianParams.from_point_cloud(np.zeros((1, 3)), np.array([[0.2, 0.5, 0.8]]), np.array([[0.0, -1.0, 0.0]]),
+                                          rgb_is_srgb=False).double()
+    dark = dataclasses.replace(MODEL_VARIANTS["darkgs"], bounce_light_degree=0)
+    m = build_appearance_models(dark, seed=0)
+    m.module_dict().double()
+    with torch.no_grad():
+        m.bounce_light.coeffs.fill_(0.1 / SH_C0)  # radiance 0.1
+    got = shade(dark, one, m.light, m.lf_light, m.brdf, c2w, bounce_light=m.bounce_light)
+    spot = _scalar(m.light.rid_curve([0.0])[0]) / (0.3 + 4.0)
+    np.testing.assert_allclose(got.detach().numpy()[0], np.array([0.2, 0.5, 0.8]) * (spot + 0.05 + 0.1), rtol=1e-5)
+    with pytest.raises(ValueError, match="bounce light degree 0"):
+        shade(dark, one, m.light, m.lf_light, m.brdf, c2w)
+    with pytest.raises(ValueError, match="bounce_light_degree needs"):
+        dataclasses.replace(MODEL_VARIANTS["3dgs"], bounce_light_degree=1)
+    with pytest.raises(ValueError, match="degree"):
+        dataclasses.replace(MODEL_VARIANTS["darkgs"], bounce_light_degree=4)

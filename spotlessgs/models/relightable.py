@@ -67,10 +67,10 @@ class RelightableScene(nn.Module):
         app = self.appearance
         if mask is None:
             return shade(self.config, self.gaussians, app.light, app.lf_light, app.brdf, c2w, relight_l0,
-                         split_lights)
+                         split_lights, app.bounce_light)
         idx = torch.nonzero(mask).squeeze(1)
         colours = shade(self.config, self.gaussians.subset(idx), app.light, app.lf_light, app.brdf, c2w, relight_l0,
-                        split_lights)
+                        split_lights, app.bounce_light)
         out = colours.new_zeros((len(self.gaussians), colours.shape[1]))
         return out.index_copy(0, idx, colours)
 

@@ -90,6 +90,10 @@ class ModelConfig:
     # directional albedo R is the Disney model's, tabulated with an importance-sampled quadrature
     # (brdf.disney_directional_albedo), in relighting and in the irradiance shading alike.
     brdf_upper_clamp: bool = True
+    # Degree 0..3 of a second SH light for the lamp's own bounce light, evaluated at the normal in the camera frame
+    # (it moves with the camera, as light bounced off what the lamp lights does), shaded like the low-frequency light
+    # in training and left out of relighting; -1: none (the paper's).
+    bounce_light_degree: int = -1
 
     def __post_init__(self) -> None:
         if self.light_model not in ("none", "spotlight"):
@@ -107,6 +111,10 @@ class ModelConfig:
             raise ValueError(f"ModelConfig {self.name!r}: calibrated needs light_model 'spotlight'")
         check_sh_degree(self.sh_degree)
         check_sh_degree(self.colour_sh_degree)
+        if self.bounce_light_degree != -1:
+            check_sh_degree(self.bounce_light_degree)
+            if self.light_model == "none":
+                raise ValueError(f"ModelConfig {self.name!r}: bounce_light_degree needs light_model 'spotlight'")
         if self.relight_directions < 1:
             raise ValueError(f"ModelConfig {self.name!r}: relight_directions must be >= 1, got {self.relight_directions}")
         if self.brdf_hidden < 1:
@@ -264,6 +272,7 @@ def shade(
     c2w: torch.Tensor,
     relight_l0: torch.Tensor | Sequence[float] | None = None,
     split_lights: bool = False,
+    bounce_light: LowFrequencyLight | None = None,
 ) -> torch.Tensor:
     """Linear RGB colour of every Gaussian seen from camera `c2w`, (N, 3); differentiable; never clipped above.
 
@@ -278,6 +287,9 @@ def shade(
             "3dgs" ignores it (its relit output is its normal render).
         split_lights: under the spotlight only: return (N, 6), the colour lit by the spotlight alone and by the
             low-frequency light alone, [f̃·cos·L_spot, f̃·cos·L_lf]; the two halves sum to the (N, 3) colour.
+        bounce_light: the variant's bounce light (ModelConfig.bounce_light_degree ≥ 0), else None. Under the
+            spotlight its radiance at the camera-frame normal adds to L_lf (and to the second half of split_lights);
+            relighting leaves it out.
     """
     cfg = resolve_variant(variant)
     check_c2w(c2w)
@@ -286,7 +298,7 @@ def shade(
                          + (" relit" if relight_l0 is not None else ""))
     if cfg.light_model == "none":
         return vanilla_colours(gaussians, c2w, cfg.colour_sh_degree)
-    _check_modules(cfg, light, lf_light, brdf, relit=relight_l0 is not None)
+    _check_modules(cfg, light, lf_light, brdf, bounce_light, relit=relight_l0 is not None)
     center = c2w[:3, 3]
     view_dirs = view_directions(gaussians.means, center)
     normals = gaussians.normals(center)
@@ -297,6 +309,8 @@ def shade(
     if relight_l0 is not None:
         l0 = relight_radiance(relight_l0, albedo)
         return model_reflectance(cfg, albedo, rough, metal, normals, brdf) * (l0 + low_frequency)
+    if bounce_light is not None:
+        low_frequency = low_frequency + bounce_light.radiance(normals @ c2w[:3, :3].to(normals))
     spot, light_dirs = light.incident(gaussians.means, c2w)
     lf_reflect = None
     if cfg.low_frequency_shading == "irradiance":
@@ -310,8 +324,12 @@ def shade(
                             lf_reflect)
 
 
-def _check_modules(cfg: ModelConfig, light, lf_light, brdf, relit: bool) -> None:
+def _check_modules(cfg: ModelConfig, light, lf_light, brdf, bounce_light, relit: bool) -> None:
     """Raise ValueError when a module does not match the variant."""
+    if not relit and ((bounce_light is None) != (cfg.bounce_light_degree < 0) or (
+            bounce_light is not None and bounce_light.degree != cfg.bounce_light_degree)):
+        raise ValueError(f"variant {cfg.name!r} wants bounce light degree {cfg.bounce_light_degree} (-1: none), got "
+                         + ("none" if bounce_light is None else f"degree {bounce_light.degree}"))
     if not relit and not isinstance(light, SpotLight):
         raise ValueError(f"variant {cfg.name!r} needs a SpotLight, got {type(light).__name__}")
     want_lf = ConstantAmbient if cfg.ambient == "constant" else LowFrequencyLight
@@ -334,9 +352,12 @@ class AppearanceModels:
     lf_light: LowFrequencyLight | ConstantAmbient | None
     # LambertianBRDF or LearnedBRDF (None for "3dgs").
     brdf: LambertianBRDF | LearnedBRDF | None
+    # The lamp's bounce light, an SH of the camera-frame normal (None unless ModelConfig.bounce_light_degree ≥ 0).
+    bounce_light: LowFrequencyLight | None = None
 
     def module_dict(self) -> nn.ModuleDict:
-        """The present modules by name ("light", "lf_light", "brdf"), e.g. for `.to(device)` and optimizer groups."""
+        """The present modules by name ("light", "lf_light", "brdf", "bounce_light"), e.g. for `.to(device)` and
+        optimizer groups."""
         return nn.ModuleDict({k: m for k, m in vars(self).items() if m is not None})
 
 
@@ -374,4 +395,5 @@ def build_appearance_models(
     lf_light = ConstantAmbient(ambient_init) if cfg.ambient == "constant" else LowFrequencyLight(cfg.sh_degree)
     brdf = LambertianBRDF() if cfg.brdf == "lambert" else LearnedBRDF(hidden=cfg.brdf_hidden, seed=seed,
                                                                      upper_clamp=cfg.brdf_upper_clamp)
-    return AppearanceModels(light, lf_light, brdf)
+    bounce = LowFrequencyLight(cfg.bounce_light_degree) if cfg.bounce_light_degree >= 0 else None
+    return AppearanceModels(light, lf_light, brdf, bounce)

@@ -89,6 +89,9 @@ class TrainConfig:
     learn_falloff: bool = True
     # The learned BRDF's f̃ clamped at 1 (the research code's) or not (ModelConfig.brdf_upper_clamp).
     brdf_upper_clamp: bool = True
+    # Degree of the lamp's bounce light, an SH of the camera-frame normal left out of relighting
+    # (ModelConfig.bounce_light_degree; -1: none).
+    bounce_light_degree: int = -1
     # Weight of the light-translation prior ‖t - t_prior‖ (used only when a prior is given).
     light_prior_weight: float = 1.0
     # Weight of the normal-shape term mean(1 - |n̂·â|) over the visible Gaussians, â each one's shortest axis

@@ -45,6 +45,9 @@ def light_estimate(scene) -> dict[str, Any] | None:
     elif isinstance(app.lf_light, LowFrequencyLight):
         est["sh_degree"] = app.lf_light.degree
         est["sh_coefficients"] = app.lf_light.coeffs.double().cpu().numpy().tolist()
+    if app.bounce_light is not None:
+        est["bounce_sh_degree"] = app.bounce_light.degree
+        est["bounce_sh_coefficients_camera_frame"] = app.bounce_light.coeffs.double().cpu().numpy().tolist()
     return est
 
 

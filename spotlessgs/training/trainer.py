@@ -181,9 +181,10 @@ def build_optimizers(scene: RelightableScene, config: TrainConfig, extent: float
             groups.append({"params": pose, "lr": config.lr_light_pose})
         groups.append({"params": [p for p in (app.light.log_gamma, app.light.log_tau) if p.requires_grad]
                        + list(app.light.rid.parameters()), "lr": config.lr_light})
-    if app.lf_light is not None:
-        groups.append({"params": list(app.lf_light.parameters()),
-                       "lr": config.lr_light if config.lr_lf_light is None else config.lr_lf_light})
+    for lf in (app.lf_light, app.bounce_light):
+        if lf is not None:
+            groups.append({"params": list(lf.parameters()),
+                           "lr": config.lr_light if config.lr_lf_light is None else config.lr_lf_light})
     brdf_params = [] if app.brdf is None else list(app.brdf.parameters())
     if brdf_params:
         groups.append({"params": brdf_params, "lr": config.lr_brdf})
