@@ -431,17 +431,20 @@ def test_bounce_light_moves_with_the_camera_and_is_left_out_of_relighting():
     c2w = _look_at_c2w([0.0, -2.0, 0.0], [0.0, 0.0, 0.0], torch.float64)
     one = GaussianParams.from_point_cloud(np.zeros((1, 3)), np.array([[0.2, 0.5, 0.8]]), np.array([[0.0, -1.0, 0.0]]),
                                           rgb_is_srgb=False).double()
-    dark = dataclasses.replace(MODEL_VARIANTS["darkgs"], bounce_light_degree=0)
-    m = build_appearance_models(dark, seed=0)
+    flat = dataclasses.replace(MODEL_VARIANTS["darkgs+sh"], sh_degree=0, bounce_light_degree=0)
+    m = build_appearance_models(flat, seed=0)
     m.module_dict().double()
     with torch.no_grad():
+        m.lf_light.coeffs.fill_(0.05 / SH_C0)  # an ambient 0.05
         m.bounce_light.coeffs.fill_(0.1 / SH_C0)  # radiance 0.1
-    got = shade(dark, one, m.light, m.lf_light, m.brdf, c2w, bounce_light=m.bounce_light)
+    got = shade(flat, one, m.light, m.lf_light, m.brdf, c2w, bounce_light=m.bounce_light)
     spot = _scalar(m.light.rid_curve([0.0])[0]) / (0.3 + 4.0)
     np.testing.assert_allclose(got.detach().numpy()[0], np.array([0.2, 0.5, 0.8]) * (spot + 0.05 + 0.1), rtol=1e-5)
     with pytest.raises(ValueError, match="bounce light degree 0"):
-        shade(dark, one, m.light, m.lf_light, m.brdf, c2w)
-    with pytest.raises(ValueError, match="bounce_light_degree needs"):
-        dataclasses.replace(MODEL_VARIANTS["3dgs"], bounce_light_degree=1)
+        shade(flat, one, m.light, m.lf_light, m.brdf, c2w)
     with pytest.raises(ValueError, match="degree"):
-        dataclasses.replace(MODEL_VARIANTS["darkgs"], bounce_light_degree=4)
+        dataclasses.replace(MODEL_VARIANTS["darkgs+sh"], bounce_light_degree=4)
+    # only an SH light has a bounce light: DarkGS's constant ambient and 3DGS ignore the setting
+    for name in ("3dgs", "darkgs", "darkgs+brdf"):
+        cfg = dataclasses.replace(MODEL_VARIANTS[name], bounce_light_degree=2)
+        assert cfg.bounce_degree == -1 and build_appearance_models(cfg).bounce_light is None

@@ -454,6 +454,16 @@ def test_warm_start_copies_gaussians_light_and_the_leading_sh_block():
     assert float(coeffs[4:].abs().sum()) == 0.0
     low = warm_start_scene(scene(candidate_model(0, "lambert"), 3, 2), ckpt)  # a lower degree keeps the DC row
     torch.testing.assert_close(low.appearance.lf_light.coeffs.detach(), torch.tensor([[0.0, 1.0, 2.0]]))
+    # the bounce light's coefficients are carried the same way
+    bounce = dataclasses.replace(candidate_model(1, "lambert"), bounce_light_degree=1)
+    src_b = scene(bounce, 7, 0)
+    with torch.no_grad():
+        src_b.appearance.bounce_light.coeffs.copy_(torch.arange(12.0).reshape(4, 3) + 1)
+    ckpt_b = {"gaussians": {k: v.detach() for k, v in src_b.gaussians.params.items()},
+              "appearance": src_b.modules_.state_dict()}
+    dst_b = warm_start_scene(scene(dataclasses.replace(bounce, bounce_light_degree=2), 3, 1), ckpt_b)
+    torch.testing.assert_close(dst_b.appearance.bounce_light.coeffs.detach()[:4], torch.arange(12.0).reshape(4, 3) + 1)
+    assert float(dst_b.appearance.bounce_light.coeffs.detach()[4:].abs().sum()) == 0.0
     with pytest.raises(ValueError, match="not a training checkpoint"):
         warm_start_scene(dst, {"gaussians": {}}, "x.pt")
     with pytest.raises(ValueError, match="needs a spotlight"):

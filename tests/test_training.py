@@ -242,7 +242,7 @@ def test_resume_equals_an_uninterrupted_run(bedroom, tmp_path):
     train(bedroom, tmp_path / "split", "darkgs+sh", cfg, seed=3, progress=False, stop_after=30)
     with pytest.raises(FileExistsError, match="--resume"):
         train(bedroom, tmp_path / "split", "darkgs+sh", cfg, seed=3, progress=False)
-    with pytest.raises(ValueError, match="other settings"):
+    with pytest.raises(ValueError, match=r"other settings .*\(lr_albedo: run 0\.\d+, now 0\.01\)"):
         train(bedroom, tmp_path / "split", "darkgs+sh", cfg.replace(lr_albedo=0.01), seed=3, resume=True,
               progress=False)
     train(bedroom, tmp_path / "split", "darkgs+sh", cfg, seed=3, progress=False, resume=True)
@@ -261,18 +261,51 @@ def test_a_run_from_before_a_setting_existed_resumes_with_its_default(bedroom, t
     switches, kept in run.json, are completed with their defaults the same way.)"""
     from spotlessgs.training.trainer import train
 
-    cfg = _tiny(iterations=40, image_width=40, densify_from=1000, checkpoint_every=20)
+    from spotlessgs.training.trainer import load_run
+
+    # a run from before the bounce light: it trained without one, whatever today's default
+    cfg = _tiny(iterations=40, image_width=40, densify_from=1000, checkpoint_every=20, bounce_light_degree=-1)
     train(bedroom, tmp_path / "run", "darkgs+sh", cfg, seed=0, progress=False, stop_after=20)
     path = tmp_path / "run" / "config.json"
     saved = json.loads(path.read_text())
-    del saved["train"]["low_frequency_shading"]
-    del saved["model_config"]["low_frequency_shading"]
+    for name in ("low_frequency_shading", "bounce_light_degree"):
+        del saved["train"][name]
+        del saved["model_config"][name]
     path.write_text(json.dumps(saved))
+    assert load_run(tmp_path / "run", device="cpu")[0].appearance.bounce_light is None  # absent: the value before it
     result = train(bedroom, tmp_path / "run", "darkgs+sh", cfg, seed=0, progress=False, resume=True)
     assert result.steps == 40
     with pytest.raises(ValueError, match="other settings"):  # a setting that differs from its default still counts
         train(bedroom, tmp_path / "run", "darkgs+sh", cfg.replace(low_frequency_shading="irradiance"), seed=0,
               progress=False, resume=True)
+    with pytest.raises(ValueError, match=r"bounce_light_degree: run -1, now 2"):  # ... and names itself
+        train(bedroom, tmp_path / "run", "darkgs+sh", cfg.replace(bounce_light_degree=2), seed=0,
+              progress=False, resume=True)
+
+
+@pytest.mark.blender
+def test_a_bounce_light_trains_is_reported_reloads_and_stays_out_of_relighting(bedroom, tmp_path):
+    """``bounce_light_degree``: the camera-frame SH light learns, is written to light.json and the checkpoint, comes
+    back with the run, and the relit images are those of the same model with the bounce light set to zero."""
+    from spotlessgs.rendering import render_run
+    from spotlessgs.training.trainer import load_run, train
+
+    cfg = _tiny(iterations=40, image_width=40, densify_from=1000, checkpoint_every=40, bounce_light_degree=1)
+    run = tmp_path / "run"
+    train(bedroom, run, "darkgs+sh", cfg, seed=0, progress=False)
+    coeffs = np.asarray(json.loads((run / "light.json").read_text())["estimate"]["bounce_sh_coefficients_camera_frame"])
+    assert coeffs.shape == (4, 3) and np.abs(coeffs).max() > 1e-4
+    scene = load_run(run, device="cpu")[0]
+    np.testing.assert_allclose(scene.appearance.bounce_light.coeffs.detach().numpy(), coeffs, rtol=1e-6, atol=1e-9)
+    c2w = torch.eye(4)
+    with torch.no_grad():
+        lit = scene.colours(c2w, relight_l0=None)
+        relit = scene.colours(c2w, relight_l0=[1.0, 1.0, 1.0])
+        scene.appearance.bounce_light.coeffs.zero_()
+        assert float((scene.colours(c2w, relight_l0=None) - lit).abs().max()) > 0  # it lit the spotlit images
+        torch.testing.assert_close(scene.colours(c2w, relight_l0=[1.0, 1.0, 1.0]), relit)
+    summary = render_run(run, "relit", "test", tmp_path / "relit", progress=False)
+    assert summary["count"] > 0 and len(list((tmp_path / "relit").glob("*.png"))) == summary["count"]
 
 
 @pytest.mark.blender

@@ -92,7 +92,8 @@ class ModelConfig:
     brdf_upper_clamp: bool = True
     # Degree 0..3 of a second SH light for the lamp's own bounce light, evaluated at the normal in the camera frame
     # (it moves with the camera, as light bounced off what the lamp lights does), shaded like the low-frequency light
-    # in training and left out of relighting; -1: none (the paper's).
+    # in training and left out of relighting; -1: none (the paper's). Only the variants with an SH light have one
+    # (ambient "sh"): it is part of that light; DarkGS's constant ambient and 3DGS ignore the setting.
     bounce_light_degree: int = -1
 
     def __post_init__(self) -> None:
@@ -113,8 +114,6 @@ class ModelConfig:
         check_sh_degree(self.colour_sh_degree)
         if self.bounce_light_degree != -1:
             check_sh_degree(self.bounce_light_degree)
-            if self.light_model == "none":
-                raise ValueError(f"ModelConfig {self.name!r}: bounce_light_degree needs light_model 'spotlight'")
         if self.relight_directions < 1:
             raise ValueError(f"ModelConfig {self.name!r}: relight_directions must be >= 1, got {self.relight_directions}")
         if self.brdf_hidden < 1:
@@ -126,6 +125,12 @@ class ModelConfig:
         if self.low_frequency_shading not in LOW_FREQUENCY_SHADINGS:
             raise ValueError(f"ModelConfig {self.name!r}: low_frequency_shading must be 'spot_cosine' or "
                              f"'irradiance', got {self.low_frequency_shading!r}")
+
+
+    @property
+    def bounce_degree(self) -> int:
+        """The degree of the variant's bounce light, -1 when it has none (no SH light, or switched off)."""
+        return self.bounce_light_degree if self.ambient == "sh" else -1
 
 
 MODEL_VARIANTS: dict[str, ModelConfig] = {
@@ -287,7 +292,7 @@ def shade(
             "3dgs" ignores it (its relit output is its normal render).
         split_lights: under the spotlight only: return (N, 6), the colour lit by the spotlight alone and by the
             low-frequency light alone, [f̃·cos·L_spot, f̃·cos·L_lf]; the two halves sum to the (N, 3) colour.
-        bounce_light: the variant's bounce light (ModelConfig.bounce_light_degree ≥ 0), else None. Under the
+        bounce_light: the variant's bounce light (ModelConfig.bounce_degree ≥ 0), else None. Under the
             spotlight its radiance at the camera-frame normal adds to L_lf (and to the second half of split_lights);
             relighting leaves it out.
     """
@@ -326,9 +331,9 @@ def shade(
 
 def _check_modules(cfg: ModelConfig, light, lf_light, brdf, bounce_light, relit: bool) -> None:
     """Raise ValueError when a module does not match the variant."""
-    if not relit and ((bounce_light is None) != (cfg.bounce_light_degree < 0) or (
-            bounce_light is not None and bounce_light.degree != cfg.bounce_light_degree)):
-        raise ValueError(f"variant {cfg.name!r} wants bounce light degree {cfg.bounce_light_degree} (-1: none), got "
+    if not relit and ((bounce_light is None) != (cfg.bounce_degree < 0) or (
+            bounce_light is not None and bounce_light.degree != cfg.bounce_degree)):
+        raise ValueError(f"variant {cfg.name!r} wants bounce light degree {cfg.bounce_degree} (-1: none), got "
                          + ("none" if bounce_light is None else f"degree {bounce_light.degree}"))
     if not relit and not isinstance(light, SpotLight):
         raise ValueError(f"variant {cfg.name!r} needs a SpotLight, got {type(light).__name__}")
@@ -352,7 +357,7 @@ class AppearanceModels:
     lf_light: LowFrequencyLight | ConstantAmbient | None
     # LambertianBRDF or LearnedBRDF (None for "3dgs").
     brdf: LambertianBRDF | LearnedBRDF | None
-    # The lamp's bounce light, an SH of the camera-frame normal (None unless ModelConfig.bounce_light_degree ≥ 0).
+    # The lamp's bounce light, an SH of the camera-frame normal (None unless ModelConfig.bounce_degree ≥ 0).
     bounce_light: LowFrequencyLight | None = None
 
     def module_dict(self) -> nn.ModuleDict:
@@ -395,5 +400,5 @@ def build_appearance_models(
     lf_light = ConstantAmbient(ambient_init) if cfg.ambient == "constant" else LowFrequencyLight(cfg.sh_degree)
     brdf = LambertianBRDF() if cfg.brdf == "lambert" else LearnedBRDF(hidden=cfg.brdf_hidden, seed=seed,
                                                                      upper_clamp=cfg.brdf_upper_clamp)
-    bounce = LowFrequencyLight(cfg.bounce_light_degree) if cfg.bounce_light_degree >= 0 else None
+    bounce = LowFrequencyLight(cfg.bounce_degree) if cfg.bounce_degree >= 0 else None
     return AppearanceModels(light, lf_light, brdf, bounce)

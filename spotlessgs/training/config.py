@@ -15,6 +15,18 @@ from typing import Any
 #: Spaces the photometric loss compares images in (TrainConfig.loss_space; spotlessgs.training.losses).
 LOSS_SPACES = ("linear", "srgb")
 
+#: Settings whose default is not what a run trained with before the setting existed. Absent from an older run's saved
+#: settings, such a setting takes this value instead of the default, so the run reloads and resumes as it trained.
+PREDATING_VALUES: dict[str, Any] = {"bounce_light_degree": -1}
+
+
+def with_defaults(cls: type, saved: dict[str, Any]) -> dict[str, Any]:
+    """``saved``, the fields of a settings dataclass ``cls`` (TrainConfig, ModelConfig) as a run wrote them, completed
+    for the fields added since: with :data:`PREDATING_VALUES` where listed, else the field's default."""
+    missing = {f.name: PREDATING_VALUES.get(f.name, f.default) for f in dataclasses.fields(cls)
+               if f.name not in saved and (f.name in PREDATING_VALUES or f.default is not dataclasses.MISSING)}
+    return {**missing, **saved}
+
 
 @dataclass(frozen=True)
 class TrainConfig:

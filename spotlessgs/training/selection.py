@@ -58,7 +58,7 @@ from spotlessgs.io.json_files import read_json, require_keys
 from spotlessgs.io.paths import refuse_overlap
 from spotlessgs.models.shading import ModelConfig, build_appearance_models
 from spotlessgs.training import trainer  # called as trainer.train: patching spotlessgs.training.trainer reaches here
-from spotlessgs.training.config import TrainConfig
+from spotlessgs.training.config import TrainConfig, with_defaults
 from spotlessgs.training.light_need import dark_level, low_frequency_share
 from spotlessgs.training.validation import block_size, evenly_spaced
 
@@ -470,7 +470,7 @@ def train_auto(
     with folder_lock(run_dir, "spotless train --model auto"):
         decision = select_model(data_dir, run_dir, config, seed, selection, light_prior, resume, progress=False)
         try:
-            model = ModelConfig(**decision["chosen_model"])
+            model = ModelConfig(**with_defaults(ModelConfig, decision["chosen_model"]))
         except TypeError as exc:  # an unknown or missing field: a decision of another version
             raise InputError(f"{Path(run_dir) / SELECTION_FILE}: the chosen model does not fit this version "
                              f"({exc})") from None

@@ -39,7 +39,7 @@ from spotlessgs.training.checkpoint import (
     RUN_SCHEMA_VERSION, check_schema_version, checkpoint_path, data_dir_fields, existing_checkpoint, load_checkpoint,
     read_run_info, resolve_data_dir, save_checkpoint, truncate_metrics,
 )
-from spotlessgs.training.config import TrainConfig
+from spotlessgs.training.config import TrainConfig, with_defaults
 from spotlessgs.training.data import TrainingViews, initial_point_cloud, load_training_views
 from spotlessgs.training.light_report import write_light_report
 from spotlessgs.training.losses import normal_shape_loss, photometric_loss, pose_refinement_terms
@@ -311,7 +311,8 @@ def restore_scene(ckpt: dict[str, Any], run_info: dict[str, Any], config: TrainC
     """Rebuild the model of a checkpoint (modules with the same structure, then their saved values)."""
     # a run of an arbitrary ModelConfig (``spotless train --model auto``) stores the config itself
     saved = run_info.get("model_config")
-    cfg = model_config(ModelConfig(**saved) if saved is not None else run_info["model"], config)
+    cfg = model_config(ModelConfig(**with_defaults(ModelConfig, saved)) if saved is not None else run_info["model"],
+                       config)
     gaussians = GaussianParams(ckpt["gaussians"])
     light_init: dict[str, Any] = {}
     if cfg.calibrated:  # the structure needs a cone; the fitted values are overwritten by the saved state
@@ -412,14 +413,15 @@ def _train_locked(data_dir: Path, run_dir: Path, variant: str | ModelConfig, con
         # the dataset may have moved (--data DIR), an older version wrote the file: not another setting
         moved = ("data_dir", "data_dir_relative", "schema_version")
         # settings added since the run began take their defaults (what the run trained with), the model's too
-        old_train = _with_defaults(TrainConfig, old["train"]) if isinstance(old["train"], dict) else old["train"]
+        old_train = with_defaults(TrainConfig, old["train"]) if isinstance(old["train"], dict) else old["train"]
         old_run = dict(old["run"])
         if isinstance(old_run.get("model_config"), dict):
-            old_run["model_config"] = _with_defaults(ModelConfig, old_run["model_config"])
-        if json.loads(json.dumps(old_train)) != resolved["train"] or (
-                json.loads(json.dumps({k: v for k, v in old_run.items() if k not in moved}))
-                != json.loads(json.dumps({k: v for k, v in run_info.items() if k not in moved}))):
-            raise ValueError(f"{run_dir}: --resume with other settings than the run was started with")
+            old_run["model_config"] = with_defaults(ModelConfig, old_run["model_config"])
+        differ = _differing_settings(old_train, resolved["train"]) + _differing_settings(
+            {k: v for k, v in old_run.items() if k not in moved}, {k: v for k, v in run_info.items() if k not in moved})
+        if differ:
+            raise ValueError(f"{run_dir}: --resume with other settings than the run was started with "
+                             f"({'; '.join(differ)})")
         write_json(run_dir / "run.json", run_info)  # where the dataset is now
 
     views = load_training_views(data_dir, config.image_width, config.linear_input, config.saturation_threshold)
@@ -667,10 +669,14 @@ def read_metrics(path: Path) -> list[dict]:
     return records
 
 
-def _with_defaults(cls: type, saved: dict[str, Any]) -> dict[str, Any]:
-    """``saved``, the fields of a dataclass ``cls`` as an older run wrote them, completed with the defaults of the
-    fields added since."""
-    return {**{f.name: f.default for f in dataclasses.fields(cls) if f.default is not dataclasses.MISSING}, **saved}
+def _differing_settings(old: Any, new: Any) -> list[str]:
+    """``name: run X, now Y`` for each top-level key whose JSON value differs between two settings dicts (or one
+    entry for two values that are not both dicts)."""
+    old, new = json.loads(json.dumps(old)), json.loads(json.dumps(new))
+    if not (isinstance(old, dict) and isinstance(new, dict)):
+        return [] if old == new else [f"run {old!r}, now {new!r}"]
+    return [f"{k}: run {old.get(k)!r}, now {new.get(k)!r}" for k in sorted(set(old) | set(new))
+            if old.get(k) != new.get(k)]
 
 
 def saved_train_config(path: Path) -> TrainConfig:
@@ -685,7 +691,7 @@ def saved_train_config(path: Path) -> TrainConfig:
     if not isinstance(saved["train"], dict):
         raise InputError(f"{path}: damaged run settings: 'train' is not a JSON object")
     try:
-        return TrainConfig(**saved["train"])
+        return TrainConfig(**with_defaults(TrainConfig, saved["train"]))
     except TypeError as exc:  # an unknown or missing field: another version's run
         raise InputError(f"{path}: the training settings do not fit this version ({exc})") from None
 

@@ -18,8 +18,8 @@ from spotlessgs.models.relightable import RelightableScene
 def warm_start_scene(scene: RelightableScene, checkpoint: dict[str, Any], source: str = "checkpoint") -> RelightableScene:
     """``scene``'s model with the checkpoint's per-Gaussian parameters, spotlight and low-frequency light.
 
-    The spotlight state is copied whole. SH light coefficients (K_src, 3) are copied into the first rows of the new
-    light's (K, 3) (a lower degree is the leading block of a higher one; extra rows stay 0, missing rows are dropped).
+    The spotlight state is copied whole. SH light coefficients (K_src, 3), of the low-frequency light and of the
+    bounce light, are copied into the first rows of the new light's (K, 3) (a lower degree is the leading block of a higher one; extra rows stay 0, missing rows are dropped).
     A learned BRDF network is copied when the checkpoint has one of the same shape (model selection's second phase
     continues the first phase's winner); a constant ambient, or a BRDF of another kind, is not copied (the
     candidate's own initial values are used).
@@ -37,12 +37,13 @@ def warm_start_scene(scene: RelightableScene, checkpoint: dict[str, Any], source
     new = RelightableScene(scene.config, GaussianParams({k: v.clone() for k, v in checkpoint["gaussians"].items()}),
                            app)
     app.light.load_state_dict(light_state)
-    coeffs = state.get("lf_light.coeffs")
-    if coeffs is not None and hasattr(app.lf_light, "coeffs"):
-        rows = min(coeffs.shape[0], app.lf_light.coeffs.shape[0])
-        with torch.no_grad():
-            app.lf_light.coeffs.zero_()
-            app.lf_light.coeffs[:rows] = coeffs[:rows]
+    for name in ("lf_light", "bounce_light"):
+        coeffs, own = state.get(f"{name}.coeffs"), getattr(getattr(app, name), "coeffs", None)
+        if coeffs is not None and own is not None:
+            rows = min(coeffs.shape[0], own.shape[0])
+            with torch.no_grad():
+                own.zero_()
+                own[:rows] = coeffs[:rows]
     brdf_state = {k[len("brdf."):]: v for k, v in state.items() if k.startswith("brdf.")}
     if brdf_state and app.brdf is not None:
         own = app.brdf.state_dict()
