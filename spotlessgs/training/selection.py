@@ -320,7 +320,7 @@ def _score(data_dir: Path, proxy_dir: Path, model: ModelConfig, config: TrainCon
         raise RuntimeError(f"{proxy_dir}: the proxy run of {model.name} has no validation PSNR")
     return CandidateResult(model.name, model.sh_degree, model.brdf, float(result.validation_psnr),
                            float(result.ms_per_step), int(result.steps),
-                           appearance_parameters(model, config.brdf_hidden), phase,
+                           appearance_parameters(trainer.model_config(model, config), config.brdf_hidden), phase,
                            float(result.validation_psnr_dark), criterion)
 
 
