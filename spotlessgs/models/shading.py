@@ -126,7 +126,6 @@ class ModelConfig:
             raise ValueError(f"ModelConfig {self.name!r}: low_frequency_shading must be 'spot_cosine' or "
                              f"'irradiance', got {self.low_frequency_shading!r}")
 
-
     @property
     def bounce_degree(self) -> int:
         """The degree of the variant's bounce light, -1 when it has none (no SH light, or switched off)."""
