@@ -29,6 +29,7 @@ from __future__ import annotations
 
 import contextlib
 import dataclasses
+import hashlib
 import json
 import logging
 import multiprocessing
@@ -239,34 +240,57 @@ def frame_done(out_dir: Path, index: int, uniform_gt: bool = False) -> bool:
     return all(p.is_file() for p in frame_paths(out_dir, index, uniform_gt).values())
 
 
+def _file_sha256(path: Path) -> str:
+    """Hex sha256 of a file's bytes."""
+    return hashlib.sha256(path.read_bytes()).hexdigest()
+
+
 def _fingerprint(scene_path: Path, config: RenderConfig) -> dict[str, Any]:
-    """The settings that determine the output (JSON-able)."""
+    """The settings that determine the output (JSON-able): the scene (its path, and its content's sha256, which is
+    what identifies it) and the render settings."""
     cfg = dataclasses.asdict(config)
     for option in ("lambertian", "motion_blur", "uniform_gt", "residual_light"):
         if not cfg[option]:
             del cfg[option]  # recorded only when set: datasets rendered before the option existed still resume
-    return {"scene": str(scene_path.resolve()), "config": to_jsonable(cfg)}
+    return {"scene": str(scene_path.resolve()), "scene_sha256": _file_sha256(scene_path),
+            "config": to_jsonable(cfg)}
+
+
+def _same_scene(old: dict[str, Any], new: dict[str, Any]) -> bool:
+    """Whether a stored fingerprint's scene is the new one: the same file content, wherever the file now lies (a
+    moved checkout, a colleague's copy); a plan from before the content hash, by its path or that file's content."""
+    if "scene_sha256" in old:
+        return old["scene_sha256"] == new["scene_sha256"]
+    if old.get("scene") == new["scene"]:
+        return True
+    old_path = Path(str(old.get("scene", "")))
+    return old_path.is_file() and _file_sha256(old_path) == new["scene_sha256"]
 
 
 def _prepare_plan(out_dir: Path, scene_path: Path, config: RenderConfig, poses: np.ndarray) -> None:
-    """Write ``plan.json`` or check that an existing one was made with the same settings and poses."""
+    """Write ``plan.json`` or check that an existing one was made with the same scene, settings and poses."""
     plan_path = out_dir / "plan.json"
     fingerprint = _fingerprint(scene_path, config)
     if plan_path.is_file():
-        import json
-
         old = json.loads(plan_path.read_text())
-        if old.get("fingerprint") != fingerprint:
-            diff = sorted(
-                k for k in set(old.get("fingerprint", {}).get("config", {})) | set(fingerprint["config"])
-                if old.get("fingerprint", {}).get("config", {}).get(k) != fingerprint["config"].get(k)
-            )
+        old_fp = old.get("fingerprint", {}) if isinstance(old.get("fingerprint"), dict) else {}
+        old_cfg = old_fp.get("config", {}) if isinstance(old_fp.get("config"), dict) else {}
+        diff = sorted(k for k in set(old_cfg) | set(fingerprint["config"])
+                      if old_cfg.get(k) != fingerprint["config"].get(k))
+        if not _same_scene(old_fp, fingerprint):
+            gone = "scene_sha256" not in old_fp and not Path(str(old_fp.get("scene", ""))).is_file()
+            diff.insert(0, f"scene: {old_fp.get('scene')} then, {fingerprint['scene']} now, "
+                           + ("and the first is gone, so their contents cannot be compared" if gone
+                              else "another file content"))
+        if diff:
             raise DatasetFolderError(
-                f"{out_dir} holds a dataset rendered with other settings (differs in: {', '.join(diff) or 'scene'}); "
+                f"{out_dir} holds a dataset rendered with other settings (differs in: {', '.join(diff)}); "
                 "use another --out or delete the folder"
             )
         if not np.allclose(np.asarray(old["poses"]), poses, atol=1e-9):
             raise DatasetFolderError(f"{plan_path}: stored poses differ from the ones this command computes")
+        if old_fp != fingerprint:  # the same scene from another path, or a plan from before the content hash
+            write_json(plan_path, {**old, "fingerprint": fingerprint})
         return
     write_json(plan_path, {"schema": SCHEMA_PLAN, "fingerprint": fingerprint, "poses": poses.tolist()})
 

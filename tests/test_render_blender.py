@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import json
 import os
+import shutil
 import subprocess
 from pathlib import Path
 
@@ -154,6 +155,38 @@ def test_other_settings_in_the_same_folder_are_refused(dataset):
         _render(dataset, samples=8)
     with pytest.raises(DatasetFolderError, match="differs in: lambertian"):
         _render(dataset, lambertian=True)
+
+
+def test_a_dataset_resumes_from_a_copy_of_its_scene_elsewhere_and_refuses_another_scene(dataset, tmp_path):
+    """The scene is identified by its content: the same house.json from another checkout resumes (nothing is
+    rendered again) and the plan is brought up to date; a plan written before the content hash resumes when the file
+    it names has the same content, and is refused when that file is gone; an edited scene is refused, naming it."""
+    from simulator.render_pipeline import DatasetFolderError, ExecutionOptions, RenderConfig, render_dataset
+
+    copy = shutil.copytree(dataset, tmp_path / "copy")
+    moved_scene = shutil.copytree(SCENE.parent, tmp_path / "checkout" / "bedroom") / "house.json"
+
+    def render(scene):
+        config = RenderConfig.from_preset("uneven", **TINY)
+        return render_dataset(scene, copy, config, execution=ExecutionOptions(progress=False))
+
+    assert render(moved_scene)["rendered"] == 0
+    plan = json.loads((copy / "plan.json").read_text())
+    assert plan["fingerprint"]["scene"] == str(moved_scene.resolve())
+    old = {**plan, "fingerprint": {k: v for k, v in plan["fingerprint"].items() if k != "scene_sha256"}}
+    (copy / "plan.json").write_text(json.dumps(old))  # an older plan, naming the moved copy
+    assert render(SCENE)["rendered"] == 0
+    assert "scene_sha256" in json.loads((copy / "plan.json").read_text())["fingerprint"]
+    old["fingerprint"]["scene"] = str(tmp_path / "gone" / "house.json")  # ... from a checkout since removed
+    (copy / "plan.json").write_text(json.dumps(old))
+    with pytest.raises(DatasetFolderError, match=r"scene: .*gone/house\.json then, .* cannot be compared"):
+        render(SCENE)
+    (copy / "plan.json").write_text(json.dumps(plan))  # the plan with the content hash
+    edited = json.loads(moved_scene.read_text())
+    edited["uid"] = "another"
+    moved_scene.write_text(json.dumps(edited))
+    with pytest.raises(DatasetFolderError, match=r"differs in: scene: .*another file content"):
+        render(moved_scene)
 
 
 def test_shards_render_disjoint_parts_and_complete_together(tmp_path):
