@@ -176,6 +176,12 @@ def test_config_fingerprint_refuses_other_settings(tmp_path):
     check_or_record_config(preset("tiny"), tmp_path)  # same settings: fine
     with pytest.raises(ValueError, match=r"made with other settings \(differing: \['seed'\]\)"):
         check_or_record_config(preset("tiny", seed=3), tmp_path)
+    # the rooms read from another checkout: a location, not a setting (render stages check the rooms' content)
+    moved = preset("tiny", scenes_dir=tmp_path / "elsewhere" / "scenes")
+    check_or_record_config(moved, tmp_path)
+    assert json.loads((tmp_path / "reproduce.json").read_text())["scenes_dir"] == str(moved.scenes_dir)
+    with pytest.raises(ValueError, match=r"differing: \['seed'\]"):  # still refused together with another setting
+        check_or_record_config(preset("tiny", scenes_dir=moved.scenes_dir, seed=3), tmp_path)
 
 
 def test_pipeline_graph_shape(tmp_path):

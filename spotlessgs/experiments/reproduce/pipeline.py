@@ -2,7 +2,8 @@
 
 Output folder layout::
 
-    OUT/reproduce.json                    the resolved config (a rerun with another config is refused)
+    OUT/reproduce.json                    the resolved config (a rerun with another config is refused; the same
+                                          rooms from another --scenes-dir are not: renders check their content)
     OUT/datasets/<room>-<variant>/        rendered test datasets (simulator)
     OUT/datasets/<room>-uneven-noisy/     the uneven dataset with camera sensor noise (config.sensor_noise)
     OUT/datasets/<room>-robot/            the uneven dataset through a robot camera, sparse start (config.robot_*)
@@ -160,17 +161,21 @@ def build_graph(config: ReproduceConfig, out: Path) -> StageGraph:
 
 def check_or_record_config(config: ReproduceConfig, out: Path) -> None:
     """Write ``OUT/reproduce.json``, or refuse (ValueError naming the differing fields) a folder made with another
-    config."""
+    config. ``scenes_dir`` is where the rooms are read from, not a setting: another path (a moved or second checkout)
+    is recorded, and each render stage checks that its room's content is the one it rendered (simulator render plans
+    identify the scene by its sha256)."""
     path = Path(out) / CONFIG_FILE
     wanted = json.loads(json.dumps(config.to_dict()))
     if path.is_file():
         old = json.loads(path.read_text(encoding="utf-8"))
         defaults = json.loads(json.dumps(ReproduceConfig().to_dict()))
         old.update({k: wanted[k] for k in NEUTRAL_NEW_FIELDS if k not in old and wanted[k] == defaults[k]})
-        if old != wanted:
-            fields = sorted(k for k in set(old) | set(wanted) if old.get(k) != wanted.get(k))
+        fields = sorted(k for k in set(old) | set(wanted) if k != "scenes_dir" and old.get(k) != wanted.get(k))
+        if fields:
             raise ValueError(f"{path}: this folder was made with other settings (differing: {fields}); "
                              "use a new --out or the same settings")
+        if old.get("scenes_dir") != wanted["scenes_dir"]:
+            write_json(path, wanted)
         return
     write_json(path, wanted)
 
