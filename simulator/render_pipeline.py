@@ -256,15 +256,22 @@ def _fingerprint(scene_path: Path, config: RenderConfig) -> dict[str, Any]:
             "config": to_jsonable(cfg)}
 
 
-def _same_scene(old: dict[str, Any], new: dict[str, Any]) -> bool:
-    """Whether a stored fingerprint's scene is the new one: the same file content, wherever the file now lies (a
-    moved checkout, a colleague's copy); a plan from before the content hash, by its path or that file's content."""
+def _scene_difference(old: dict[str, Any], new: dict[str, Any]) -> str | None:
+    """None when a stored fingerprint's scene is the new one (the same file content, wherever the file now lies: a
+    moved checkout, a colleague's copy; a plan from before the content hash, by its path or that file's content),
+    else how they differ."""
     if "scene_sha256" in old:
-        return old["scene_sha256"] == new["scene_sha256"]
-    if old.get("scene") == new["scene"]:
-        return True
-    old_path = Path(str(old.get("scene", "")))
-    return old_path.is_file() and _file_sha256(old_path) == new["scene_sha256"]
+        old_sha = old["scene_sha256"]
+    elif old.get("scene") == new["scene"]:
+        return None
+    else:
+        old_path = Path(str(old.get("scene", "")))
+        if not old_path.is_file():
+            return (f"scene: {old.get('scene')} then, {new['scene']} now, and the first is gone, so their contents "
+                    "cannot be compared")
+        old_sha = _file_sha256(old_path)
+    return None if old_sha == new["scene_sha256"] else \
+        f"scene: {old.get('scene')} then, {new['scene']} now, another file content"
 
 
 def _prepare_plan(out_dir: Path, scene_path: Path, config: RenderConfig, poses: np.ndarray) -> None:
@@ -277,11 +284,9 @@ def _prepare_plan(out_dir: Path, scene_path: Path, config: RenderConfig, poses: 
         old_cfg = old_fp.get("config", {}) if isinstance(old_fp.get("config"), dict) else {}
         diff = sorted(k for k in set(old_cfg) | set(fingerprint["config"])
                       if old_cfg.get(k) != fingerprint["config"].get(k))
-        if not _same_scene(old_fp, fingerprint):
-            gone = "scene_sha256" not in old_fp and not Path(str(old_fp.get("scene", ""))).is_file()
-            diff.insert(0, f"scene: {old_fp.get('scene')} then, {fingerprint['scene']} now, "
-                           + ("and the first is gone, so their contents cannot be compared" if gone
-                              else "another file content"))
+        scene = _scene_difference(old_fp, fingerprint)
+        if scene is not None:
+            diff.insert(0, scene)
         if diff:
             raise DatasetFolderError(
                 f"{out_dir} holds a dataset rendered with other settings (differs in: {', '.join(diff)}); "

@@ -330,8 +330,7 @@ def shade(
 
 def _check_modules(cfg: ModelConfig, light, lf_light, brdf, bounce_light, relit: bool) -> None:
     """Raise ValueError when a module does not match the variant."""
-    if not relit and ((bounce_light is None) != (cfg.bounce_degree < 0) or (
-            bounce_light is not None and bounce_light.degree != cfg.bounce_degree)):
+    if not relit and (-1 if bounce_light is None else bounce_light.degree) != cfg.bounce_degree:
         raise ValueError(f"variant {cfg.name!r} wants bounce light degree {cfg.bounce_degree} (-1: none), got "
                          + ("none" if bounce_light is None else f"degree {bounce_light.degree}"))
     if not relit and not isinstance(light, SpotLight):

@@ -19,7 +19,8 @@ def warm_start_scene(scene: RelightableScene, checkpoint: dict[str, Any], source
     """``scene``'s model with the checkpoint's per-Gaussian parameters, spotlight and low-frequency light.
 
     The spotlight state is copied whole. SH light coefficients (K_src, 3), of the low-frequency light and of the
-    bounce light, are copied into the first rows of the new light's (K, 3) (a lower degree is the leading block of a higher one; extra rows stay 0, missing rows are dropped).
+    bounce light, are copied into the first rows of the new light's (K, 3) (a lower degree is the leading block of a
+    higher one; extra rows stay 0, missing rows are dropped).
     A learned BRDF network is copied when the checkpoint has one of the same shape (model selection's second phase
     continues the first phase's winner); a constant ambient, or a BRDF of another kind, is not copied (the
     candidate's own initial values are used).
