@@ -13,6 +13,7 @@ from torch import nn
 
 from spotlessgs.io.camera_batch import Cameras
 from spotlessgs.models.gaussians import GaussianParams
+from spotlessgs.models import shadow
 from spotlessgs.models.shading import AppearanceModels, ModelConfig, build_appearance_models, resolve_variant, shade
 from spotlessgs.rasterizer import RasterOutput, rasterize
 
@@ -61,16 +62,19 @@ class RelightableScene(nn.Module):
     def colours(
         self, c2w: torch.Tensor, mask: torch.Tensor | None = None,
         relight_l0: torch.Tensor | Sequence[float] | None = None, split_lights: bool = False,
+        spot_visibility: torch.Tensor | None = None,
     ) -> torch.Tensor:
         """(N, 3) linear colours of all Gaussians seen from ``c2w`` (OpenCV); zero outside ``mask`` (N,) bool.
-        ``split_lights``: (N, 6), lit by the spotlight alone and by the low-frequency light alone (see ``shade``)."""
+        ``split_lights``: (N, 6), lit by the spotlight alone and by the low-frequency light alone (see ``shade``);
+        ``spot_visibility``: (N, 1) spotlight shadows of all Gaussians, or None (see ``shade``)."""
         app = self.appearance
         if mask is None:
             return shade(self.config, self.gaussians, app.light, app.lf_light, app.brdf, c2w, relight_l0,
-                         split_lights, app.bounce_light)
+                         split_lights, app.bounce_light, spot_visibility)
         idx = torch.nonzero(mask).squeeze(1)
+        visibility = None if spot_visibility is None else spot_visibility[idx]
         colours = shade(self.config, self.gaussians.subset(idx), app.light, app.lf_light, app.brdf, c2w, relight_l0,
-                        split_lights, app.bounce_light)
+                        split_lights, app.bounce_light, visibility)
         out = colours.new_zeros((len(self.gaussians), colours.shape[1]))
         return out.index_copy(0, idx, colours)
 
@@ -80,14 +84,19 @@ class RelightableScene(nn.Module):
     ) -> RasterOutput:
         """Render one view (``camera``: a single view): under the learned spotlight, or relit by L0 when
         ``relight_l0`` is given; ``split_lights``: a six-channel image, [spotlight part, low-frequency part] (their sum
-        is the normal render)."""
+        is the normal render). A variant with ``spot_shadows`` renders the lamp's shadow map first (models.shadow)."""
         if camera.is_batch:
             raise ValueError("RelightableScene.render: expected one view, got a batch of cameras")
         g = self.gaussians
         scales = g.scales
         K, width, height = camera.K, camera.width, camera.height
         mask = frustum_mask(g.means, scales, camera.viewmat, K, width, height)
-        feats = self.colours(camera.c2w, mask=mask, relight_l0=relight_l0, split_lights=split_lights)
+        visibility = None
+        if self.config.spot_shadows and self.config.light_model == "spotlight" and relight_l0 is None:
+            visibility = shadow.spot_visibility(g, self.appearance.light, camera.c2w, K, width, height, backend=backend,
+                                         num_threads=num_threads)
+        feats = self.colours(camera.c2w, mask=mask, relight_l0=relight_l0, split_lights=split_lights,
+                             spot_visibility=visibility)
         return rasterize(g.means, g.quats, scales, g.opacities, feats, camera.viewmat, K, width, height,
                          background=background, backend=backend, num_threads=num_threads,
                          rigid_camera_grad=True)  # a view matrix with a gradient is a pose correction's

@@ -95,6 +95,9 @@ class ModelConfig:
     # in training and left out of relighting; -1: none (the paper's). Only the variants with an SH light have one
     # (ambient "sh"): it is part of that light; DarkGS's constant ambient and 3DGS ignore the setting.
     bounce_light_degree: int = -1
+    # Spotlight shadows: the spotlight's term of each Gaussian is scaled by how much of the lamp it sees, from a
+    # shadow map rendered at the learned light pose (models.shadow); relighting has none (uniform light casts none).
+    spot_shadows: bool = False
 
     def __post_init__(self) -> None:
         if self.light_model not in ("none", "spotlight"):
@@ -277,6 +280,7 @@ def shade(
     relight_l0: torch.Tensor | Sequence[float] | None = None,
     split_lights: bool = False,
     bounce_light: LowFrequencyLight | None = None,
+    spot_visibility: torch.Tensor | None = None,
 ) -> torch.Tensor:
     """Linear RGB colour of every Gaussian seen from camera `c2w`, (N, 3); differentiable; never clipped above.
 
@@ -294,6 +298,8 @@ def shade(
         bounce_light: the variant's bounce light (ModelConfig.bounce_degree ≥ 0), else None. Under the
             spotlight its radiance at the camera-frame normal adds to L_lf (and to the second half of split_lights);
             relighting leaves it out.
+        spot_visibility: (N, 1) in [0, 1], how much of the lamp each Gaussian sees (``shadow.spot_visibility``), or
+            None (all of it): scales L_spot only; ignored by relighting.
     """
     cfg = resolve_variant(variant)
     check_c2w(c2w)
@@ -316,6 +322,10 @@ def shade(
     if bounce_light is not None:
         low_frequency = low_frequency + bounce_light.radiance(normals @ c2w[:3, :3].to(normals))
     spot, light_dirs = light.incident(gaussians.means, c2w)
+    if spot_visibility is not None:
+        if spot_visibility.shape != spot.shape:
+            raise ValueError(f"spot_visibility must have shape {tuple(spot.shape)}, got {tuple(spot_visibility.shape)}")
+        spot = spot * spot_visibility.to(spot)
     lf_reflect = None
     if cfg.low_frequency_shading == "irradiance":
         lf_reflect = model_reflectance(cfg, albedo, rough, metal, normals, brdf)

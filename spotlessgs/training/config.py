@@ -105,6 +105,9 @@ class TrainConfig:
     # relighting (ModelConfig.bounce_light_degree; -1: none, the paper's). Degree 2 relit the bedroom best (uniform
     # ground truth: 23.79 / 24.41 / 24.22 dB for degrees 1 / 2 / 3, 23.18 without; docs/results.md).
     bounce_light_degree: int = 2
+    # Spotlight shadows from a shadow map rendered at the learned light pose each step (ModelConfig.spot_shadows;
+    # models.shadow): the lamp's shadows go into the light, not the albedo. Off: the paper's (no shadow term).
+    spot_shadows: bool = False
     # Weight of the light-translation prior ‖t - t_prior‖ (used only when a prior is given).
     light_prior_weight: float = 1.0
     # Weight of the normal-shape term mean(1 - |n̂·â|) over the visible Gaussians, â each one's shortest axis

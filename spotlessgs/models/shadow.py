@@ -1,0 +1,130 @@
+"""Spotlight shadows: how much of the lamp each Gaussian sees, from a shadow map rendered at the lamp.
+
+The lamp rides on the camera a few centimetres off its centre, so the camera sees thin shadows beside every depth edge.
+Without a shadow term they are painted into the albedo and relighting shows them as dark outlines.
+
+For one view (camera-to-world ``c2w``) the lamp is a pinhole at the learned light origin o = C + R_cw t, looking down
+the light's +z axis (axes R_cw R: :class:`~spotlessgs.models.light.SpotLight`'s pose). The Gaussians are composited
+once from there, without a gradient, into a moment shadow map: per pixel u of the lamp,
+
+    A(u) = Σ_j w_j,   S1(u) = Σ_j w_j z_j,   S2(u) = Σ_j w_j z_j²,   w_j = α_j T_j
+
+(the compositing weights along the lamp's ray, z_j the light-frame depths). Because the compositor sorts by depth, the
+weight of everything in front of a depth z is the opacity that blocks the lamp there. Gaussian i, at light-frame depth
+z_i and map position u_i, takes the ray's weight as two parts: q in front of it (the occluders, at one depth d) and
+A - q at its own depth r_i = (1 - b) z_i (b = SHADOW_BIAS: what lies less than b z_i in front of it is its own
+surface). The moments then give q exactly:
+
+    q = (A r - S1)² / (A r² - 2 r S1 + S2)  (0 where A r ≤ S1),   V_i = 1 - clamp(q, 0, 1)
+
+the lit fraction (the variance shadow map's Chebyshev bound, with the ray's missing weight 1 - A escaping). A
+Gaussian on the first surface is lit (V = 1), one behind an opaque occluder gets V ≈ 1 - its opacity, and one behind
+the faint tail of an occluder's Gaussian is only dimmed by that tail's opacity. Outside the map or behind the lamp
+V = 1. The moments are sampled bilinearly (moments may be filtered, depths may not).
+
+No gradient: V is a constant of each step. Its gradient with the map held fixed would be wrong for the light pose
+(moving the lamp moves the occluders' image in the map as well as the receivers'; a fixed map sees only the latter,
+and gives the translation's gradient the wrong sign), and the right one needs a backward pass through the second
+rasterization, which would cost about half a training step. The shadows are there to keep the lamp's shadows out of
+the albedo, not to pull the light pose.
+"""
+
+from __future__ import annotations
+
+import math
+
+import torch
+import torch.nn.functional as F
+
+from spotlessgs.models.gaussians import GaussianParams
+from spotlessgs.models.geometry import check_c2w
+from spotlessgs.models.light import SpotLight
+from spotlessgs.rasterizer import rasterize
+
+#: Relative depth bias b: what lies less than b·z in front of a Gaussian at depth z is its own surface (5 cm at 1 m).
+SHADOW_BIAS = 0.05
+#: The map covers the camera's field of view plus this margin on every side (degrees): the lamp is a few centimetres
+#: and about a degree off the camera, so every Gaussian the camera sees lands in the map.
+MAP_MARGIN_DEG = 5.0
+
+
+def light_to_world(light: SpotLight, c2w: torch.Tensor) -> torch.Tensor:
+    """(4, 4) the lamp's frame → world, OpenCV-like axes (z along the light's axis)."""
+    check_c2w(c2w)
+    rot = c2w[:3, :3] @ light.rotation().to(c2w)
+    origin = light.origin_world(c2w)
+    top = torch.cat([rot, origin[:, None]], dim=1)
+    return torch.cat([top, c2w.new_tensor([[0.0, 0.0, 0.0, 1.0]])], dim=0)
+
+
+def shadow_map_camera(K: torch.Tensor, width: int, height: int, map_scale: float = 1.0
+                      ) -> tuple[torch.Tensor, int, int]:
+    """The lamp's pinhole for one camera: (K_map (3, 3), map width, map height).
+
+    Its focal length is the camera's times ``map_scale`` (the map resolves what the camera resolves at 1.0), its
+    principal point in the middle, and it spans the camera's half-angles plus :data:`MAP_MARGIN_DEG` on every side.
+    """
+    if not (math.isfinite(map_scale) and map_scale > 0):
+        raise ValueError(f"shadow map scale must be finite and > 0, got {map_scale}")
+    fx, fy, cx, cy = (float(v) for v in (K[0, 0], K[1, 1], K[0, 2], K[1, 2]))
+    margin = math.radians(MAP_MARGIN_DEG)
+
+    def span(f: float, c: float, size: int) -> int:
+        half_angle = math.atan(max(c, size - c) / f) + margin
+        return max(2, int(math.ceil(2.0 * map_scale * f * math.tan(min(half_angle, math.radians(80.0))))))
+
+    width_map, height_map = span(fx, cx, width), span(fy, cy, height)
+    K_map = K.new_tensor([[map_scale * fx, 0.0, width_map / 2.0], [0.0, map_scale * fy, height_map / 2.0],
+                          [0.0, 0.0, 1.0]])
+    return K_map, width_map, height_map
+
+
+def render_shadow_map(gaussians: GaussianParams, l2w: torch.Tensor, K_map: torch.Tensor, width: int, height: int,
+                      backend: str = "auto", num_threads: int | None = None) -> torch.Tensor:
+    """(3, H_map, W_map) the lamp's moment shadow map [A, S1, S2] (see the module docstring; depths in metres along
+    the light's axis), computed without a gradient."""
+    with torch.no_grad():
+        g = gaussians
+        viewmat = torch.linalg.inv(l2w.detach())
+        means = g.means.detach()
+        z = means @ viewmat[2, :3] + viewmat[2, 3]
+        out = rasterize(means, g.quats.detach(), g.scales.detach(), g.opacities.detach(),
+                        torch.stack([z, z * z], dim=1), viewmat, K_map, width, height, backend=backend,
+                        num_threads=num_threads)
+        return torch.cat([out.alpha[None], out.image.permute(2, 0, 1)], dim=0)
+
+
+def map_visibility(moments: torch.Tensor, points_light: torch.Tensor, K_map: torch.Tensor) -> torch.Tensor:
+    """(N, 1) lit fraction V ∈ [0, 1] of points (N, 3) in the lamp's frame against its moment shadow map (3, H, W)
+    (see the module docstring); 1 behind the lamp and outside the map."""
+    _, height, width = moments.shape
+    z = points_light[:, 2]
+    ahead = z > 1e-3
+    z_safe = torch.where(ahead, z, torch.ones_like(z))
+    u = K_map[0, 0] * points_light[:, 0] / z_safe + K_map[0, 2]
+    v = K_map[1, 1] * points_light[:, 1] / z_safe + K_map[1, 2]
+    inside = ahead & (u >= 0) & (u <= width) & (v >= 0) & (v <= height)
+    grid = torch.stack([2.0 * u / width - 1.0, 2.0 * v / height - 1.0], dim=-1).to(moments.dtype)
+    sampled = F.grid_sample(moments[None], grid[None, :, None, :], mode="bilinear", padding_mode="border",
+                            align_corners=False)[0, :, :, 0].to(z.dtype)
+    total, first, second = sampled
+    r = (1.0 - SHADOW_BIAS) * z_safe
+    ahead_of_r = (total * r - first).clamp_min(0.0)  # q·(r - d): the occluders' weight times their distance
+    spread = (total * r * r - 2.0 * r * first + second).clamp_min(1e-12)  # Σ w (r - z_j)² ≥ that squared / q
+    blocked = (ahead_of_r * ahead_of_r / spread).clamp(0.0, 1.0)
+    visibility = 1.0 - blocked
+    return torch.where(inside, visibility, torch.ones_like(visibility))[:, None]
+
+
+def spot_visibility(gaussians: GaussianParams, light: SpotLight, c2w: torch.Tensor, K: torch.Tensor, width: int,
+                    height: int, map_scale: float = 1.0, backend: str = "auto", num_threads: int | None = None,
+                    index: torch.Tensor | None = None) -> torch.Tensor:
+    """(N, 1) how much of the spotlight reaches each Gaussian in the view ``c2w`` (camera ``K``, ``width`` ×
+    ``height``): 1 lit, 0 in the shadow of what the lamp sees first. ``index``: only these Gaussians' rows (the map
+    still holds every Gaussian). A constant: computed without a gradient (see the module docstring)."""
+    with torch.no_grad():
+        K_map, width_map, height_map = shadow_map_camera(K, width, height, map_scale)
+        l2w = light_to_world(light, c2w)
+        moments = render_shadow_map(gaussians, l2w, K_map, width_map, height_map, backend, num_threads)
+        means = gaussians.means if index is None else gaussians.means[index]
+        return map_visibility(moments, light.to_light_frame(means, c2w), K_map)

@@ -1,0 +1,138 @@
+"""Spotlight shadows: a square in front of a wall casts the shadow that ray geometry predicts, from the lamp's learned
+pose; visibility reaches the light pose's gradient; shading scales the spotlight's term only; relighting has none."""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+import pytest
+import torch
+
+from spotlessgs.io.camera_batch import Cameras
+from spotlessgs.io.cameras import Intrinsics
+from spotlessgs.models.gaussians import GaussianParams
+from spotlessgs.models.relightable import RelightableScene
+from spotlessgs.models.shading import MODEL_VARIANTS, build_appearance_models, shade
+from spotlessgs.models.shadow import map_visibility, shadow_map_camera, spot_visibility
+
+WALL_Z, OCCLUDER_Z, OCCLUDER_HALF = 2.0, 1.0, 0.15
+K = torch.tensor([[100.0, 0.0, 64.0], [0.0, 100.0, 48.0], [0.0, 0.0, 1.0]])
+WIDTH, HEIGHT = 128, 96
+
+
+def _grid(half: float, z: float, step: float) -> np.ndarray:
+    ticks = np.arange(-half, half + 1e-9, step)
+    x, y = np.meshgrid(ticks, ticks)
+    return np.stack([x.ravel(), y.ravel(), np.full(x.size, z)], axis=1)
+
+
+def _wall_and_occluder() -> tuple[GaussianParams, int]:
+    """An opaque wall at z = 2 m (3 cm grid) and a 30 cm square at z = 1 m (1.5 cm grid), facing the camera at the
+    origin (c2w = identity, looking down +z); returns the Gaussians and how many of them are the wall's."""
+    wall, occluder = _grid(1.2, WALL_Z, 0.03), _grid(OCCLUDER_HALF, OCCLUDER_Z, 0.015)
+    xyz = np.concatenate([wall, occluder])
+    g = GaussianParams.from_point_cloud(xyz, np.full((len(xyz), 3), 128, np.uint8), np.tile([0.0, 0.0, -1.0],
+                                                                                           (len(xyz), 1)))
+    with torch.no_grad():
+        g.params["opacity_logits"].fill_(4.0)  # opaque (0.98)
+    return g, len(wall)
+
+
+def _in_shadow_by_geometry(points: np.ndarray, lamp: np.ndarray, inset: float) -> np.ndarray:
+    """Whether the segment from each point to the lamp crosses the occluder square shrunk by ``inset`` (m)."""
+    s = (OCCLUDER_Z - lamp[2]) / (points[:, 2] - lamp[2])
+    hit = lamp[:2] + s[:, None] * (points[:, :2] - lamp[:2])
+    return (np.abs(hit) < OCCLUDER_HALF - inset).all(axis=1) & (points[:, 2] > OCCLUDER_Z + 0.1)
+
+
+@pytest.mark.parametrize("translation", [[0.1, 0.0, 0.0], [0.0, -0.08, 0.03]])
+def test_square_casts_the_shadow_that_ray_geometry_predicts(translation):
+    g, n_wall = _wall_and_occluder()
+    light = build_appearance_models("darkgs", seed=0, light_translation=translation).light
+    vis = spot_visibility(g, light, torch.eye(4), K, WIDTH, HEIGHT)[:, 0].detach().numpy()
+    xyz = g.means.detach().numpy()
+    lamp = np.asarray(translation, float)
+    # The occluder's Gaussians (σ = 1.5 cm) soften its edge by about 3σ: 4.5 cm at its plane, 9 cm on the wall.
+    dark = _in_shadow_by_geometry(xyz, lamp, inset=0.01)
+    lit = ~_in_shadow_by_geometry(xyz, lamp, inset=-0.045)
+    wall_in_view = np.zeros(len(xyz), bool)
+    wall_in_view[:n_wall] = (np.abs(xyz[:n_wall, :2]) < 0.9).all(axis=1)
+    assert dark.sum() > 50 and (wall_in_view & lit).sum() > 500
+    assert vis[dark].max() < 0.01
+    assert vis[wall_in_view & lit].min() > 0.99
+    assert vis[n_wall:].min() > 0.99  # the occluder itself is lit (it is the first surface)
+
+
+def test_shadow_moves_with_the_light_and_is_a_constant():
+    g, _ = _wall_and_occluder()
+    xyz = g.means.detach().numpy()
+    # Ray geometry: the shadow's left edge on the wall is at x = t + 2 (-0.15 - t) = -0.3 - t for a lamp at (t, 0, 0).
+    band = (xyz[:, 2] > 1.5) & (np.abs(xyz[:, 1]) < 0.1) & (xyz[:, 0] > -0.45) & (xyz[:, 0] < -0.35)
+    means = []
+    for t in (0.0, 0.2):  # edge at -0.3 (the band lit), then at -0.5 (the band in shadow)
+        light = build_appearance_models("darkgs", seed=0, light_translation=[t, 0.0, 0.0]).light
+        vis = spot_visibility(g, light, torch.eye(4), K, WIDTH, HEIGHT)
+        assert not vis.requires_grad  # a constant: a fixed map's gradient would pull the light the wrong way
+        means.append(float(vis[torch.from_numpy(band)].mean()))
+    assert band.sum() >= 20 and means[0] > 0.9 and means[1] < 0.1
+
+
+def test_outside_the_map_and_behind_the_lamp_is_lit():
+    moments = torch.ones(3, 10, 10)  # an opaque surface at 1 m everywhere: A = 1, S1 = 1 m, S2 = 1 m²
+    K_map = torch.tensor([[10.0, 0.0, 5.0], [0.0, 10.0, 5.0], [0.0, 0.0, 1.0]])
+    points = torch.tensor([[0.0, 0.0, 3.0],     # behind the surface, inside the map: shadow
+                           [0.0, 0.0, 1.0],     # on it: lit
+                           [10.0, 0.0, 3.0],    # outside the map
+                           [0.0, 0.0, -2.0]])   # behind the lamp
+    vis = map_visibility(moments, points, K_map)[:, 0]
+    assert vis[0] < 1e-6 and vis[1] == 1.0 and vis[2] == 1.0 and vis[3] == 1.0
+
+
+def test_map_covers_the_camera_view_with_a_margin():
+    K_map, w, h = shadow_map_camera(K, WIDTH, HEIGHT)
+    assert w > WIDTH and h > HEIGHT and float(K_map[0, 0]) == 100.0
+    K_half, w_half, _ = shadow_map_camera(K, WIDTH, HEIGHT, map_scale=0.5)
+    assert abs(w_half - w / 2) <= 1 and float(K_half[0, 0]) == 50.0
+    with pytest.raises(ValueError, match="scale"):
+        shadow_map_camera(K, WIDTH, HEIGHT, map_scale=0.0)
+
+
+def test_shading_scales_the_spotlight_term_only_and_relighting_ignores_it():
+    g, _ = _wall_and_occluder()
+    cfg = MODEL_VARIANTS["darkgs"]
+    m = build_appearance_models(cfg, seed=0, light_translation=[0.1, 0.0, 0.0])
+    c2w = torch.eye(4)
+    vis = torch.rand(len(g), 1, generator=torch.Generator().manual_seed(0))
+    halves = shade(cfg, g, m.light, m.lf_light, m.brdf, c2w, split_lights=True)
+    shadowed = shade(cfg, g, m.light, m.lf_light, m.brdf, c2w, split_lights=True, spot_visibility=vis)
+    torch.testing.assert_close(shadowed[:, :3], halves[:, :3] * vis)
+    torch.testing.assert_close(shadowed[:, 3:], halves[:, 3:])
+    relit = shade(cfg, g, m.light, m.lf_light, m.brdf, c2w, relight_l0=[1.0, 1.0, 1.0])
+    relit_vis = shade(cfg, g, m.light, m.lf_light, m.brdf, c2w, relight_l0=[1.0, 1.0, 1.0], spot_visibility=vis)
+    torch.testing.assert_close(relit, relit_vis)
+    with pytest.raises(ValueError, match="spot_visibility"):
+        shade(cfg, g, m.light, m.lf_light, m.brdf, c2w, spot_visibility=vis[:5])
+
+
+def test_scene_with_spot_shadows_darkens_the_shadow_the_camera_sees():
+    g, _ = _wall_and_occluder()
+    camera = Cameras(torch.eye(4), Intrinsics(100.0, 100.0, 64.0, 48.0, WIDTH, HEIGHT))
+    renders = {}
+    for shadows in (False, True):
+        cfg = dataclasses.replace(MODEL_VARIANTS["darkgs"], spot_shadows=shadows)
+        scene = RelightableScene.create(cfg, g, seed=0, light_translation=[0.3, 0.0, 0.0])
+        with torch.no_grad():
+            scene.appearance.lf_light.log_value.fill_(-30.0)  # no ambient: the shadow is black
+        renders[shadows] = scene.render(camera).image.detach().mean(-1)
+        relit = scene.render(camera, relight_l0=[1.0, 1.0, 1.0]).image.detach()
+        if shadows:
+            torch.testing.assert_close(relit, relit_before)
+        relit_before = relit
+    # A lamp 30 cm right of the camera shades the wall from x = 0.3 + 2 (-0.15 - 0.3) = -0.6 m to 0; the camera at
+    # the origin sees the wall from -0.6 to -0.3 m of it (pixels u = 64 + 100 x / 2 in [34, 49]; the square's
+    # Gaussians cover u >= 45): columns 36-41 show the shadow, rows around the middle.
+    strip = (slice(40, 56), slice(36, 42))
+    right_of_square = (slice(40, 56), slice(82, 88))
+    assert float(renders[True][strip].mean()) < 0.2 * float(renders[False][strip].mean())
+    torch.testing.assert_close(renders[True][right_of_square], renders[False][right_of_square], rtol=0.03, atol=1e-4)
