@@ -118,17 +118,15 @@ def test_shading_scales_the_spotlight_term_only_and_relighting_ignores_it():
 def test_scene_with_spot_shadows_darkens_the_shadow_the_camera_sees():
     g, _ = _wall_and_occluder()
     camera = Cameras(torch.eye(4), Intrinsics(100.0, 100.0, 64.0, 48.0, WIDTH, HEIGHT))
-    renders = {}
+    renders, relit = {}, {}
     for shadows in (False, True):
         cfg = dataclasses.replace(MODEL_VARIANTS["darkgs"], spot_shadows=shadows)
         scene = RelightableScene.create(cfg, g, seed=0, light_translation=[0.3, 0.0, 0.0])
         with torch.no_grad():
             scene.appearance.lf_light.log_value.fill_(-30.0)  # no ambient: the shadow is black
         renders[shadows] = scene.render(camera).image.detach().mean(-1)
-        relit = scene.render(camera, relight_l0=[1.0, 1.0, 1.0]).image.detach()
-        if shadows:
-            torch.testing.assert_close(relit, relit_before)
-        relit_before = relit
+        relit[shadows] = scene.render(camera, relight_l0=[1.0, 1.0, 1.0]).image.detach()
+    torch.testing.assert_close(relit[True], relit[False])  # uniform light casts no shadow
     # A lamp 30 cm right of the camera shades the wall from x = 0.3 + 2 (-0.15 - 0.3) = -0.6 m to 0; the camera at
     # the origin sees the wall from -0.6 to -0.3 m of it (pixels u = 64 + 100 x / 2 in [34, 49]; the square's
     # Gaussians cover u >= 45): columns 36-41 show the shadow, rows around the middle.
