@@ -12,6 +12,7 @@ import torch
 from spotlessgs.io.camera_batch import Cameras
 from spotlessgs.io.cameras import Intrinsics
 from spotlessgs.models.gaussians import GaussianParams
+from spotlessgs.models.light import SpotLight
 from spotlessgs.models.relightable import RelightableScene
 from spotlessgs.models.shading import MODEL_VARIANTS, build_appearance_models, shade
 from spotlessgs.models.shadow import map_visibility, shadow_map_camera, spot_visibility
@@ -64,7 +65,7 @@ def test_square_casts_the_shadow_that_ray_geometry_predicts(translation):
     assert vis[n_wall:].min() > 0.99  # the occluder itself is lit (it is the first surface)
 
 
-def test_shadow_moves_with_the_light_and_is_a_constant():
+def test_shadow_moves_with_the_light():
     g, _ = _wall_and_occluder()
     xyz = g.means.detach().numpy()
     # Ray geometry: the shadow's left edge on the wall is at x = t + 2 (-0.15 - t) = -0.3 - t for a lamp at (t, 0, 0).
@@ -72,10 +73,31 @@ def test_shadow_moves_with_the_light_and_is_a_constant():
     means = []
     for t in (0.0, 0.2):  # edge at -0.3 (the band lit), then at -0.5 (the band in shadow)
         light = build_appearance_models("darkgs", seed=0, light_translation=[t, 0.0, 0.0]).light
-        vis = spot_visibility(g, light, torch.eye(4), K, WIDTH, HEIGHT)
-        assert not vis.requires_grad  # a constant: a fixed map's gradient would pull the light the wrong way
-        means.append(float(vis[torch.from_numpy(band)].mean()))
+        means.append(float(spot_visibility(g, light, torch.eye(4), K, WIDTH, HEIGHT)[torch.from_numpy(band)].mean()))
     assert band.sum() >= 20 and means[0] > 0.9 and means[1] < 0.1
+
+
+def _band_visibility(g: GaussianParams, band: torch.Tensor, translation) -> tuple[torch.Tensor, SpotLight]:
+    light = build_appearance_models("darkgs", seed=0, light_translation=translation).light
+    return spot_visibility(g, light, torch.eye(4), K, WIDTH, HEIGHT)[band].sum(), light
+
+
+def test_the_lamp_position_gradient_is_the_shadows_own():
+    """The gradient of the lit fraction w.r.t. the lamp's position matches central differences, which re-render the
+    map; a fixed map's plain gradient has the opposite sign (the receivers move in it, the occluders do not)."""
+    g, _ = _wall_and_occluder()
+    xyz = g.means.detach().numpy()
+    band = torch.from_numpy((xyz[:, 2] > 1.5) & (np.abs(xyz[:, 1]) < 0.1) & (xyz[:, 0] > -0.5) & (xyz[:, 0] < -0.3))
+    lit, light = _band_visibility(g, band, [0.1, 0.0, 0.0])
+    lit.backward()
+    analytic = float(light.translation.grad[0])
+    h = 0.005
+    numeric = (float(_band_visibility(g, band, [0.1 + h, 0.0, 0.0])[0])
+               - float(_band_visibility(g, band, [0.1 - h, 0.0, 0.0])[0])) / (2 * h)
+    assert numeric < -100  # the lamp moving right moves the shadow's left edge into the band
+    assert analytic == pytest.approx(numeric, rel=0.25)
+    assert light.rotvec.grad is None or float(light.rotvec.grad.abs().max()) == 0.0  # rotation moves no shadow
+    assert not g.params["means"].requires_grad or g.params["means"].grad is None
 
 
 def test_outside_the_map_and_behind_the_lamp_is_lit():

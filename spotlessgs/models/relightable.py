@@ -93,8 +93,8 @@ class RelightableScene(nn.Module):
         mask = frustum_mask(g.means, scales, camera.viewmat, K, width, height)
         visibility = None
         if self.config.spot_shadows and self.config.light_model == "spotlight" and relight_l0 is None:
-            visibility = shadow.spot_visibility(g, self.appearance.light, camera.c2w, K, width, height, backend=backend,
-                                         num_threads=num_threads)
+            visibility = shadow.spot_visibility(g, self.appearance.light, camera.c2w, K, width, height,
+                                                self.config.shadow_map_scale, backend, num_threads)
         feats = self.colours(camera.c2w, mask=mask, relight_l0=relight_l0, split_lights=split_lights,
                              spot_visibility=visibility)
         return rasterize(g.means, g.quats, scales, g.opacities, feats, camera.viewmat, K, width, height,

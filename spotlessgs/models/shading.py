@@ -98,6 +98,8 @@ class ModelConfig:
     # Spotlight shadows: the spotlight's term of each Gaussian is scaled by how much of the lamp it sees, from a
     # shadow map rendered at the learned light pose (models.shadow); relighting has none (uniform light casts none).
     spot_shadows: bool = False
+    # The shadow map's focal length as a fraction of the camera's (1: the map resolves what the camera does).
+    shadow_map_scale: float = 0.5
 
     def __post_init__(self) -> None:
         if self.light_model not in ("none", "spotlight"):
@@ -125,6 +127,9 @@ class ModelConfig:
                 and self.falloff_gamma > 0):
             raise ValueError(f"ModelConfig {self.name!r}: falloff_tau and falloff_gamma must be finite and > 0, got "
                              f"{self.falloff_tau} and {self.falloff_gamma}")
+        if not (math.isfinite(self.shadow_map_scale) and self.shadow_map_scale > 0):
+            raise ValueError(f"ModelConfig {self.name!r}: shadow_map_scale must be finite and > 0, got "
+                             f"{self.shadow_map_scale}")
         if self.low_frequency_shading not in LOW_FREQUENCY_SHADINGS:
             raise ValueError(f"ModelConfig {self.name!r}: low_frequency_shading must be 'spot_cosine' or "
                              f"'irradiance', got {self.low_frequency_shading!r}")

@@ -22,11 +22,14 @@ Gaussian on the first surface is lit (V = 1), one behind an opaque occluder gets
 the faint tail of an occluder's Gaussian is only dimmed by that tail's opacity. Outside the map or behind the lamp
 V = 1. The moments are sampled bilinearly (moments may be filtered, depths may not).
 
-No gradient: V is a constant of each step. Its gradient with the map held fixed would be wrong for the light pose
-(moving the lamp moves the occluders' image in the map as well as the receivers'; a fixed map sees only the latter,
-and gives the translation's gradient the wrong sign), and the right one needs a backward pass through the second
-rasterization, which would cost about half a training step. The shadows are there to keep the lamp's shadows out of
-the albedo, not to pull the light pose.
+Gradient: only the lamp's position t (SpotLight.translation) gets one, and it is the shadows' cue for it. The map is
+rendered without a gradient, so the gradient of V through the point's map position alone would be wrong: moving the
+lamp by δ moves the receiver's image in the map by -f δ / z, but also the occluder's, by -f δ / d (d its depth), and
+shadows follow their difference, f δ (1/d - 1/z) (the wrong sign without the second part: d < z). So the map position
+is differentiated with t's gradient scaled by 1 - z/d, per Gaussian, d the occluders' depth that the moments give
+(d = r - (A r - S1)/q); where nothing blocks the lamp (q ≈ 0) V does not depend on t. The depth compare has no
+gradient (the lamp moving along its axis shifts occluder and receiver alike). Rotating the lamp moves no shadow: no
+gradient for its rotation, and none for the Gaussians (a fixed map would not see an occluder move).
 """
 
 from __future__ import annotations
@@ -37,7 +40,7 @@ import torch
 import torch.nn.functional as F
 
 from spotlessgs.models.gaussians import GaussianParams
-from spotlessgs.models.geometry import check_c2w
+from spotlessgs.models.geometry import check_c2w, world_to_camera
 from spotlessgs.models.light import SpotLight
 from spotlessgs.rasterizer import rasterize
 
@@ -94,9 +97,10 @@ def render_shadow_map(gaussians: GaussianParams, l2w: torch.Tensor, K_map: torch
         return torch.cat([out.alpha[None], out.image.permute(2, 0, 1)], dim=0)
 
 
-def map_visibility(moments: torch.Tensor, points_light: torch.Tensor, K_map: torch.Tensor) -> torch.Tensor:
-    """(N, 1) lit fraction V ∈ [0, 1] of points (N, 3) in the lamp's frame against its moment shadow map (3, H, W)
-    (see the module docstring); 1 behind the lamp and outside the map."""
+def _sample_moments(moments: torch.Tensor, points_light: torch.Tensor, K_map: torch.Tensor
+                    ) -> tuple[torch.Tensor, torch.Tensor]:
+    """Bilinear samples (3, N) of the moment map (3, H, W) at the map positions of points (N, 3) in the lamp's frame,
+    and (N,) whether each point is ahead of the lamp and inside the map."""
     _, height, width = moments.shape
     z = points_light[:, 2]
     ahead = z > 1e-3
@@ -106,25 +110,52 @@ def map_visibility(moments: torch.Tensor, points_light: torch.Tensor, K_map: tor
     inside = ahead & (u >= 0) & (u <= width) & (v >= 0) & (v <= height)
     grid = torch.stack([2.0 * u / width - 1.0, 2.0 * v / height - 1.0], dim=-1).to(moments.dtype)
     sampled = F.grid_sample(moments[None], grid[None, :, None, :], mode="bilinear", padding_mode="border",
-                            align_corners=False)[0, :, :, 0].to(z.dtype)
+                            align_corners=False)[0, :, :, 0].to(points_light.dtype)
+    return sampled, inside
+
+
+def _blocked(sampled: torch.Tensor, depth: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+    """The blocked fraction q (N,) of the lamp's light for receivers at light-frame depths (N,) from the moment
+    samples (3, N), and the occluders' depth d (N,) (0 where q ≈ 0)."""
     total, first, second = sampled
-    r = (1.0 - SHADOW_BIAS) * z_safe
-    ahead_of_r = (total * r - first).clamp_min(0.0)  # q·(r - d): the occluders' weight times their distance
-    spread = (total * r * r - 2.0 * r * first + second).clamp_min(1e-12)  # Σ w (r - z_j)² ≥ that squared / q
+    r = (1.0 - SHADOW_BIAS) * depth
+    ahead_of_r = (total * r - first).clamp_min(0.0)  # q (r - d): the occluders' weight times their distance ahead
+    spread = (total * r * r - 2.0 * r * first + second).clamp_min(1e-12)  # Σ w (r - z_j)² = q (r - d)² + ...
     blocked = (ahead_of_r * ahead_of_r / spread).clamp(0.0, 1.0)
-    visibility = 1.0 - blocked
-    return torch.where(inside, visibility, torch.ones_like(visibility))[:, None]
+    occluder_depth = torch.where(blocked > 1e-3, r - ahead_of_r / blocked.clamp_min(1e-3), torch.zeros_like(r))
+    return blocked, occluder_depth
+
+
+def map_visibility(moments: torch.Tensor, points_light: torch.Tensor, K_map: torch.Tensor) -> torch.Tensor:
+    """(N, 1) lit fraction V ∈ [0, 1] of points (N, 3) in the lamp's frame against its moment shadow map (3, H, W)
+    (see the module docstring); 1 behind the lamp and outside the map."""
+    sampled, inside = _sample_moments(moments, points_light, K_map)
+    blocked, _ = _blocked(sampled, points_light[:, 2].clamp_min(1e-3))
+    return torch.where(inside, 1.0 - blocked, torch.ones_like(blocked))[:, None]
 
 
 def spot_visibility(gaussians: GaussianParams, light: SpotLight, c2w: torch.Tensor, K: torch.Tensor, width: int,
-                    height: int, map_scale: float = 1.0, backend: str = "auto", num_threads: int | None = None,
-                    index: torch.Tensor | None = None) -> torch.Tensor:
+                    height: int, map_scale: float = 1.0, backend: str = "auto", num_threads: int | None = None
+                    ) -> torch.Tensor:
     """(N, 1) how much of the spotlight reaches each Gaussian in the view ``c2w`` (camera ``K``, ``width`` ×
-    ``height``): 1 lit, 0 in the shadow of what the lamp sees first. ``index``: only these Gaussians' rows (the map
-    still holds every Gaussian). A constant: computed without a gradient (see the module docstring)."""
+    ``height``): 1 lit, 0 in the shadow of what the lamp sees first. Its gradient reaches the lamp's position only,
+    the shadows' own (see the module docstring)."""
     with torch.no_grad():
         K_map, width_map, height_map = shadow_map_camera(K, width, height, map_scale)
-        l2w = light_to_world(light, c2w)
-        moments = render_shadow_map(gaussians, l2w, K_map, width_map, height_map, backend, num_threads)
-        means = gaussians.means if index is None else gaussians.means[index]
-        return map_visibility(moments, light.to_light_frame(means, c2w), K_map)
+        moments = render_shadow_map(gaussians, light_to_world(light, c2w), K_map, width_map, height_map, backend,
+                                    num_threads)
+        in_camera = world_to_camera(gaussians.means, c2w)
+        rotation, position = light.rotation(), light.translation.detach()
+        points = (in_camera - position) @ rotation  # SpotLight.to_light_frame
+        sampled, inside = _sample_moments(moments, points, K_map)
+        depth = points[:, 2].clamp_min(1e-3)
+        blocked, occluder_depth = _blocked(sampled, depth)
+        visibility = torch.where(inside, 1.0 - blocked, torch.ones_like(blocked))[:, None]
+    if not (light.translation.requires_grad and torch.is_grad_enabled()):
+        return visibility
+    # The same values, with the position's gradient scaled per Gaussian by 1 - z/d (the occluders' motion in the map).
+    scale = torch.where(occluder_depth > 0, 1.0 - depth / occluder_depth.clamp_min(1e-3), torch.zeros_like(depth))
+    moved = position + (light.translation - position)[None, :] * scale[:, None]  # value: position; gradient: scaled
+    sampled, _ = _sample_moments(moments, (in_camera - moved) @ rotation, K_map)
+    blocked, _ = _blocked(sampled, depth)
+    return torch.where(inside, 1.0 - blocked, torch.ones_like(blocked))[:, None]

@@ -108,6 +108,8 @@ class TrainConfig:
     # Spotlight shadows from a shadow map rendered at the learned light pose each step (ModelConfig.spot_shadows;
     # models.shadow): the lamp's shadows go into the light, not the albedo. Off: the paper's (no shadow term).
     spot_shadows: bool = False
+    # The shadow map's focal length as a fraction of the camera's (ModelConfig.shadow_map_scale).
+    shadow_map_scale: float = 0.5
     # Weight of the light-translation prior ‖t - t_prior‖ (used only when a prior is given).
     light_prior_weight: float = 1.0
     # Weight of the normal-shape term mean(1 - |n̂·â|) over the visible Gaussians, â each one's shortest axis
