@@ -15,7 +15,7 @@ from spotlessgs.models.gaussians import GaussianParams
 from spotlessgs.models.light import SpotLight
 from spotlessgs.models.relightable import RelightableScene
 from spotlessgs.models.shading import MODEL_VARIANTS, build_appearance_models, shade
-from spotlessgs.models.shadow import map_visibility, shadow_map_camera, spot_visibility
+from spotlessgs.models.shadow import map_visibility, render_shadow_map, shadow_map_camera, spot_visibility
 
 WALL_Z, OCCLUDER_Z, OCCLUDER_HALF = 2.0, 1.0, 0.15
 K = torch.tensor([[100.0, 0.0, 64.0], [0.0, 100.0, 48.0], [0.0, 0.0, 1.0]])
@@ -40,6 +40,11 @@ def _wall_and_occluder() -> tuple[GaussianParams, int]:
     return g, len(wall)
 
 
+def _visibility(g: GaussianParams, light: SpotLight) -> torch.Tensor:
+    """(N, 1) the lit fraction for the camera at the origin looking down +z, from a new shadow map."""
+    return spot_visibility(g, light, render_shadow_map(g, light, torch.eye(4), K, WIDTH, HEIGHT))
+
+
 def _in_shadow_by_geometry(points: np.ndarray, lamp: np.ndarray, inset: float) -> np.ndarray:
     """Whether the segment from each point to the lamp crosses the occluder square shrunk by ``inset`` (m)."""
     s = (OCCLUDER_Z - lamp[2]) / (points[:, 2] - lamp[2])
@@ -51,7 +56,7 @@ def _in_shadow_by_geometry(points: np.ndarray, lamp: np.ndarray, inset: float) -
 def test_square_casts_the_shadow_that_ray_geometry_predicts(translation):
     g, n_wall = _wall_and_occluder()
     light = build_appearance_models("darkgs", seed=0, light_translation=translation).light
-    vis = spot_visibility(g, light, torch.eye(4), K, WIDTH, HEIGHT)[:, 0].detach().numpy()
+    vis = _visibility(g, light)[:, 0].detach().numpy()
     xyz = g.means.detach().numpy()
     lamp = np.asarray(translation, float)
     # The occluder's Gaussians (σ = 1.5 cm) soften its edge by about 3σ: 4.5 cm at its plane, 9 cm on the wall.
@@ -73,13 +78,13 @@ def test_shadow_moves_with_the_light():
     means = []
     for t in (0.0, 0.2):  # edge at -0.3 (the band lit), then at -0.5 (the band in shadow)
         light = build_appearance_models("darkgs", seed=0, light_translation=[t, 0.0, 0.0]).light
-        means.append(float(spot_visibility(g, light, torch.eye(4), K, WIDTH, HEIGHT)[torch.from_numpy(band)].mean()))
+        means.append(float(_visibility(g, light)[torch.from_numpy(band)].mean()))
     assert band.sum() >= 20 and means[0] > 0.9 and means[1] < 0.1
 
 
 def _band_visibility(g: GaussianParams, band: torch.Tensor, translation) -> tuple[torch.Tensor, SpotLight]:
     light = build_appearance_models("darkgs", seed=0, light_translation=translation).light
-    return spot_visibility(g, light, torch.eye(4), K, WIDTH, HEIGHT)[band].sum(), light
+    return _visibility(g, light)[band].sum(), light
 
 
 def test_the_lamp_position_gradient_is_the_shadows_own():
@@ -156,3 +161,31 @@ def test_scene_with_spot_shadows_darkens_the_shadow_the_camera_sees():
     right_of_square = (slice(40, 56), slice(82, 88))
     assert float(renders[True][strip].mean()) < 0.2 * float(renders[False][strip].mean())
     torch.testing.assert_close(renders[True][right_of_square], renders[False][right_of_square], rtol=0.03, atol=1e-4)
+
+
+def test_a_reused_map_gives_the_shadows_of_when_it_was_rendered():
+    g, _ = _wall_and_occluder()
+    light = build_appearance_models("darkgs", seed=0, light_translation=[0.0, 0.0, 0.0]).light
+    old_map = render_shadow_map(g, light, torch.eye(4), K, WIDTH, HEIGHT)
+    before = spot_visibility(g, light, old_map)
+    with torch.no_grad():
+        light.translation.copy_(torch.tensor([0.2, 0.0, 0.0]))  # a new map would move the shadow by 40 cm
+    torch.testing.assert_close(spot_visibility(g, light, old_map), before)
+    assert float((_visibility(g, light) - before).abs().max()) > 0.9
+
+
+def test_training_reuses_each_views_map_for_shadow_map_every_steps():
+    from spotlessgs.training.config import TrainConfig
+    from spotlessgs.training.shadow_maps import ShadowMapCache
+
+    g, _ = _wall_and_occluder()
+    camera = Cameras(torch.eye(4), Intrinsics(100.0, 100.0, 64.0, 48.0, WIDTH, HEIGHT))
+    scene = RelightableScene.create(dataclasses.replace(MODEL_VARIANTS["darkgs"], spot_shadows=True), g, seed=0)
+    cache = ShadowMapCache(TrainConfig(shadow_map_every=3))
+    first = cache.get(scene, 0, 10, camera)
+    assert cache.get(scene, 0, 12, camera) is first and cache.get(scene, 1, 12, camera) is not first
+    assert cache.get(scene, 0, 13, camera) is not first  # three steps old: rendered again
+    plain = RelightableScene.create(MODEL_VARIANTS["darkgs"], g, seed=0)
+    assert ShadowMapCache(TrainConfig()).get(plain, 0, 0, camera) is None
+    with pytest.raises(ValueError, match="shadow_map_every"):
+        TrainConfig(shadow_map_every=0)

@@ -3,6 +3,8 @@ must do real work, resume equality and the NaN guard."""
 
 from __future__ import annotations
 
+import dataclasses
+
 import json
 import math
 from pathlib import Path
@@ -306,6 +308,30 @@ def test_a_bounce_light_trains_is_reported_reloads_and_stays_out_of_relighting(b
         torch.testing.assert_close(scene.colours(c2w, relight_l0=[1.0, 1.0, 1.0]), relit)
     summary = render_run(run, "relit", "test", tmp_path / "relit", progress=False)
     assert summary["count"] > 0 and len(list((tmp_path / "relit").glob("*.png"))) == summary["count"]
+
+
+@pytest.mark.blender
+def test_spot_shadows_train_reload_and_leave_relighting_alone(bedroom, tmp_path):
+    """``spot_shadows``: a run trains with the lamp's shadow map, logs the lamp's position as it learns, comes back
+    with its shadows (its spotlit render differs from the same model's without them), and relights as without."""
+    from spotlessgs.io.camera_batch import Cameras
+    from spotlessgs.training.trainer import load_run, train
+
+    cfg = _tiny(iterations=30, image_width=40, densify_from=1000, checkpoint_every=30, spot_shadows=True)
+    run = tmp_path / "run"
+    train(bedroom, run, "darkgs", cfg, seed=0, progress=False)
+    rows = [json.loads(line) for line in (run / "metrics.jsonl").read_text().splitlines()]
+    positions = np.array([r["light_translation_m"] for r in rows])
+    assert positions.shape == (len(rows), 3) and np.abs(positions[-1] - positions[0]).max() > 0
+    scene, views, config, _ = load_run(run, device="cpu")
+    assert config.spot_shadows and scene.config.spot_shadows and scene.config.shadow_map_scale == 0.5
+    camera: Cameras = views.cameras[views.train[0]]
+    with torch.no_grad():
+        shadowed = scene.render(camera).image
+        relit = scene.render(camera, relight_l0=[1.0, 1.0, 1.0]).image
+        scene.config = dataclasses.replace(scene.config, spot_shadows=False)
+        assert float((scene.render(camera).image - shadowed).abs().max()) > 1e-4
+        torch.testing.assert_close(scene.render(camera, relight_l0=[1.0, 1.0, 1.0]).image, relit)
 
 
 @pytest.mark.blender

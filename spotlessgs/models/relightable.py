@@ -81,10 +81,12 @@ class RelightableScene(nn.Module):
     def render(
         self, camera: Cameras, *, relight_l0: torch.Tensor | Sequence[float] | None = None, backend: str = "auto",
         num_threads: int | None = None, background: torch.Tensor | None = None, split_lights: bool = False,
+        shadow_map: shadow.ShadowMap | None = None,
     ) -> RasterOutput:
         """Render one view (``camera``: a single view): under the learned spotlight, or relit by L0 when
         ``relight_l0`` is given; ``split_lights``: a six-channel image, [spotlight part, low-frequency part] (their sum
-        is the normal render). A variant with ``spot_shadows`` renders the lamp's shadow map first (models.shadow)."""
+        is the normal render). A variant with ``spot_shadows`` shades the spotlight with the lamp's shadow map
+        (models.shadow): ``shadow_map``, one rendered for this view a few steps ago, or else a new one."""
         if camera.is_batch:
             raise ValueError("RelightableScene.render: expected one view, got a batch of cameras")
         g = self.gaussians
@@ -93,10 +95,16 @@ class RelightableScene(nn.Module):
         mask = frustum_mask(g.means, scales, camera.viewmat, K, width, height)
         visibility = None
         if self.config.spot_shadows and self.config.light_model == "spotlight" and relight_l0 is None:
-            visibility = shadow.spot_visibility(g, self.appearance.light, camera.c2w, K, width, height,
-                                                self.config.shadow_map_scale, backend, num_threads)
+            if shadow_map is None:
+                shadow_map = self.shadow_map(camera, backend, num_threads)
+            visibility = shadow.spot_visibility(g, self.appearance.light, shadow_map)
         feats = self.colours(camera.c2w, mask=mask, relight_l0=relight_l0, split_lights=split_lights,
                              spot_visibility=visibility)
         return rasterize(g.means, g.quats, scales, g.opacities, feats, camera.viewmat, K, width, height,
                          background=background, backend=backend, num_threads=num_threads,
                          rigid_camera_grad=True)  # a view matrix with a gradient is a pose correction's
+
+    def shadow_map(self, camera: Cameras, backend: str = "auto", num_threads: int | None = None) -> shadow.ShadowMap:
+        """The lamp's shadow map for one view (``camera``), at the variant's ``shadow_map_scale``."""
+        return shadow.render_shadow_map(self.gaussians, self.appearance.light, camera.c2w, camera.K, camera.width,
+                                        camera.height, self.config.shadow_map_scale, backend, num_threads)

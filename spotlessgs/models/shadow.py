@@ -35,12 +35,13 @@ gradient for its rotation, and none for the Gaussians (a fixed map would not see
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass
 
 import torch
 import torch.nn.functional as F
 
 from spotlessgs.models.gaussians import GaussianParams
-from spotlessgs.models.geometry import check_c2w, world_to_camera
+from spotlessgs.models.geometry import check_c2w
 from spotlessgs.models.light import SpotLight
 from spotlessgs.rasterizer import rasterize
 
@@ -82,19 +83,31 @@ def shadow_map_camera(K: torch.Tensor, width: int, height: int, map_scale: float
     return K_map, width_map, height_map
 
 
-def render_shadow_map(gaussians: GaussianParams, l2w: torch.Tensor, K_map: torch.Tensor, width: int, height: int,
-                      backend: str = "auto", num_threads: int | None = None) -> torch.Tensor:
-    """(3, H_map, W_map) the lamp's moment shadow map [A, S1, S2] (see the module docstring; depths in metres along
-    the light's axis), computed without a gradient."""
+@dataclass(frozen=True)
+class ShadowMap:
+    """The lamp's moment shadow map for one view, and the lamp pose it was rendered from (all without a gradient)."""
+
+    moments: torch.Tensor  # (3, H_map, W_map) [A, S1, S2], depths in metres along the light's axis
+    K_map: torch.Tensor  # (3, 3) the map's pinhole
+    world_to_lamp: torch.Tensor  # (4, 4) the lamp's view matrix when it was rendered
+    lamp_rotation: torch.Tensor  # (3, 3) light → camera rotation then (SpotLight.rotation())
+
+
+def render_shadow_map(gaussians: GaussianParams, light: SpotLight, c2w: torch.Tensor, K: torch.Tensor, width: int,
+                      height: int, map_scale: float = 1.0, backend: str = "auto", num_threads: int | None = None
+                      ) -> ShadowMap:
+    """The lamp's moment shadow map (see the module docstring) for the view ``c2w`` (camera ``K``, ``width`` ×
+    ``height``: the map covers its field of view, at ``map_scale`` times its focal length), without a gradient."""
     with torch.no_grad():
+        K_map, width_map, height_map = shadow_map_camera(K, width, height, map_scale)
+        viewmat = torch.linalg.inv(light_to_world(light, c2w))
         g = gaussians
-        viewmat = torch.linalg.inv(l2w.detach())
-        means = g.means.detach()
+        means = g.means
         z = means @ viewmat[2, :3] + viewmat[2, 3]
-        out = rasterize(means, g.quats.detach(), g.scales.detach(), g.opacities.detach(),
-                        torch.stack([z, z * z], dim=1), viewmat, K_map, width, height, backend=backend,
-                        num_threads=num_threads)
-        return torch.cat([out.alpha[None], out.image.permute(2, 0, 1)], dim=0)
+        out = rasterize(means, g.quats, g.scales, g.opacities, torch.stack([z, z * z], dim=1), viewmat, K_map,
+                        width_map, height_map, backend=backend, num_threads=num_threads)
+        moments = torch.cat([out.alpha[None], out.image.permute(2, 0, 1)], dim=0)
+        return ShadowMap(moments, K_map, viewmat, light.rotation().detach())
 
 
 def _sample_moments(moments: torch.Tensor, points_light: torch.Tensor, K_map: torch.Tensor
@@ -134,28 +147,24 @@ def map_visibility(moments: torch.Tensor, points_light: torch.Tensor, K_map: tor
     return torch.where(inside, 1.0 - blocked, torch.ones_like(blocked))[:, None]
 
 
-def spot_visibility(gaussians: GaussianParams, light: SpotLight, c2w: torch.Tensor, K: torch.Tensor, width: int,
-                    height: int, map_scale: float = 1.0, backend: str = "auto", num_threads: int | None = None
-                    ) -> torch.Tensor:
-    """(N, 1) how much of the spotlight reaches each Gaussian in the view ``c2w`` (camera ``K``, ``width`` ×
-    ``height``): 1 lit, 0 in the shadow of what the lamp sees first. Its gradient reaches the lamp's position only,
-    the shadows' own (see the module docstring)."""
+def spot_visibility(gaussians: GaussianParams, light: SpotLight, shadow_map: ShadowMap) -> torch.Tensor:
+    """(N, 1) how much of the spotlight reaches each Gaussian in the view of ``shadow_map``: 1 lit, 0 in the shadow
+    of what the lamp sees first. Its value is the map's (from the lamp pose it was rendered at, so a map may be
+    reused for a few steps); its gradient reaches the lamp's current position only, the shadows' own (see the module
+    docstring)."""
     with torch.no_grad():
-        K_map, width_map, height_map = shadow_map_camera(K, width, height, map_scale)
-        moments = render_shadow_map(gaussians, light_to_world(light, c2w), K_map, width_map, height_map, backend,
-                                    num_threads)
-        in_camera = world_to_camera(gaussians.means, c2w)
-        rotation, position = light.rotation(), light.translation.detach()
-        points = (in_camera - position) @ rotation  # SpotLight.to_light_frame
-        sampled, inside = _sample_moments(moments, points, K_map)
+        view = shadow_map.world_to_lamp
+        points = gaussians.means @ view[:3, :3].T + view[:3, 3]
+        sampled, inside = _sample_moments(shadow_map.moments, points, shadow_map.K_map)
         depth = points[:, 2].clamp_min(1e-3)
         blocked, occluder_depth = _blocked(sampled, depth)
         visibility = torch.where(inside, 1.0 - blocked, torch.ones_like(blocked))[:, None]
     if not (light.translation.requires_grad and torch.is_grad_enabled()):
         return visibility
-    # The same values, with the position's gradient scaled per Gaussian by 1 - z/d (the occluders' motion in the map).
+    # The same values, with the position's gradient scaled per Gaussian by 1 - z/d (the occluders' motion in the
+    # map): a lamp moved by δ (camera frame) moves the points by -Rᵀ δ in its frame.
     scale = torch.where(occluder_depth > 0, 1.0 - depth / occluder_depth.clamp_min(1e-3), torch.zeros_like(depth))
-    moved = position + (light.translation - position)[None, :] * scale[:, None]  # value: position; gradient: scaled
-    sampled, _ = _sample_moments(moments, (in_camera - moved) @ rotation, K_map)
+    moved = (light.translation - light.translation.detach())[None, :] * scale[:, None]  # value 0
+    sampled, _ = _sample_moments(shadow_map.moments, points - moved @ shadow_map.lamp_rotation, shadow_map.K_map)
     blocked, _ = _blocked(sampled, depth)
     return torch.where(inside, 1.0 - blocked, torch.ones_like(blocked))[:, None]

@@ -110,6 +110,10 @@ class TrainConfig:
     spot_shadows: bool = False
     # The shadow map's focal length as a fraction of the camera's (ModelConfig.shadow_map_scale).
     shadow_map_scale: float = 0.5
+    # Training re-renders a view's shadow map when it is this many steps old (1: every step); in between the view
+    # reuses its map (values from the lamp pose it was rendered at, the gradient to the lamp's position as now).
+    # Each cached map is 3 float32 channels at the map's size.
+    shadow_map_every: int = 1
     # Weight of the light-translation prior ‖t - t_prior‖ (used only when a prior is given).
     light_prior_weight: float = 1.0
     # Weight of the normal-shape term mean(1 - |n̂·â|) over the visible Gaussians, â each one's shortest axis
@@ -221,6 +225,8 @@ class TrainConfig:
                              f"{self.pose_align_steps} and {self.pose_refine_from}")
         if self.validation_every < 0 or self.validation_every == 1:
             raise ValueError(f"TrainConfig: validation_every must be 0 (off) or >= 2, got {self.validation_every}")
+        if self.shadow_map_every < 1:
+            raise ValueError(f"TrainConfig: shadow_map_every must be >= 1, got {self.shadow_map_every}")
         if self.validation_average < 1:
             raise ValueError(f"TrainConfig: validation_average must be >= 1, got {self.validation_average}")
         if not 0.0 <= self.validation_blocks < 1.0:

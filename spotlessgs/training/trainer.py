@@ -46,6 +46,7 @@ from spotlessgs.training.losses import normal_shape_loss, photometric_loss, pose
 from spotlessgs.training.pose_alignment import AlignedView, align_views
 from spotlessgs.training.pose_file import write_refined_poses
 from spotlessgs.training.strategy import DensifyConfig, DensifyStrategy
+from spotlessgs.training.shadow_maps import ShadowMapCache
 from spotlessgs.training.warm_start import warm_start_scene
 from spotlessgs.training.budget import BudgetConfig, BudgetStrategy, budget_report
 from spotlessgs.training.validation import (
@@ -511,6 +512,7 @@ def _train_locked(data_dir: Path, run_dir: Path, variant: str | ModelConfig, con
     except OSError as exc:
         bar.close()
         raise (write_error(metrics_path, exc) or exc) from exc
+    shadow_maps = ShadowMapCache(config)
     t0 = time.perf_counter()
     loss_value = float("nan")
     try:
@@ -521,7 +523,8 @@ def _train_locked(data_dir: Path, run_dir: Path, variant: str | ModelConfig, con
             refining = poses is not None and step >= config.pose_refine_from
             row = poses.row(k) if refining else None  # (9,) the view's correction, a sparse gradient
             camera = corrected_camera(cameras[k], row) if refining else cameras[k]
-            out = scene.render(camera, backend=config.raster_backend, num_threads=config.num_threads)
+            out = scene.render(camera, backend=config.raster_backend, num_threads=config.num_threads,
+                               shadow_map=shadow_maps.get(scene, k, step, camera))
             if not torch.isfinite(out.image).all():
                 raise TrainingDivergedError(f"step {step}: the render of view {views.names[k]} has NaN/Inf; "
                                             f"the last good checkpoint {ckpt_file} is intact")

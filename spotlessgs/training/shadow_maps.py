@@ -1,0 +1,32 @@
+"""The training views' lamp shadow maps, kept between the steps that fit a view (``TrainConfig.shadow_map_every``).
+
+A shadow map costs about a sixth of a training step (one forward rasterization from the lamp, at half the camera's
+focal length); reused for a few visits of its view it costs that much less. A reused map gives the shadows of the
+geometry and lamp pose it was rendered from; the gradient still reaches the lamp's current position
+(:func:`spotlessgs.models.shadow.spot_visibility`).
+"""
+
+from __future__ import annotations
+
+from spotlessgs.io.camera_batch import Cameras
+from spotlessgs.models.relightable import RelightableScene
+from spotlessgs.models.shadow import ShadowMap
+from spotlessgs.training.config import TrainConfig
+
+
+class ShadowMapCache:
+    """Each training view's lamp shadow map, re-rendered when ``config.shadow_map_every`` steps old (models.shadow)."""
+
+    def __init__(self, config: TrainConfig) -> None:
+        self.config = config
+        self.maps: dict[int, tuple[int, ShadowMap]] = {}
+
+    def get(self, scene: RelightableScene, view: int, step: int, camera: Cameras) -> ShadowMap | None:
+        """The map of ``view`` for ``step`` (None when the model has no spotlight shadows: nothing to cache)."""
+        if not (scene.config.spot_shadows and scene.appearance.light is not None):
+            return None
+        cached = self.maps.get(view)
+        if cached is None or step - cached[0] >= self.config.shadow_map_every:
+            cached = (step, scene.shadow_map(camera, self.config.raster_backend, self.config.num_threads))
+            self.maps[view] = cached
+        return cached[1]
