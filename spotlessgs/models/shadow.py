@@ -47,9 +47,6 @@ from spotlessgs.rasterizer import rasterize
 
 #: Relative depth bias b: what lies less than b·z in front of a Gaussian at depth z is its own surface (5 cm at 1 m).
 SHADOW_BIAS = 0.05
-#: Blocked fractions below this floor count as lit, the rest is stretched back to [0, 1] (the variance shadow map's
-#: light-bleeding reduction): a fuzzy surface of overlapping Gaussians partly blocks the lamp from itself.
-PARTIAL_SHADOW_FLOOR = 0.0
 #: The map covers the camera's field of view plus this margin on every side (degrees): the lamp is a few centimetres
 #: and about a degree off the camera, so every Gaussian the camera sees lands in the map.
 MAP_MARGIN_DEG = 5.0
@@ -139,8 +136,6 @@ def _blocked(sampled: torch.Tensor, depth: torch.Tensor) -> tuple[torch.Tensor, 
     spread = (total * r * r - 2.0 * r * first + second).clamp_min(1e-12)  # Σ w (r - z_j)² = q (r - d)² + ...
     blocked = (ahead_of_r * ahead_of_r / spread).clamp(0.0, 1.0)
     occluder_depth = torch.where(blocked > 1e-3, r - ahead_of_r / blocked.clamp_min(1e-3), torch.zeros_like(r))
-    if PARTIAL_SHADOW_FLOOR > 0:  # what a fuzzy surface blocks of itself (below the floor) counts as lit
-        blocked = ((blocked - PARTIAL_SHADOW_FLOOR) / (1.0 - PARTIAL_SHADOW_FLOOR)).clamp_min(0.0)
     return blocked, occluder_depth
 
 

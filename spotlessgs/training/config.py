@@ -112,8 +112,9 @@ class TrainConfig:
     shadow_map_scale: float = 0.5
     # Training re-renders a view's shadow map when it is this many steps old (1: every step); in between the view
     # reuses its map (values from the lamp pose it was rendered at, the gradient to the lamp's position as now).
-    # Each cached map is 3 float32 channels at the map's size.
-    shadow_map_every: int = 1
+    # Each cached map is 3 float32 channels at the map's size. 90 on the quick bedroom (54 training views): a map serves
+    # about two visits of its view, with the lamp as well placed as at 1 (docs/results.md, "Spotlight shadows").
+    shadow_map_every: int = 90
     # Weight of the light-translation prior ‖t - t_prior‖ (used only when a prior is given).
     light_prior_weight: float = 1.0
     # Weight of the normal-shape term mean(1 - |n̂·â|) over the visible Gaussians, â each one's shortest axis
