@@ -4,6 +4,7 @@ pose; visibility reaches the light pose's gradient; shading scales the spotlight
 from __future__ import annotations
 
 import dataclasses
+import math
 
 import numpy as np
 import pytest
@@ -189,3 +190,19 @@ def test_training_reuses_each_views_map_for_shadow_map_every_steps():
     assert ShadowMapCache(TrainConfig()).get(plain, 0, 0, camera) is None
     with pytest.raises(ValueError, match="shadow_map_every"):
         TrainConfig(shadow_map_every=0)
+
+
+def test_tiny_huge_and_lamp_hugging_gaussians_give_finite_shadows_and_gradients():
+    rng = np.random.default_rng(0)
+    xyz = np.concatenate([rng.uniform(-1, 1, (200, 3)) * [1, 1, 0.5] + [0, 0, 2],
+                          [[0.1, 0.0, 0.0], [0.1, 0.0, 0.002], [0.0, 0.0, 1e-4], [0.0, 0.0, -1.0]]])
+    g = GaussianParams.from_point_cloud(xyz, np.full((len(xyz), 3), 200, np.uint8))
+    with torch.no_grad():
+        g.params["log_scales"][:50] = math.log(1e-7)   # tiny
+        g.params["log_scales"][50:60] = math.log(50.0)  # huge
+        g.params["opacity_logits"].fill_(8.0)          # opaque
+    light = build_appearance_models("darkgs", seed=0, light_translation=[0.1, 0.0, 0.0]).light
+    vis = _visibility(g, light)
+    vis.sum().backward()
+    assert torch.isfinite(vis).all() and float(vis.min()) >= 0.0 and float(vis.max()) <= 1.0
+    assert torch.isfinite(light.translation.grad).all()

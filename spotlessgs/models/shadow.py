@@ -18,7 +18,7 @@ surface). The moments then give q exactly:
     q = (A r - S1)² / (A r² - 2 r S1 + S2)  (0 where A r ≤ S1),   V_i = 1 - clamp(q, 0, 1)
 
 the lit fraction (the variance shadow map's Chebyshev bound, with the ray's missing weight 1 - A escaping). A
-Gaussian on the first surface is lit (V = 1), one behind an opaque occluder gets V ≈ 1 - its opacity, and one behind
+Gaussian on the first surface is lit (V = 1), one behind an occluder gets V ≈ 1 - the occluder's opacity, one behind
 the faint tail of an occluder's Gaussian is only dimmed by that tail's opacity. Outside the map or behind the lamp
 V = 1. The moments are sampled bilinearly (moments may be filtered, depths may not).
 
@@ -47,6 +47,9 @@ from spotlessgs.rasterizer import rasterize
 
 #: Relative depth bias b: what lies less than b·z in front of a Gaussian at depth z is its own surface (5 cm at 1 m).
 SHADOW_BIAS = 0.05
+#: The lamp-position gradient treats an occluder closer to the lamp than this fraction of the receiver's depth as
+#: that close (the factor 1 - z/d stays above -19).
+MIN_OCCLUDER_FRACTION = 0.05
 #: The map covers the camera's field of view plus this margin on every side (degrees): the lamp is a few centimetres
 #: and about a degree off the camera, so every Gaussian the camera sees lands in the map.
 MAP_MARGIN_DEG = 5.0
@@ -133,7 +136,8 @@ def _blocked(sampled: torch.Tensor, depth: torch.Tensor) -> tuple[torch.Tensor, 
     total, first, second = sampled
     r = (1.0 - SHADOW_BIAS) * depth
     ahead_of_r = (total * r - first).clamp_min(0.0)  # q (r - d): the occluders' weight times their distance ahead
-    spread = (total * r * r - 2.0 * r * first + second).clamp_min(1e-12)  # Σ w (r - z_j)² = q (r - d)² + ...
+    # Σ w (r - z_j)² = q (r - d)² + ...; its floor keeps float32 rounding (relative to A r²) out of the ratio
+    spread = torch.maximum(total * r * r - 2.0 * r * first + second, 1e-6 * total * r * r + 1e-12)
     blocked = (ahead_of_r * ahead_of_r / spread).clamp(0.0, 1.0)
     occluder_depth = torch.where(blocked > 1e-3, r - ahead_of_r / blocked.clamp_min(1e-3), torch.zeros_like(r))
     return blocked, occluder_depth
@@ -163,7 +167,8 @@ def spot_visibility(gaussians: GaussianParams, light: SpotLight, shadow_map: Sha
         return visibility
     # The same values, with the position's gradient scaled per Gaussian by 1 - z/d (the occluders' motion in the
     # map): a lamp moved by δ (camera frame) moves the points by -Rᵀ δ in its frame.
-    scale = torch.where(occluder_depth > 0, 1.0 - depth / occluder_depth.clamp_min(1e-3), torch.zeros_like(depth))
+    scale = torch.where(occluder_depth > 0, 1.0 - depth / torch.maximum(occluder_depth, MIN_OCCLUDER_FRACTION * depth),
+                        torch.zeros_like(depth))
     moved = (light.translation - light.translation.detach())[None, :] * scale[:, None]  # value 0
     sampled, _ = _sample_moments(shadow_map.moments, points - moved @ shadow_map.lamp_rotation, shadow_map.K_map)
     blocked, _ = _blocked(sampled, depth)
