@@ -565,7 +565,7 @@ def _train_locked(data_dir: Path, run_dir: Path, variant: str | ModelConfig, con
                        "ms_per_step": 1000.0 * elapsed / (s - start), **{k2: v for k2, v in changes.items() if v},
                        **held}
                 if scene.appearance.light is not None:  # the learned lamp's position, to watch it converge
-                    rec["light_translation_m"] = [round(float(v), 5) for v in scene.appearance.light.translation]
+                    rec["light_translation_m"] = [round(v, 5) for v in scene.appearance.light.translation.tolist()]
                 _append_line(metrics_file, metrics_path, json.dumps(rec))
                 bar.set_postfix(loss=f"{loss_value:.4f}", psnr=f"{rec['psnr']:.2f}", n=len(scene.gaussians),
                                 ms=f"{rec['ms_per_step']:.0f}")
