@@ -105,8 +105,9 @@ class TrainConfig:
     # relighting (ModelConfig.bounce_light_degree; -1: none, the paper's). Degree 2 relit the bedroom best (uniform
     # ground truth: 23.79 / 24.41 / 24.22 dB for degrees 1 / 2 / 3, 23.18 without; docs/results.md).
     bounce_light_degree: int = 2
-    # Spotlight shadows from a shadow map rendered at the learned light pose each step (ModelConfig.spot_shadows;
-    # models.shadow): the lamp's shadows go into the light, not the albedo. Off: the paper's (no shadow term).
+    # Spotlight shadows from a shadow map rendered at the learned light pose (ModelConfig.spot_shadows; models.shadow):
+    # the lamp's shadows go into the light, not the albedo, and their gradient places the lamp. Off: the paper's (no
+    # shadow term); not the default: a sparse start's fuzzy surfaces shadow themselves (docs/results.md).
     spot_shadows: bool = False
     # The shadow map's focal length as a fraction of the camera's (ModelConfig.shadow_map_scale).
     shadow_map_scale: float = 0.5

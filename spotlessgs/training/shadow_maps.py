@@ -3,10 +3,15 @@
 A shadow map costs about a sixth of a training step (one forward rasterization from the lamp, at half the camera's
 focal length); reused for a few visits of its view it costs that much less. A reused map gives the shadows of the
 geometry and lamp pose it was rendered from; the gradient still reaches the lamp's current position
-(:func:`spotlessgs.models.shadow.spot_visibility`).
+(:func:`spotlessgs.models.shadow.spot_visibility`). The maps go into the checkpoints, so that a resumed run reuses
+the maps an uninterrupted one would.
 """
 
 from __future__ import annotations
+
+from typing import Any
+
+import torch
 
 from spotlessgs.io.camera_batch import Cameras
 from spotlessgs.models.relightable import RelightableScene
@@ -30,3 +35,13 @@ class ShadowMapCache:
             cached = (step, scene.shadow_map(camera, self.config.raster_backend, self.config.num_threads))
             self.maps[view] = cached
         return cached[1]
+
+    def state_dict(self) -> dict[int, dict[str, Any]]:
+        """The cached maps by view: the step each was rendered at and its tensors (for a checkpoint)."""
+        return {view: {"step": step, "moments": m.moments, "K_map": m.K_map, "world_to_lamp": m.world_to_lamp,
+                       "lamp_rotation": m.lamp_rotation} for view, (step, m) in self.maps.items()}
+
+    def load_state_dict(self, state: dict[int, dict[str, Any]], device: torch.device | str) -> None:
+        """Restore the maps of :meth:`state_dict` onto ``device``."""
+        self.maps = {int(view): (int(entry["step"]), ShadowMap(*(entry[name].to(device) for name in (
+            "moments", "K_map", "world_to_lamp", "lamp_rotation")))) for view, entry in state.items()}

@@ -273,7 +273,8 @@ def densify_config(config: TrainConfig) -> DensifyConfig:
 
 
 def _payload(step: int, scene: RelightableScene, opts, strategy: DensifyStrategy,
-             photometric: PhotometricCamera | None, poses: PoseCorrection | None = None) -> dict[str, Any]:
+             photometric: PhotometricCamera | None, poses: PoseCorrection | None = None,
+             shadow_maps: ShadowMapCache | None = None) -> dict[str, Any]:
     payload = {
         "step": step,
         "gaussians": {k: v.detach().clone() for k, v in scene.gaussians.params.items()},
@@ -285,6 +286,8 @@ def _payload(step: int, scene: RelightableScene, opts, strategy: DensifyStrategy
         payload["photometric"] = photometric.state_dict()
     if poses is not None:
         payload["pose"] = poses.state_dict()
+    if shadow_maps is not None and shadow_maps.maps:
+        payload["shadow_maps"] = shadow_maps.state_dict()
     return payload
 
 
@@ -446,10 +449,12 @@ def _train_locked(data_dir: Path, run_dir: Path, variant: str | ModelConfig, con
     photometric = build_photometric(config, views, split, device)  # exposure and vignetting, or None
     poses = PoseCorrection(len(views.names)).to(device) if config.refine_poses else None  # per-view corrections
 
+    shadow_maps = ShadowMapCache(config)  # each view's lamp shadow map (spotlight shadows only)
     start = 0
     if resume and has_checkpoint:
         ckpt = load_checkpoint(run_dir)
         scene = restore_scene(ckpt, run_info, config).to(device)
+        shadow_maps.load_state_dict(ckpt.get("shadow_maps", {}), device)
         if photometric is not None:
             if "photometric" not in ckpt:
                 raise InputError(f"{ckpt_file}: the run was trained without a photometric camera; resume it with "
@@ -512,7 +517,6 @@ def _train_locked(data_dir: Path, run_dir: Path, variant: str | ModelConfig, con
     except OSError as exc:
         bar.close()
         raise (write_error(metrics_path, exc) or exc) from exc
-    shadow_maps = ShadowMapCache(config)
     t0 = time.perf_counter()
     loss_value = float("nan")
     try:
@@ -573,7 +577,7 @@ def _train_locked(data_dir: Path, run_dir: Path, variant: str | ModelConfig, con
                 # A NaN parameter of a visible Gaussian already shows in the next render (checked every step);
                 # this check, before every save, keeps any other one out of the checkpoint.
                 _check_finite(scene, step, ckpt_file, poses)
-                save_checkpoint(run_dir, _payload(s, scene, opts, strategy, photometric, poses))
+                save_checkpoint(run_dir, _payload(s, scene, opts, strategy, photometric, poses, shadow_maps))
             if stop.requested:  # Ctrl-C / SIGTERM: the step is finished and saved; `--resume` continues from it
                 log.warning("stopped at step %d; the checkpoint %s holds it (resume with --resume)", s, ckpt_file)
                 stop.raise_if_requested()
