@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 
+import numpy as np
 import pytest
 from click.testing import CliRunner
 
@@ -44,3 +45,18 @@ def test_train_set_reaches_the_run_and_bad_values_stop_before_writing(tmp_path_f
     bad = CliRunner().invoke(main, [*common, "--out", str(tmp_path / "bad"), "--set", "loss_space=log"])
     assert bad.exit_code != 0 and "loss_space must be 'linear' or 'srgb'" in bad.output
     assert not (tmp_path / "bad").exists()
+
+
+def test_lamp_path_reads_the_logged_positions_and_skips_what_it_cannot_read(tmp_path):
+    from spotlessgs.training.light_report import lamp_path, plot_lamp_path
+
+    metrics = tmp_path / "metrics.jsonl"
+    metrics.write_text("\n".join([json.dumps({"step": 25, "light_translation_m": [0.01, 0.0, 0.0]}), "{broken",
+                                  json.dumps({"step": 50, "loss": 0.1}),  # a model without a lamp logs no position
+                                  json.dumps({"step": 75, "light_translation_m": [0.02, -0.01, 0.005]})]))
+    steps, positions = lamp_path(metrics)
+    np.testing.assert_array_equal(steps, [25, 75])
+    np.testing.assert_allclose(positions, [[0.01, 0.0, 0.0], [0.02, -0.01, 0.005]])
+    assert lamp_path(tmp_path / "missing.jsonl")[1].shape == (0, 3)
+    plot_lamp_path(steps, positions, None, tmp_path / "light_path.png")
+    assert (tmp_path / "light_path.png").stat().st_size > 0

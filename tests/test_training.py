@@ -194,6 +194,7 @@ def test_tiny_training_does_real_work(bedroom, tmp_path):
 
     light = json.loads((run / "light.json").read_text())
     assert light["errors"]["axis_error_deg"] < 5.0
+    assert (run / "light_path.png").stat().st_size > 0  # the lamp's learned position over the steps
 
     render_run(run, "relit", "test", progress=False)
     meta = json.loads((bedroom / "transforms.json").read_text())

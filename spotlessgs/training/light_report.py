@@ -1,8 +1,10 @@
-"""The estimated light of a run: pose relative to the camera, fall-off, ambient/SH, RID curve plot, and its error
-against the dataset's light truth when known. Written to ``RUN/light.json`` and ``RUN/light_rid.png``."""
+"""The estimated light of a run: pose relative to the camera, fall-off, ambient/SH, RID curve plot, the lamp's learned
+position over the training steps, and its error against the dataset's light truth when known. Written to
+``RUN/light.json``, ``RUN/light_rid.png`` and ``RUN/light_path.png``."""
 
 from __future__ import annotations
 
+import json
 import math
 from pathlib import Path
 from typing import Any
@@ -70,7 +72,47 @@ def write_light_report(scene, views, run_dir: Path) -> dict[str, Any]:
     write_json(Path(run_dir) / "light.json", {"schema_version": RUN_SCHEMA_VERSION, **report})
     if est is not None:
         plot_rid(scene, views.light, Path(run_dir) / "light_rid.png")
+        steps, positions = lamp_path(Path(run_dir) / "metrics.jsonl")
+        if len(steps) >= 2:
+            plot_lamp_path(steps, positions, views.light, Path(run_dir) / "light_path.png")
     return report
+
+
+def lamp_path(metrics_path: Path) -> tuple[np.ndarray, np.ndarray]:
+    """The learned lamp position logged in ``metrics.jsonl``: steps (K,) and positions (K, 3) in metres, camera frame
+    (empty when the file or the field is missing; unreadable lines are skipped: the plot is a report, not a check)."""
+    steps, positions = [], []
+    try:
+        lines = metrics_path.read_text(encoding="utf-8").splitlines()
+    except OSError:
+        lines = []
+    for line in lines:
+        try:
+            row = json.loads(line)
+            position = [float(v) for v in row["light_translation_m"]]
+            step = int(row["step"])
+        except (ValueError, KeyError, TypeError):
+            continue
+        if len(position) == 3:
+            steps.append(step)
+            positions.append(position)
+    return np.asarray(steps, dtype=np.int64), np.asarray(positions, dtype=np.float64).reshape(-1, 3)
+
+
+def plot_lamp_path(steps: np.ndarray, positions: np.ndarray, truth: LightTruth | None, path: Path) -> None:
+    """The lamp's learned position (camera frame, cm) against the training step, with the true one when known."""
+    plt = pyplot()
+    fig, ax = plt.subplots(figsize=(5, 3.4))
+    for axis, (name, colour) in enumerate(zip("xyz", ("tab:red", "tab:green", "tab:blue"))):
+        ax.plot(steps, 100.0 * positions[:, axis], color=colour, label=f"learned {name}")
+        if truth is not None:
+            ax.axhline(100.0 * float(truth.position_in_camera[axis]), color=colour, linestyle="--", linewidth=1,
+                       label=f"true {name}")
+    ax.set_xlabel("training step")
+    ax.set_ylabel("lamp position in the camera frame (cm)")
+    ax.grid(True, alpha=0.3)
+    ax.legend(fontsize=7, ncol=2)
+    save_figure(fig, path)
 
 
 @torch.no_grad()
