@@ -47,9 +47,10 @@ from spotlessgs.rasterizer import rasterize
 
 #: Relative depth bias b: what lies less than b·z in front of a Gaussian at depth z is its own surface (5 cm at 1 m).
 SHADOW_BIAS = 0.05
-#: The lamp-position gradient treats an occluder closer to the lamp than this fraction of the receiver's depth as
-#: that close (the factor 1 - z/d stays above -19).
-MIN_OCCLUDER_FRACTION = 0.05
+#: The lamp-position gradient treats an occluder closer to the lamp than this (metres) as that close, so the factor
+#: 1 - z/d stays finite. (Bounding it harder, d ≥ 0.05 z, left the bedroom's lamp 4.5 cm off instead of about 3:
+#: docs/results.md, "Spotlight shadows".)
+MIN_OCCLUDER_DEPTH = 1e-3
 #: The map covers the camera's field of view plus this margin on every side (degrees): the lamp is a few centimetres
 #: and about a degree off the camera, so every Gaussian the camera sees lands in the map.
 MAP_MARGIN_DEG = 5.0
@@ -167,7 +168,7 @@ def spot_visibility(gaussians: GaussianParams, light: SpotLight, shadow_map: Sha
         return visibility
     # The same values, with the position's gradient scaled per Gaussian by 1 - z/d (the occluders' motion in the
     # map): a lamp moved by δ (camera frame) moves the points by -Rᵀ δ in its frame.
-    scale = torch.where(occluder_depth > 0, 1.0 - depth / torch.maximum(occluder_depth, MIN_OCCLUDER_FRACTION * depth),
+    scale = torch.where(occluder_depth > 0, 1.0 - depth / occluder_depth.clamp_min(MIN_OCCLUDER_DEPTH),
                         torch.zeros_like(depth))
     moved = (light.translation - light.translation.detach())[None, :] * scale[:, None]  # value 0
     sampled, _ = _sample_moments(shadow_map.moments, points - moved @ shadow_map.lamp_rotation, shadow_map.K_map)
