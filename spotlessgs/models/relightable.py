@@ -94,7 +94,7 @@ class RelightableScene(nn.Module):
         K, width, height = camera.K, camera.width, camera.height
         mask = frustum_mask(g.means, scales, camera.viewmat, K, width, height)
         visibility = None
-        if self.config.spot_shadows and self.config.light_model == "spotlight" and relight_l0 is None:
+        if self.has_spot_shadows and relight_l0 is None:
             if shadow_map is None:
                 shadow_map = self.shadow_map(camera, backend, num_threads)
             visibility = shadow.spot_visibility(g, self.appearance.light, shadow_map)
@@ -103,6 +103,11 @@ class RelightableScene(nn.Module):
         return rasterize(g.means, g.quats, scales, g.opacities, feats, camera.viewmat, K, width, height,
                          background=background, backend=backend, num_threads=num_threads,
                          rigid_camera_grad=True)  # a view matrix with a gradient is a pose correction's
+
+    @property
+    def has_spot_shadows(self) -> bool:
+        """Whether the variant shades its spotlight with the lamp's shadow map (``ModelConfig.spot_shadows``)."""
+        return self.config.spot_shadows and self.config.light_model == "spotlight"
 
     def shadow_map(self, camera: Cameras, backend: str = "auto", num_threads: int | None = None) -> shadow.ShadowMap:
         """The lamp's shadow map for one view (``camera``), at the variant's ``shadow_map_scale``."""

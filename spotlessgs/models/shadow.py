@@ -144,12 +144,19 @@ def _blocked(sampled: torch.Tensor, depth: torch.Tensor) -> tuple[torch.Tensor, 
     return blocked, occluder_depth
 
 
+def _lit_fraction(moments: torch.Tensor, points_light: torch.Tensor, K_map: torch.Tensor, depth: torch.Tensor
+                  ) -> tuple[torch.Tensor, torch.Tensor]:
+    """(N, 1) lit fraction of points (N, 3) in the lamp's frame whose own depth counts as ``depth`` (N,), and the
+    occluders' depth d (N,) (see :func:`_blocked`); 1 behind the lamp and outside the map."""
+    sampled, inside = _sample_moments(moments, points_light, K_map)
+    blocked, occluder_depth = _blocked(sampled, depth)
+    return torch.where(inside, 1.0 - blocked, torch.ones_like(blocked))[:, None], occluder_depth
+
+
 def map_visibility(moments: torch.Tensor, points_light: torch.Tensor, K_map: torch.Tensor) -> torch.Tensor:
     """(N, 1) lit fraction V ∈ [0, 1] of points (N, 3) in the lamp's frame against its moment shadow map (3, H, W)
     (see the module docstring); 1 behind the lamp and outside the map."""
-    sampled, inside = _sample_moments(moments, points_light, K_map)
-    blocked, _ = _blocked(sampled, points_light[:, 2].clamp_min(1e-3))
-    return torch.where(inside, 1.0 - blocked, torch.ones_like(blocked))[:, None]
+    return _lit_fraction(moments, points_light, K_map, points_light[:, 2].clamp_min(1e-3))[0]
 
 
 def spot_visibility(gaussians: GaussianParams, light: SpotLight, shadow_map: ShadowMap) -> torch.Tensor:
@@ -160,10 +167,8 @@ def spot_visibility(gaussians: GaussianParams, light: SpotLight, shadow_map: Sha
     with torch.no_grad():
         view = shadow_map.world_to_lamp
         points = gaussians.means @ view[:3, :3].T + view[:3, 3]
-        sampled, inside = _sample_moments(shadow_map.moments, points, shadow_map.K_map)
         depth = points[:, 2].clamp_min(1e-3)
-        blocked, occluder_depth = _blocked(sampled, depth)
-        visibility = torch.where(inside, 1.0 - blocked, torch.ones_like(blocked))[:, None]
+        visibility, occluder_depth = _lit_fraction(shadow_map.moments, points, shadow_map.K_map, depth)
     if not (light.translation.requires_grad and torch.is_grad_enabled()):
         return visibility
     # The same values, with the position's gradient scaled per Gaussian by 1 - z/d (the occluders' motion in the
@@ -171,6 +176,4 @@ def spot_visibility(gaussians: GaussianParams, light: SpotLight, shadow_map: Sha
     scale = torch.where(occluder_depth > 0, 1.0 - depth / occluder_depth.clamp_min(MIN_OCCLUDER_DEPTH),
                         torch.zeros_like(depth))
     moved = (light.translation - light.translation.detach())[None, :] * scale[:, None]  # value 0
-    sampled, _ = _sample_moments(shadow_map.moments, points - moved @ shadow_map.lamp_rotation, shadow_map.K_map)
-    blocked, _ = _blocked(sampled, depth)
-    return torch.where(inside, 1.0 - blocked, torch.ones_like(blocked))[:, None]
+    return _lit_fraction(shadow_map.moments, points - moved @ shadow_map.lamp_rotation, shadow_map.K_map, depth)[0]

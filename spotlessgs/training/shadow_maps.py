@@ -9,6 +9,7 @@ the maps an uninterrupted one would.
 
 from __future__ import annotations
 
+import dataclasses
 from typing import Any
 
 import torch
@@ -28,7 +29,7 @@ class ShadowMapCache:
 
     def get(self, scene: RelightableScene, view: int, step: int, camera: Cameras) -> ShadowMap | None:
         """The map of ``view`` for ``step`` (None when the model has no spotlight shadows: nothing to cache)."""
-        if not (scene.config.spot_shadows and scene.appearance.light is not None):
+        if not scene.has_spot_shadows:
             return None
         cached = self.maps.get(view)
         if cached is None or step - cached[0] >= self.config.shadow_map_every:
@@ -38,10 +39,11 @@ class ShadowMapCache:
 
     def state_dict(self) -> dict[int, dict[str, Any]]:
         """The cached maps by view: the step each was rendered at and its tensors (for a checkpoint)."""
-        return {view: {"step": step, "moments": m.moments, "K_map": m.K_map, "world_to_lamp": m.world_to_lamp,
-                       "lamp_rotation": m.lamp_rotation} for view, (step, m) in self.maps.items()}
+        return {view: {"step": step, **{f.name: getattr(m, f.name) for f in dataclasses.fields(ShadowMap)}}
+                for view, (step, m) in self.maps.items()}
 
     def load_state_dict(self, state: dict[int, dict[str, Any]], device: torch.device | str) -> None:
         """Restore the maps of :meth:`state_dict` onto ``device``."""
-        self.maps = {int(view): (int(entry["step"]), ShadowMap(*(entry[name].to(device) for name in (
-            "moments", "K_map", "world_to_lamp", "lamp_rotation")))) for view, entry in state.items()}
+        self.maps = {int(view): (int(entry["step"]), ShadowMap(**{f.name: entry[f.name].to(device)
+                                                               for f in dataclasses.fields(ShadowMap)}))
+                     for view, entry in state.items()}
