@@ -53,11 +53,18 @@ def _in_shadow_by_geometry(points: np.ndarray, lamp: np.ndarray, inset: float) -
     return (np.abs(hit) < OCCLUDER_HALF - inset).all(axis=1) & (points[:, 2] > OCCLUDER_Z + 0.1)
 
 
+def _lamp_visibility(g: GaussianParams, light: SpotLight) -> torch.Tensor:
+    """(N,) the lit fraction against the lamp's own map alone (not relative to the camera's view)."""
+    shadow_map = render_shadow_map(g, light, torch.eye(4), K, WIDTH, HEIGHT)
+    view = shadow_map.world_to_lamp
+    return map_visibility(shadow_map.moments, g.means.detach() @ view[:3, :3].T + view[:3, 3], shadow_map.K_map)[:, 0]
+
+
 @pytest.mark.parametrize("translation", [[0.1, 0.0, 0.0], [0.0, -0.08, 0.03]])
 def test_square_casts_the_shadow_that_ray_geometry_predicts(translation):
     g, n_wall = _wall_and_occluder()
     light = build_appearance_models("darkgs", seed=0, light_translation=translation).light
-    vis = _visibility(g, light)[:, 0].detach().numpy()
+    vis = _lamp_visibility(g, light).numpy()
     xyz = g.means.detach().numpy()
     lamp = np.asarray(translation, float)
     # The occluder's Gaussians (σ = 1.5 cm) soften its edge by about 3σ: 4.5 cm at its plane, 9 cm on the wall.
@@ -71,6 +78,54 @@ def test_square_casts_the_shadow_that_ray_geometry_predicts(translation):
     assert vis[n_wall:].min() > 0.99  # the occluder itself is lit (it is the first surface)
 
 
+@pytest.mark.parametrize("translation", [[0.3, 0.0, 0.0], [0.0, -0.3, 0.03]])
+def test_the_camera_sees_the_shadow_beside_the_occluder(translation):
+    """Relative to the camera's view: what the camera sees is dark where the lamp's shadow falls on it (a lamp 30 cm
+    off the camera, so that a band of shadow shows beside the square) and lit elsewhere."""
+    g, n_wall = _wall_and_occluder()
+    light = build_appearance_models("darkgs", seed=0, light_translation=translation).light
+    vis = _visibility(g, light)[:, 0].detach().numpy()
+    xyz = g.means.detach().numpy()
+    seen = ~_in_shadow_by_geometry(xyz, np.zeros(3), inset=-0.045)  # not behind the square from the camera
+    dark = _in_shadow_by_geometry(xyz, np.asarray(translation, float), inset=0.01) & seen
+    lit = ~_in_shadow_by_geometry(xyz, np.asarray(translation, float), inset=-0.045) & seen
+    lit[:n_wall] &= (np.abs(xyz[:n_wall, :2]) < 0.9).all(axis=1)
+    assert dark.sum() > 20 and lit[:n_wall].sum() > 500
+    assert vis[dark].max() < 0.01 and vis[lit].min() > 0.99
+
+
+def test_a_lamp_at_the_camera_casts_no_shadow_the_camera_sees():
+    """No parallax, no visible shadow: everything the camera sees is lit, the wall behind the square included where
+    the camera sees past its soft edge; the lamp's own map does shadow it there."""
+    g, _ = _wall_and_occluder()
+    light = build_appearance_models("darkgs", seed=0, light_translation=[0.0, 0.0, 0.0]).light
+    vis = _visibility(g, light)[:, 0].detach()
+    shadow_map = render_shadow_map(g, light, torch.eye(4), K, WIDTH, HEIGHT)
+    camera_lit = map_visibility(shadow_map.camera_moments, g.means.detach(), shadow_map.K_map)[:, 0]
+    seen = camera_lit > 0.05
+    assert int((seen & (camera_lit < 0.9)).sum()) > 10  # partly hidden Gaussians along the square's soft edge
+    assert float(vis[seen].min()) > 0.99
+
+
+def test_a_fuzzy_surface_does_not_shadow_itself():
+    """A thick, half-transparent cloud (a surface fitted loosely, as from a sparse start): the lamp's map alone sees
+    its back half behind its front half, but the camera, 5 cm from the lamp, sees it so too: it is lit."""
+    rng = np.random.default_rng(0)
+    xyz = np.concatenate([rng.uniform(-0.8, 0.8, (3000, 2)), rng.normal(2.0, 0.2, (3000, 1))], axis=1)
+    g = GaussianParams.from_point_cloud(xyz, np.full((len(xyz), 3), 128, np.uint8))
+    with torch.no_grad():
+        g.params["opacity_logits"].fill_(0.0)  # 0.5
+        g.params["log_scales"].fill_(float(np.log(0.04)))
+    light = build_appearance_models("darkgs", seed=0, light_translation=[0.05, 0.0, 0.0]).light
+    lamp_only = _lamp_visibility(g, light)
+    vis = _visibility(g, light)[:, 0].detach()
+    shadow_map = render_shadow_map(g, light, torch.eye(4), K, WIDTH, HEIGHT)
+    camera_lit = map_visibility(shadow_map.camera_moments, g.means.detach(), shadow_map.K_map)[:, 0]
+    seen = camera_lit > 0.1
+    assert int(seen.sum()) > 1000 and float(lamp_only[seen].mean()) < 0.7  # (0.57)
+    assert float(vis[seen].mean()) > 0.95 and float(vis[seen].quantile(0.05)) > 0.85  # (0.98, 0.88)
+
+
 def test_shadow_moves_with_the_light():
     g, _ = _wall_and_occluder()
     xyz = g.means.detach().numpy()
@@ -79,7 +134,7 @@ def test_shadow_moves_with_the_light():
     means = []
     for t in (0.0, 0.2):  # edge at -0.3 (the band lit), then at -0.5 (the band in shadow)
         light = build_appearance_models("darkgs", seed=0, light_translation=[t, 0.0, 0.0]).light
-        means.append(float(_visibility(g, light)[torch.from_numpy(band)].mean()))
+        means.append(float(_visibility(g, light).detach()[torch.from_numpy(band)].mean()))
     assert band.sum() >= 20 and means[0] > 0.9 and means[1] < 0.1
 
 
@@ -98,8 +153,8 @@ def test_the_lamp_position_gradient_is_the_shadows_own():
     lit.backward()
     analytic = float(light.translation.grad[0])
     h = 0.005
-    numeric = (float(_band_visibility(g, band, [0.1 + h, 0.0, 0.0])[0])
-               - float(_band_visibility(g, band, [0.1 - h, 0.0, 0.0])[0])) / (2 * h)
+    numeric = (float(_band_visibility(g, band, [0.1 + h, 0.0, 0.0])[0].detach())
+               - float(_band_visibility(g, band, [0.1 - h, 0.0, 0.0])[0].detach())) / (2 * h)
     assert numeric < -100  # the lamp moving right moves the shadow's left edge into the band
     assert analytic == pytest.approx(numeric, rel=0.25)
     assert light.rotvec.grad is None or float(light.rotvec.grad.abs().max()) == 0.0  # rotation moves no shadow
@@ -186,6 +241,15 @@ def test_training_reuses_each_views_map_for_shadow_map_every_steps():
     first = cache.get(scene, 0, 10, camera)
     assert cache.get(scene, 0, 12, camera) is first and cache.get(scene, 1, 12, camera) is not first
     assert cache.get(scene, 0, 13, camera) is not first  # three steps old: rendered again
+    state = cache.state_dict()
+    restored = ShadowMapCache(TrainConfig())
+    restored.load_state_dict(state, "cpu")
+    assert set(restored.maps) == {0, 1} and restored.maps[0][0] == 13
+    torch.testing.assert_close(restored.maps[0][1].camera_moments, cache.maps[0][1].camera_moments)
+    lamp_only = {view: {k: v for k, v in entry.items() if k not in ("camera_moments", "world_to_camera")}
+                 for view, entry in state.items()}  # a checkpoint from before the camera's own map
+    restored.load_state_dict(lamp_only, "cpu")
+    assert restored.maps == {}  # its views render new maps
     plain = RelightableScene.create(MODEL_VARIANTS["darkgs"], g, seed=0)
     assert ShadowMapCache(TrainConfig()).get(plain, 0, 0, camera) is None
     with pytest.raises(ValueError, match="shadow_map_every"):

@@ -97,7 +97,7 @@ class RelightableScene(nn.Module):
         if self.has_spot_shadows and relight_l0 is None:
             if shadow_map is None:
                 shadow_map = self.shadow_map(camera, backend, num_threads)
-            visibility = shadow.spot_visibility(g, self.appearance.light, shadow_map)
+            visibility = shadow.spot_visibility(g, self.appearance.light, shadow_map, self.config.shadow_camera_relative)
         feats = self.colours(camera.c2w, mask=mask, relight_l0=relight_l0, split_lights=split_lights,
                              spot_visibility=visibility)
         return rasterize(g.means, g.quats, scales, g.opacities, feats, camera.viewmat, K, width, height,

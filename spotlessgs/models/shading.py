@@ -100,6 +100,9 @@ class ModelConfig:
     spot_shadows: bool = False
     # The shadow map's focal length as a fraction of the camera's (1: the map resolves what the camera does).
     shadow_map_scale: float = 0.5
+    # The lamp's lit fraction divided by the camera's own (models.shadow): a lamp at the camera casts no visible shadow
+    # and a loosely fitted surface does not shadow itself. False: the lamp's map alone.
+    shadow_camera_relative: bool = True
 
     def __post_init__(self) -> None:
         if self.light_model not in ("none", "spotlight"):

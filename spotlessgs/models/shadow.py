@@ -1,4 +1,4 @@
-"""Spotlight shadows: how much of the lamp each Gaussian sees, from a shadow map rendered at the lamp.
+"""Spotlight shadows: how much of the lamp each Gaussian sees, from shadow maps rendered at the lamp and the camera.
 
 The lamp rides on the camera a few centimetres off its centre, so the camera sees thin shadows beside every depth edge.
 Without a shadow term they are painted into the albedo and relighting shows them as dark outlines.
@@ -17,19 +17,31 @@ surface). The moments then give q exactly:
 
     q = (A r - S1)² / (A r² - 2 r S1 + S2)  (0 where A r ≤ S1),   V_i = 1 - clamp(q, 0, 1)
 
-the lit fraction (the variance shadow map's Chebyshev bound, with the ray's missing weight 1 - A escaping). A
+the lamp's lit fraction (the variance shadow map's Chebyshev bound, with the ray's missing weight 1 - A escaping). A
 Gaussian on the first surface is lit (V = 1), one behind an occluder gets V ≈ 1 - the occluder's opacity, one behind
 the faint tail of an occluder's Gaussian is only dimmed by that tail's opacity. Outside the map or behind the lamp
 V = 1. The moments are sampled bilinearly (moments may be filtered, depths may not).
+
+Relative to the camera: the same moments are rendered from the camera (at the map's pinhole) and give the camera's
+own lit fraction C_i of each Gaussian, the part of it the camera sees past what lies in front. The spotlight reaches
+
+    S_i = min(1, V_i / max(C_i, MIN_CAMERA_LIT))
+
+of what the camera sees of Gaussian i. A lamp at the camera casts no shadow the camera can see (V = C); only the
+lamp's offset from the camera (parallax) shows shadows: beside depth edges, where the camera sees a surface that the
+lamp does not. This matters for a loosely fitted surface (a thick, half-transparent cloud of Gaussians, as a sparse
+SfM start leaves it): the lamp sees its back half behind its front half (V ≈ 0.6 in a cloud 20 cm deep), and without
+the division the albedo would be fitted brighter there by 1/V and relighting would show it; the camera sees the cloud
+the same way (C ≈ V), so S ≈ 1 (tests/test_models_shadow.py). Only Gaussians with V < 1 need C.
 
 Gradient: only the lamp's position t (SpotLight.translation) gets one, and it is the shadows' cue for it. The map is
 rendered without a gradient, so the gradient of V through the point's map position alone would be wrong: moving the
 lamp by δ moves the receiver's image in the map by -f δ / z, but also the occluder's, by -f δ / d (d its depth), and
 shadows follow their difference, f δ (1/d - 1/z) (the wrong sign without the second part: d < z). So the map position
 is differentiated with t's gradient scaled by 1 - z/d, per Gaussian, d the occluders' depth that the moments give
-(d = r - (A r - S1)/q); where nothing blocks the lamp (q ≈ 0) V does not depend on t. The depth compare has no
-gradient (the lamp moving along its axis shifts occluder and receiver alike). Rotating the lamp moves no shadow: no
-gradient for its rotation, and none for the Gaussians (a fixed map would not see an occluder move).
+(d = r - (A r - S1)/q); where nothing blocks the lamp (q ≈ 0) V does not depend on t, and C never does. The depth
+compare has no gradient (the lamp moving along its axis shifts occluder and receiver alike). Rotating the lamp moves
+no shadow: no gradient for its rotation, and none for the Gaussians (a fixed map would not see an occluder move).
 """
 
 from __future__ import annotations
@@ -54,6 +66,9 @@ MIN_OCCLUDER_DEPTH = 1e-3
 #: The map covers the camera's field of view plus this margin on every side (degrees): the lamp is a few centimetres
 #: and about a degree off the camera, so every Gaussian the camera sees lands in the map.
 MAP_MARGIN_DEG = 5.0
+#: The camera's own lit fraction of a Gaussian is taken as at least this when the lamp's is divided by it (a Gaussian
+#: the camera hardly sees adds almost nothing to its view).
+MIN_CAMERA_LIT = 1e-3
 
 
 def light_to_world(light: SpotLight, c2w: torch.Tensor) -> torch.Tensor:
@@ -89,29 +104,37 @@ def shadow_map_camera(K: torch.Tensor, width: int, height: int, map_scale: float
 
 @dataclass(frozen=True)
 class ShadowMap:
-    """The lamp's moment shadow map for one view, and the lamp pose it was rendered from (all without a gradient)."""
+    """The lamp's moment shadow map for one view, the camera's own moment map beside it, and the poses they were
+    rendered from (all without a gradient)."""
 
     moments: torch.Tensor  # (3, H_map, W_map) [A, S1, S2], depths in metres along the light's axis
-    K_map: torch.Tensor  # (3, 3) the map's pinhole
+    K_map: torch.Tensor  # (3, 3) the pinhole of both maps
     world_to_lamp: torch.Tensor  # (4, 4) the lamp's view matrix when it was rendered
     lamp_rotation: torch.Tensor  # (3, 3) light → camera rotation then (SpotLight.rotation())
+    camera_moments: torch.Tensor  # (3, H_map, W_map) the same moments seen from the camera, depths along its axis
+    world_to_camera: torch.Tensor  # (4, 4) the camera's view matrix
 
 
 def render_shadow_map(gaussians: GaussianParams, light: SpotLight, c2w: torch.Tensor, K: torch.Tensor, width: int,
                       height: int, map_scale: float = 1.0, backend: str = "auto", num_threads: int | None = None
                       ) -> ShadowMap:
-    """The lamp's moment shadow map (see the module docstring) for the view ``c2w`` (camera ``K``, ``width`` ×
-    ``height``: the map covers its field of view, at ``map_scale`` times its focal length), without a gradient."""
+    """The lamp's moment shadow map and the camera's own (see the module docstring) for the view ``c2w`` (camera
+    ``K``, ``width`` × ``height``: the maps cover its field of view, at ``map_scale`` times its focal length), without
+    a gradient."""
     with torch.no_grad():
         K_map, width_map, height_map = shadow_map_camera(K, width, height, map_scale)
-        viewmat = torch.linalg.inv(light_to_world(light, c2w))
-        g = gaussians
-        means = g.means
-        z = means @ viewmat[2, :3] + viewmat[2, 3]
-        out = rasterize(means, g.quats, g.scales, g.opacities, torch.stack([z, z * z], dim=1), viewmat, K_map,
-                        width_map, height_map, backend=backend, num_threads=num_threads)
-        moments = torch.cat([out.alpha[None], out.image.permute(2, 0, 1)], dim=0)
-        return ShadowMap(moments, K_map, viewmat, light.rotation().detach())
+        lamp_view = torch.linalg.inv(light_to_world(light, c2w))
+        camera_view = torch.linalg.inv(c2w.to(gaussians.means))
+
+        def moments_from(viewmat: torch.Tensor) -> torch.Tensor:
+            g = gaussians
+            z = g.means @ viewmat[2, :3] + viewmat[2, 3]
+            out = rasterize(g.means, g.quats, g.scales, g.opacities, torch.stack([z, z * z], dim=1), viewmat, K_map,
+                            width_map, height_map, backend=backend, num_threads=num_threads)
+            return torch.cat([out.alpha[None], out.image.permute(2, 0, 1)], dim=0)
+
+        return ShadowMap(moments_from(lamp_view), K_map, lamp_view, light.rotation().detach(),
+                         moments_from(camera_view), camera_view)
 
 
 def _sample_moments(moments: torch.Tensor, points_light: torch.Tensor, K_map: torch.Tensor
@@ -159,21 +182,36 @@ def map_visibility(moments: torch.Tensor, points_light: torch.Tensor, K_map: tor
     return _lit_fraction(moments, points_light, K_map, points_light[:, 2].clamp_min(1e-3))[0]
 
 
-def spot_visibility(gaussians: GaussianParams, light: SpotLight, shadow_map: ShadowMap) -> torch.Tensor:
+def spot_visibility(gaussians: GaussianParams, light: SpotLight, shadow_map: ShadowMap, camera_relative: bool = True
+                    ) -> torch.Tensor:
     """(N, 1) how much of the spotlight reaches each Gaussian in the view of ``shadow_map``: 1 lit, 0 in the shadow
-    of what the lamp sees first. Its value is the map's (from the lamp pose it was rendered at, so a map may be
-    reused for a few steps); its gradient reaches the lamp's current position only, the shadows' own (see the module
-    docstring)."""
+    of what the lamp sees first; relative to what the camera itself sees of it (S of the module docstring), or with
+    ``camera_relative`` False the lamp's V alone. Its value is
+    the maps' (from the poses they were rendered at, so maps may be reused for a few steps); its gradient reaches the
+    lamp's current position only, the shadows' own (see the module docstring)."""
     with torch.no_grad():
         view = shadow_map.world_to_lamp
         points = gaussians.means @ view[:3, :3].T + view[:3, 3]
         depth = points[:, 2].clamp_min(1e-3)
-        visibility, occluder_depth = _lit_fraction(shadow_map.moments, points, shadow_map.K_map, depth)
+        lamp_lit, occluder_depth = _lit_fraction(shadow_map.moments, points, shadow_map.K_map, depth)
+        # only what the lamp does not fully see can be in a shadow: the rest of the work is on these
+        blocked = torch.nonzero(lamp_lit[:, 0] < 1.0)[:, 0]
+        if camera_relative:
+            camera_view = shadow_map.world_to_camera
+            seen = gaussians.means[blocked] @ camera_view[:3, :3].T + camera_view[:3, 3]
+            camera_lit = _lit_fraction(shadow_map.camera_moments, seen, shadow_map.K_map, seen[:, 2].clamp_min(1e-3))[0]
+            own = camera_lit.clamp_min(MIN_CAMERA_LIT)
+        else:
+            own = torch.ones_like(lamp_lit[blocked])
+        visibility = lamp_lit.index_copy(0, blocked, (lamp_lit[blocked] / own).clamp_max(1.0))
     if not (light.translation.requires_grad and torch.is_grad_enabled()):
         return visibility
     # The same values, with the position's gradient scaled per Gaussian by 1 - z/d (the occluders' motion in the
     # map): a lamp moved by δ (camera frame) moves the points by -Rᵀ δ in its frame.
-    scale = torch.where(occluder_depth > 0, 1.0 - depth / occluder_depth.clamp_min(MIN_OCCLUDER_DEPTH),
-                        torch.zeros_like(depth))
+    depth_b, occluder_b = depth[blocked], occluder_depth[blocked]
+    scale = torch.where(occluder_b > 0, 1.0 - depth_b / occluder_b.clamp_min(MIN_OCCLUDER_DEPTH),
+                        torch.zeros_like(depth_b))
     moved = (light.translation - light.translation.detach())[None, :] * scale[:, None]  # value 0
-    return _lit_fraction(shadow_map.moments, points - moved @ shadow_map.lamp_rotation, shadow_map.K_map, depth)[0]
+    lamp_lit_b = _lit_fraction(shadow_map.moments, points[blocked] - moved @ shadow_map.lamp_rotation,
+                               shadow_map.K_map, depth_b)[0]
+    return visibility.index_copy(0, blocked, (lamp_lit_b / own).clamp_max(1.0))

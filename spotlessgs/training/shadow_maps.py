@@ -43,7 +43,8 @@ class ShadowMapCache:
                 for view, (step, m) in self.maps.items()}
 
     def load_state_dict(self, state: dict[int, dict[str, Any]], device: torch.device | str) -> None:
-        """Restore the maps of :meth:`state_dict` onto ``device``."""
-        self.maps = {int(view): (int(entry["step"]), ShadowMap(**{f.name: entry[f.name].to(device)
-                                                               for f in dataclasses.fields(ShadowMap)}))
-                     for view, entry in state.items()}
+        """Restore the maps of :meth:`state_dict` onto ``device``. A map that lacks a field (a checkpoint from before
+        the camera's own map) is left out: its view renders a new one when next fitted."""
+        names = [f.name for f in dataclasses.fields(ShadowMap)]
+        self.maps = {int(view): (int(entry["step"]), ShadowMap(**{name: entry[name].to(device) for name in names}))
+                     for view, entry in state.items() if all(name in entry for name in names)}
