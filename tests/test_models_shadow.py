@@ -237,7 +237,7 @@ def test_training_reuses_each_views_map_for_shadow_map_every_steps():
     g, _ = _wall_and_occluder()
     camera = Cameras(torch.eye(4), Intrinsics(100.0, 100.0, 64.0, 48.0, WIDTH, HEIGHT))
     scene = RelightableScene.create(dataclasses.replace(MODEL_VARIANTS["darkgs"], spot_shadows=True), g, seed=0)
-    cache = ShadowMapCache(TrainConfig(shadow_map_every=3))  # (default 90)
+    cache = ShadowMapCache(TrainConfig(shadow_map_every=3))  # (default 180)
     first = cache.get(scene, 0, 10, camera)
     assert cache.get(scene, 0, 12, camera) is first and cache.get(scene, 1, 12, camera) is not first
     assert cache.get(scene, 0, 13, camera) is not first  # three steps old: rendered again

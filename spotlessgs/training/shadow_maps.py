@@ -1,7 +1,7 @@
-"""The training views' lamp shadow maps, kept between the steps that fit a view (``TrainConfig.shadow_map_every``).
+"""The training views' shadow maps, kept between the steps that fit a view (``TrainConfig.shadow_map_every``).
 
-A shadow map costs about a sixth of a training step (one forward rasterization from the lamp, at half the camera's
-focal length); reused for a few visits of its view it costs that much less. A reused map gives the shadows of the
+A view's pair of maps (the lamp's and the camera's) costs about a third of a training step (two forward
+rasterizations at half the camera's focal length); reused for a few visits of its view it costs that much less. A reused map gives the shadows of the
 geometry and lamp pose it was rendered from; the gradient still reaches the lamp's current position
 (:func:`spotlessgs.models.shadow.spot_visibility`). The maps go into the checkpoints, so that a resumed run reuses
 the maps an uninterrupted one would.
@@ -21,7 +21,7 @@ from spotlessgs.training.config import TrainConfig
 
 
 class ShadowMapCache:
-    """Each training view's lamp shadow map, re-rendered when ``config.shadow_map_every`` steps old (models.shadow)."""
+    """Each training view's shadow maps, re-rendered when ``config.shadow_map_every`` steps old (models.shadow)."""
 
     def __init__(self, config: TrainConfig) -> None:
         self.config = config
