@@ -333,8 +333,7 @@ def test_a_run_of_any_model_config_is_stored_and_restored(box_room, tmp_path):
     info = json.loads((tmp_path / "run" / "run.json").read_text())
     assert info["model"] == "auto-sh1-lambert" and info["model_config"]["sh_degree"] == 1
     scene, _views, _cfg, _info = load_run(tmp_path / "run", device="cpu")
-    assert scene.config == dataclasses.replace(model, brdf_hidden=8, bounce_light_degree=2,  # the trainer's settings
-                                               spot_shadows=True)
+    assert scene.config == dataclasses.replace(model, brdf_hidden=8, bounce_light_degree=2)  # the trainer's settings
     assert scene.appearance.lf_light.degree == 1 and scene.appearance.bounce_light.degree == 2
     assert result.validation_psnr is not None and result.validation_psnr > 0
     assert run_decisions(tmp_path / "run") == {"model chosen": "auto-sh1-lambert", "Gaussians": result.num_gaussians}

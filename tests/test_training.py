@@ -284,19 +284,20 @@ def test_a_run_from_before_a_setting_existed_resumes_with_its_default(bedroom, t
 
     from spotlessgs.training.trainer import load_run
 
-    # a run from before the bounce light and the shadows: it trained without them, whatever today's defaults
+    # a run from before the bounce light and the camera-relative shadows: it trained with neither (its shadows, had
+    # it turned them on, the lamp's map alone), whatever today's defaults
     cfg = _tiny(iterations=40, image_width=40, densify_from=1000, checkpoint_every=20, bounce_light_degree=-1,
-                spot_shadows=False, shadow_camera_relative=False)
+                shadow_camera_relative=False)
     train(bedroom, tmp_path / "run", "darkgs+sh", cfg, seed=0, progress=False, stop_after=20)
     path = tmp_path / "run" / "config.json"
     saved = json.loads(path.read_text())
-    for name in ("low_frequency_shading", "bounce_light_degree", "spot_shadows", "shadow_camera_relative"):
+    for name in ("low_frequency_shading", "bounce_light_degree", "shadow_camera_relative"):
         del saved["train"][name]
         del saved["model_config"][name]
     path.write_text(json.dumps(saved))
     scene = load_run(tmp_path / "run", device="cpu")[0]
     assert scene.appearance.bounce_light is None  # absent: the value before it
-    assert not scene.has_spot_shadows and not scene.config.shadow_camera_relative
+    assert not scene.config.shadow_camera_relative
     result = train(bedroom, tmp_path / "run", "darkgs+sh", cfg, seed=0, progress=False, resume=True)
     assert result.steps == 40
     with pytest.raises(ValueError, match="other settings"):  # a setting that differs from its default still counts
