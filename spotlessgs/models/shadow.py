@@ -186,9 +186,9 @@ def spot_visibility(gaussians: GaussianParams, light: SpotLight, shadow_map: Sha
                     ) -> torch.Tensor:
     """(N, 1) how much of the spotlight reaches each Gaussian in the view of ``shadow_map``: 1 lit, 0 in the shadow
     of what the lamp sees first; relative to what the camera itself sees of it (S of the module docstring), or with
-    ``camera_relative`` False the lamp's V alone. Its value is
-    the maps' (from the poses they were rendered at, so maps may be reused for a few steps); its gradient reaches the
-    lamp's current position only, the shadows' own (see the module docstring)."""
+    ``camera_relative`` False the lamp's V alone. Its value is the maps' (from the poses they were rendered at, so
+    maps may be reused for a few steps); its gradient reaches the lamp's current position only, the shadows' own
+    (see the module docstring)."""
     with torch.no_grad():
         view = shadow_map.world_to_lamp
         points = gaussians.means @ view[:3, :3].T + view[:3, 3]
