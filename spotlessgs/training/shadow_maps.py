@@ -2,9 +2,9 @@
 
 A view's pair of maps (the lamp's and the camera's) costs about a quarter of a training step (two forward
 rasterizations at half the camera's focal length); reused for a few visits of its view it costs that much less. A
-reused map gives the shadows of the geometry and lamp pose it was rendered from; the gradient still reaches the lamp's current position
-(:func:`spotlessgs.models.shadow.spot_visibility`). The maps go into the checkpoints, so that a resumed run reuses
-the maps an uninterrupted one would.
+reused map gives the shadows of the geometry and lamp pose it was rendered from; the gradient still reaches the
+lamp's current position (:func:`spotlessgs.models.shadow.spot_visibility`). The maps go into the checkpoints, so that
+a resumed run reuses the maps an uninterrupted one would.
 """
 
 from __future__ import annotations
