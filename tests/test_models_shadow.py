@@ -16,7 +16,7 @@ from spotlessgs.models.gaussians import GaussianParams
 from spotlessgs.models.light import SpotLight
 from spotlessgs.models.relightable import RelightableScene
 from spotlessgs.models.shading import MODEL_VARIANTS, build_appearance_models, shade
-from spotlessgs.models.shadow import edge_parallax, map_visibility, render_shadow_map, shadow_map_camera, spot_visibility
+from spotlessgs.models.shadow import map_visibility, render_shadow_map, shadow_map_camera, spot_visibility
 
 WALL_Z, OCCLUDER_Z, OCCLUDER_HALF = 2.0, 1.0, 0.15
 K = torch.tensor([[100.0, 0.0, 64.0], [0.0, 100.0, 48.0], [0.0, 0.0, 1.0]])
@@ -270,20 +270,3 @@ def test_tiny_huge_and_lamp_hugging_gaussians_give_finite_shadows_and_gradients(
     vis.sum().backward()
     assert torch.isfinite(vis).all() and float(vis.min()) >= 0.0 and float(vis.max()) <= 1.0
     assert torch.isfinite(light.translation.grad).all()
-
-
-def test_edge_parallax_is_the_shadow_shift_per_metre_of_lamp_offset_at_depth_edges():
-    # An occluder 1 m away over a wall 2 m away, f = 100 px: a lamp 1 m to the side moves the shadow edge
-    # f (1/1 - 1/2) = 50 px (the occluder's image by f/1, the wall's by f/2); one edge pair per row.
-    depth = np.full((4, 6), 2.0)
-    depth[:, :3] = 1.0
-    np.testing.assert_allclose(edge_parallax(depth, 100.0), np.full(4, 50.0))
-    # The same across rows (a horizontal edge), and nothing behind the occluder (inf) is no edge.
-    np.testing.assert_allclose(edge_parallax(depth.T, 100.0), np.full(4, 50.0))
-    sky = depth.copy()
-    sky[:, 3:] = np.inf
-    assert edge_parallax(sky, 100.0).size == 0
-    # A slanted wall whose neighbouring depths differ by less than 10 % has no edge.
-    assert edge_parallax(np.tile(np.linspace(1.0, 1.2, 6), (4, 1)), 100.0).size == 0
-    with pytest.raises(ValueError, match="depth must be"):
-        edge_parallax(np.ones(5), 100.0)

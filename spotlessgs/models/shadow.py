@@ -49,7 +49,6 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
-import numpy as np
 import torch
 import torch.nn.functional as F
 
@@ -219,23 +218,3 @@ def spot_visibility(gaussians: GaussianParams, light: SpotLight, shadow_map: Sha
     lamp_lit_b = _lit_fraction(shadow_map.moments, points[blocked] - moved @ shadow_map.lamp_rotation,
                                shadow_map.K_map, depth_b)[0]
     return visibility.index_copy(0, blocked, (lamp_lit_b / own).clamp_max(1.0))
-
-
-def edge_parallax(depth: np.ndarray, focal_px: float, min_jump: float = 1.1) -> np.ndarray:
-    """How far the lamp's shadows move in the image per metre of the lamp's sideways offset from the camera, at every
-    depth edge of a view: f (1/d - 1/z) pixels per metre for each pair of neighbouring pixels (along a row or a
-    column) at planar depths d < z with z ≥ ``min_jump`` · d (an occluder's silhouette over what lies behind it).
-
-    The shadow beside such an edge is that wide for a lamp offset of one metre, up to the edge's orientation: it is
-    how finely the image resolves the lamp's position from its shadows. Args: depth (H, W) metres (inf or NaN where
-    nothing was hit: such pairs are skipped), focal_px the focal length in pixels. Returns (M,) float64, one value per
-    edge pair (empty for a view without depth edges)."""
-    depth = np.asarray(depth, dtype=np.float64)
-    if depth.ndim != 2:
-        raise ValueError(f"edge_parallax: depth must be (H, W), got shape {depth.shape}")
-    values = []
-    for a, b in ((depth[:, 1:], depth[:, :-1]), (depth[1:, :], depth[:-1, :])):
-        near, far = np.minimum(a, b), np.maximum(a, b)
-        edge = np.isfinite(far) & (near > 0) & (far >= min_jump * near)
-        values.append(focal_px * (1.0 / near[edge] - 1.0 / far[edge]))
-    return np.concatenate(values)
