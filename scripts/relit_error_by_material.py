@@ -55,8 +55,11 @@ def main() -> None:
           f"(uniform ground truth there {gt_all.numpy()[metal_all].mean():.3f}, elsewhere "
           f"{gt_all.numpy()[~metal_all].mean():.3f})")
     for folder in args.relit:
-        pred = torch.from_numpy(np.stack([read_image(Path(folder) / dataset.image_paths[i].name) for i in views]))
-        pred = pred.double()
+        try:
+            pred = np.stack([read_image(Path(folder) / dataset.image_paths[i].name) for i in views])
+        except FileNotFoundError as error:  # one line naming the missing file
+            raise SystemExit(str(error)) from None
+        pred = torch.from_numpy(pred).double()
         aligned = apply_gain(pred, exposure_gain(pred, gt_all)).numpy()
         error = ((aligned - gt_all.numpy()) ** 2).mean(-1)
         print(f"{folder}: PSNR of the pooled aligned error {-10 * math.log10(error.mean()):.2f} dB; metal holds "

@@ -14,7 +14,7 @@ import pytest
 import torch
 
 from spotlessgs.models.gaussians import GaussianParams
-from spotlessgs.training.losses import clipped_l1, photometric_loss
+from spotlessgs.training.losses import clipped_l1, depth_spread_loss, photometric_loss
 from spotlessgs.training.strategy import DensifyConfig, DensifyStrategy
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -358,6 +358,18 @@ def test_spot_shadows_train_reload_and_leave_relighting_alone(bedroom, tmp_path)
 
 
 @pytest.mark.blender
+def test_the_depth_spread_term_trains_and_is_saved(bedroom, tmp_path):
+    from spotlessgs.training.trainer import load_run, train
+
+    cfg = _tiny(iterations=30, image_width=40, densify_from=1000, checkpoint_every=30, depth_spread_weight=1.0)
+    run = tmp_path / "run"
+    train(bedroom, run, "darkgs", cfg, seed=0, progress=False)
+    rows = [json.loads(line) for line in (run / "metrics.jsonl").read_text().splitlines()]
+    assert rows and all(math.isfinite(r["loss"]) for r in rows)
+    assert load_run(run, device="cpu")[2].depth_spread_weight == 1.0
+
+
+@pytest.mark.blender
 def test_nan_stops_training_and_keeps_the_last_good_checkpoint(bedroom, tmp_path, monkeypatch):
     import spotlessgs.training.trainer as trainer_mod
 
@@ -497,6 +509,49 @@ def test_a_view_with_no_visible_gaussian_renders_black_with_finite_gradients(var
     loss, _ = photometric_loss(out.image, torch.full((24, 32, 3), 0.2), torch.zeros(24, 32, dtype=torch.bool))
     loss.backward()
     assert all(torch.isfinite(p.grad).all() for p in scene.parameters() if p.grad is not None)
+
+
+def test_depth_spread_loss_is_the_relative_depth_variance_of_covered_pixels():
+    # Pixel 0: weights 0.6 at z = 2 and 0.3 at z = 4: A = 0.9, mean = (1.2 + 1.2) / 0.9 = 8/3, E[z²] = (2.4 + 4.8) / 0.9
+    # = 8, variance 8 - 64/9 = 8/9, relative 8/9 / (64/9) = 1/8. Pixel 1: one opaque Gaussian at z = 3: 0.
+    # Pixel 2: A = 0.2 < 0.5, left out whatever its moments.
+    alpha = torch.tensor([[0.9, 1.0, 0.2]])
+    moments = torch.tensor([[[0.6 * 2 + 0.3 * 4, 0.6 * 4 + 0.3 * 16], [3.0, 9.0], [0.1, 5.0]]], requires_grad=True)
+    loss = depth_spread_loss(moments, alpha)
+    assert float(loss.detach()) == pytest.approx((1 / 8 + 0) / 2, rel=1e-5)
+    loss.backward()
+    assert float(moments.grad[0, 2].abs().sum()) == 0.0 and float(moments.grad[0, 0].abs().sum()) > 0
+    # Scale-free: the same slab twice as far costs the same.
+    far = moments.detach() * torch.tensor([2.0, 4.0])
+    assert float(depth_spread_loss(far, alpha)) == pytest.approx(float(loss.detach()), rel=1e-5)
+    empty = torch.zeros(1, 2, 2, requires_grad=True)
+    none = depth_spread_loss(empty, torch.zeros(1, 2))
+    none.backward()
+    assert float(none) == 0.0 and empty.grad is not None
+
+
+def test_render_with_depth_moments_matches_the_rasterizers_depth_and_image():
+    """The two extra channels are Σ w z and Σ w z² of the same compositing: Σ w z / A is the rasterizer's own
+    depth output, Σ w z² ≥ (Σ w z)² / A, and the colour image is the plain render's."""
+    from spotlessgs.io.camera_batch import Cameras
+    from spotlessgs.io.cameras import Intrinsics
+    from spotlessgs.models.relightable import RelightableScene
+
+    rng = np.random.default_rng(3)
+    points = np.column_stack([rng.uniform(-0.5, 0.5, (200, 2)), rng.uniform(1.5, 3.0, 200)])
+    g = GaussianParams.from_point_cloud(points, rng.integers(0, 256, (200, 3)).astype(np.uint8))
+    scene = RelightableScene.create("darkgs", g, seed=0)
+    camera = Cameras(torch.eye(4), Intrinsics(40.0, 40.0, 16.0, 12.0, 32, 24))
+    out, moments = scene.render_with_depth_moments(camera)
+    plain = scene.render(camera)
+    assert moments.shape == (24, 32, 2) and out.image.shape == (24, 32, 3)
+    torch.testing.assert_close(out.image, plain.image)
+    covered = out.alpha > 0.5
+    assert int(covered.sum()) > 50
+    torch.testing.assert_close(moments[..., 0][covered] / out.alpha[covered], out.depth[covered], rtol=1e-4, atol=1e-4)
+    assert bool((moments[..., 1][covered] * out.alpha[covered] >= moments[..., 0][covered] ** 2 * (1 - 1e-4)).all())
+    depth_spread_loss(moments, out.alpha).backward()
+    assert g.params["means"].grad is not None and float(g.params["means"].grad.abs().sum()) > 0
 
 
 def test_random_initialisation_in_the_frusta_when_a_dataset_has_no_points(tmp_path, caplog):

@@ -6,6 +6,7 @@ dominates CPU time), the rest get zero colour and are culled by the rasterizer a
 
 from __future__ import annotations
 
+import dataclasses
 from collections.abc import Sequence
 
 import torch
@@ -87,6 +88,22 @@ class RelightableScene(nn.Module):
         ``relight_l0`` is given; ``split_lights``: a six-channel image, [spotlight part, low-frequency part] (their sum
         is the normal render). A variant with ``spot_shadows`` shades the spotlight with the lamp's shadow map
         (models.shadow): ``shadow_map``, one rendered for this view a few steps ago, or else a new one."""
+        return self._render(camera, relight_l0, backend, num_threads, background, split_lights, shadow_map)
+
+    def render_with_depth_moments(
+        self, camera: Cameras, *, backend: str = "auto", num_threads: int | None = None,
+        shadow_map: shadow.ShadowMap | None = None,
+    ) -> tuple[RasterOutput, torch.Tensor]:
+        """:meth:`render` under the learned spotlight, and the depth moments (H, W, 2) [Σ w z, Σ w z²] of the same
+        compositing (w the weights, z each Gaussian's camera-frame depth; Σ w is the output's alpha), rendered in the
+        same pass as two more channels (training's depth-spread term: losses.depth_spread_loss)."""
+        out = self._render(camera, None, backend, num_threads, None, False, shadow_map, depth_moments=True)
+        return dataclasses.replace(out, image=out.image[..., :-2]), out.image[..., -2:]
+
+    def _render(self, camera: Cameras, relight_l0: torch.Tensor | Sequence[float] | None, backend: str,
+                num_threads: int | None, background: torch.Tensor | None, split_lights: bool,
+                shadow_map: shadow.ShadowMap | None, depth_moments: bool = False) -> RasterOutput:
+        """:meth:`render`; ``depth_moments`` (no ``background``): two more channels, Σ w z and Σ w z²."""
         if camera.is_batch:
             raise ValueError("RelightableScene.render: expected one view, got a batch of cameras")
         g = self.gaussians
@@ -100,6 +117,9 @@ class RelightableScene(nn.Module):
             visibility = shadow.spot_visibility(g, self.appearance.light, shadow_map, self.config.shadow_camera_relative)
         feats = self.colours(camera.c2w, mask=mask, relight_l0=relight_l0, split_lights=split_lights,
                              spot_visibility=visibility)
+        if depth_moments:
+            depth = (g.means @ camera.viewmat[:3, :3].T + camera.viewmat[:3, 3])[:, 2:3]  # (N, 1) camera-frame z
+            feats = torch.cat([feats, depth, depth * depth], dim=1)
         return rasterize(g.means, g.quats, scales, g.opacities, feats, camera.viewmat, K, width, height,
                          background=background, backend=backend, num_threads=num_threads,
                          rigid_camera_grad=True)  # a view matrix with a gradient is a pose correction's

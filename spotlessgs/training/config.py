@@ -127,6 +127,11 @@ class TrainConfig:
     # Weight of the normal-shape term mean(1 - |n̂·â|) over the visible Gaussians, â each one's shortest axis
     # (losses.normal_shape_loss): ties the free shading normals to the splats' shape (0: off, the paper's).
     normal_axis_weight: float = 0.0
+    # Weight of the depth-spread term (losses.depth_spread_loss): the spread of the Gaussians' depths along each
+    # pixel's ray, relative to their mean, over the pixels the render covers. It draws each surface's slab of Gaussians
+    # together (0: off, the paper's). A candidate: +0.30 dB against the bedroom's uniform ground truth, three seeds
+    # (docs/results.md, "Issue 18's remaining targets").
+    depth_spread_weight: float = 0.0
 
     # Photometric camera (spotlessgs.models.photometric): learn a per-frame exposure and the lens's vignetting.
     # "auto": on for datasets from real cameras (no "spotless" block), off for our simulator's renders (one fixed
@@ -220,6 +225,8 @@ class TrainConfig:
             raise ValueError(f"TrainConfig: photometric must be 'auto', 'on' or 'off', got {self.photometric!r}")
         if not (math.isfinite(self.normal_axis_weight) and self.normal_axis_weight >= 0):
             raise ValueError(f"TrainConfig: normal_axis_weight must be finite and >= 0, got {self.normal_axis_weight}")
+        if not (math.isfinite(self.depth_spread_weight) and self.depth_spread_weight >= 0):
+            raise ValueError(f"TrainConfig: depth_spread_weight must be finite and >= 0, got {self.depth_spread_weight}")
         if self.loss_space not in LOSS_SPACES:
             raise ValueError(f"TrainConfig: loss_space must be 'linear' or 'srgb', got {self.loss_space!r}")
         if self.pose_texture_weight < 0 or self.pose_penalty < 0 or self.lr_pose <= 0:

@@ -1,5 +1,6 @@
-"""Photometric loss: (1 - λ) L1 + λ (1 - SSIM), with clipped input pixels handled one-sidedly, in linear light or
-in sRGB-encoded values."""
+"""Training losses. The photometric loss: (1 - λ) L1 + λ (1 - SSIM), with clipped input pixels handled one-sidedly, in
+linear light or in sRGB-encoded values; the optional terms on the Gaussians' shape (normal shape, depth spread); and
+the pose refinement's texture terms."""
 
 from __future__ import annotations
 
@@ -25,6 +26,25 @@ def normal_shape_loss(normals: torch.Tensor, axes: torch.Tensor, visible: torch.
     if not bool(visible.any()):
         return normals.sum() * 0.0
     return (1.0 - (normals[visible] * axes[visible]).sum(-1).abs()).mean()
+
+
+#: Pixels whose accumulated opacity reaches this count for the depth-spread term (a surface, not its fringe).
+DEPTH_SPREAD_MIN_ALPHA = 0.5
+
+
+def depth_spread_loss(moments: torch.Tensor, alpha: torch.Tensor) -> torch.Tensor:
+    """The mean, over pixels with accumulated opacity A ≥ DEPTH_SPREAD_MIN_ALPHA, of the squared coefficient of
+    variation of the Gaussians' depths along the pixel's ray, var / mean² with mean = S1 / A and var = S2 / A - mean²,
+    from the depth moments (H, W, 2) [S1, S2] = [Σ w z, Σ w z²] (w the compositing weights) and A (H, W). Scale-free:
+    a slab of Gaussians 10 % of its depth thick costs the same near and far. 0 (with a gradient) where no pixel
+    counts."""
+    covered = alpha >= DEPTH_SPREAD_MIN_ALPHA
+    if not bool(covered.any()):
+        return moments.sum() * 0.0
+    weight = alpha[covered]
+    mean = moments[..., 0][covered] / weight
+    variance = (moments[..., 1][covered] / weight - mean * mean).clamp_min(0.0)
+    return (variance / (mean * mean).clamp_min(1e-6)).mean()
 
 
 def clipped_l1(pred: torch.Tensor, target: torch.Tensor, saturated: torch.Tensor) -> torch.Tensor:

@@ -42,7 +42,7 @@ from spotlessgs.training.checkpoint import (
 from spotlessgs.training.config import TrainConfig, with_defaults
 from spotlessgs.training.data import TrainingViews, initial_point_cloud, load_training_views
 from spotlessgs.training.light_report import write_light_report
-from spotlessgs.training.losses import normal_shape_loss, photometric_loss, pose_refinement_terms
+from spotlessgs.training.losses import depth_spread_loss, normal_shape_loss, photometric_loss, pose_refinement_terms
 from spotlessgs.training.pose_alignment import AlignedView, align_views
 from spotlessgs.training.pose_file import write_refined_poses
 from spotlessgs.training.strategy import DensifyConfig, DensifyStrategy
@@ -527,8 +527,12 @@ def _train_locked(data_dir: Path, run_dir: Path, variant: str | ModelConfig, con
             refining = poses is not None and step >= config.pose_refine_from
             row = poses.row(k) if refining else None  # (9,) the view's correction, a sparse gradient
             camera = corrected_camera(cameras[k], row) if refining else cameras[k]
-            out = scene.render(camera, backend=config.raster_backend, num_threads=config.num_threads,
-                               shadow_map=shadow_maps.get(scene, k, step, camera))
+            render_options = {"backend": config.raster_backend, "num_threads": config.num_threads,
+                              "shadow_map": shadow_maps.get(scene, k, step, camera)}
+            if config.depth_spread_weight > 0:
+                out, depth_moments = scene.render_with_depth_moments(camera, **render_options)
+            else:
+                out = scene.render(camera, **render_options)
             if not torch.isfinite(out.image).all():
                 raise TrainingDivergedError(f"step {step}: the render of view {views.names[k]} has NaN/Inf; "
                                             f"the last good checkpoint {ckpt_file} is intact")
@@ -541,6 +545,8 @@ def _train_locked(data_dir: Path, run_dir: Path, variant: str | ModelConfig, con
                 target = torch.where(ignored[k][..., None], recorded.detach().clamp(0.0, 1.0), target)
                 clipped = clipped | ignored[k]
             loss, parts = photometric_loss(recorded, target, clipped, config.ssim_lambda, config.loss_space)
+            if config.depth_spread_weight > 0:
+                loss = loss + config.depth_spread_weight * depth_spread_loss(depth_moments, out.alpha)
             if prior is not None and scene.appearance.light is not None:
                 loss = loss + scene.appearance.light.light_prior_loss(prior, config.light_prior_weight)
             if config.normal_axis_weight > 0:
