@@ -7,9 +7,10 @@ DATA is a dataset of ``spotless-sim render --gt uniform``; each folder holds rel
 predictions are exposure-aligned as ``spotless eval`` aligns them (one linear-light gain for the sequence,
 evaluation.alignment). A pixel counts as metal where the renderer's diffuse colour (the EXR's albedo pass) is below
 0.03 in every channel's mean and the uniform ground truth above 0.15 (sRGB): a surface that reflects even light but
-has no diffuse colour. Prints per folder the PSNR of the squared error pooled over the views, the share of the squared error on metal pixels and the PSNR were the metals exact, and the
-mean aligned prediction and ground truth (sRGB) on metal and on the other pixels. The figures of docs/results.md
-("The glossy room's metals") came from this command.
+has no diffuse colour. Prints the metals' share of the pixels and the uniform ground truth's mean on them and on the
+rest (sRGB), then per folder the PSNR of the squared error pooled over the views, the metals' share of that error, the
+PSNR were the metals exact, and the mean aligned prediction on the metals and on the rest. The figures of
+docs/results.md ("The glossy room's metals") came from this command.
 """
 
 from __future__ import annotations
