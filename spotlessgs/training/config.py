@@ -226,7 +226,8 @@ class TrainConfig:
         if not (math.isfinite(self.normal_axis_weight) and self.normal_axis_weight >= 0):
             raise ValueError(f"TrainConfig: normal_axis_weight must be finite and >= 0, got {self.normal_axis_weight}")
         if not (math.isfinite(self.depth_spread_weight) and self.depth_spread_weight >= 0):
-            raise ValueError(f"TrainConfig: depth_spread_weight must be finite and >= 0, got {self.depth_spread_weight}")
+            raise ValueError(f"TrainConfig: depth_spread_weight must be finite and >= 0, "
+                             f"got {self.depth_spread_weight}")
         if self.loss_space not in LOSS_SPACES:
             raise ValueError(f"TrainConfig: loss_space must be 'linear' or 'srgb', got {self.loss_space!r}")
         if self.pose_texture_weight < 0 or self.pose_penalty < 0 or self.lr_pose <= 0:
