@@ -101,6 +101,12 @@ def viewmat_to_c2w(viewmat: torch.Tensor) -> torch.Tensor:
     return out
 
 
+def points_in_view(points: torch.Tensor, view: torch.Tensor) -> torch.Tensor:
+    """World points (N, 3) in the frame of a view matrix ``view`` (4, 4) (world-to-camera, or world-to-lamp), (N, 3):
+    R x + t."""
+    return points @ view[:3, :3].T + view[:3, 3]
+
+
 def world_to_camera(points: torch.Tensor, c2w: torch.Tensor) -> torch.Tensor:
     """Points (N, 3) in world → camera coordinates (N, 3): x_cam = R_cwᵀ (x - C)."""
     return (points - c2w[:3, 3]) @ c2w[:3, :3]

@@ -14,6 +14,7 @@ from torch import nn
 
 from spotlessgs.io.camera_batch import Cameras
 from spotlessgs.models.gaussians import GaussianParams
+from spotlessgs.models.geometry import points_in_view
 from spotlessgs.models import shadow
 from spotlessgs.models.shading import AppearanceModels, ModelConfig, build_appearance_models, resolve_variant, shade
 from spotlessgs.rasterizer import RasterOutput, rasterize
@@ -30,7 +31,7 @@ def frustum_mask(
         (OpenCV); K: (3, 3); width, height: image size (px).
     """
     with torch.no_grad():
-        cam = means @ viewmat[:3, :3].T + viewmat[:3, 3]
+        cam = points_in_view(means, viewmat)
         z = cam[:, 2]
         zc = z.clamp(min=near)
         u = K[0, 0] * cam[:, 0] / zc + K[0, 2]
@@ -118,7 +119,7 @@ class RelightableScene(nn.Module):
         feats = self.colours(camera.c2w, mask=mask, relight_l0=relight_l0, split_lights=split_lights,
                              spot_visibility=visibility)
         if depth_moments:
-            depth = (g.means @ camera.viewmat[:3, :3].T + camera.viewmat[:3, 3])[:, 2:3]  # (N, 1) camera-frame z
+            depth = points_in_view(g.means, camera.viewmat)[:, 2:3]  # (N, 1) camera-frame z
             feats = torch.cat([feats, depth, depth * depth], dim=1)
         return rasterize(g.means, g.quats, scales, g.opacities, feats, camera.viewmat, K, width, height,
                          background=background, backend=backend, num_threads=num_threads,

@@ -53,7 +53,7 @@ import torch
 import torch.nn.functional as F
 
 from spotlessgs.models.gaussians import GaussianParams
-from spotlessgs.models.geometry import check_c2w
+from spotlessgs.models.geometry import check_c2w, points_in_view
 from spotlessgs.models.light import SpotLight
 from spotlessgs.rasterizer import rasterize
 
@@ -176,11 +176,6 @@ def _lit_fraction(moments: torch.Tensor, points_light: torch.Tensor, K_map: torc
     return torch.where(inside, 1.0 - blocked, torch.ones_like(blocked))[:, None], occluder_depth
 
 
-def _in_frame(points: torch.Tensor, view: torch.Tensor) -> torch.Tensor:
-    """World points (N, 3) in the frame of the view matrix ``view`` (4, 4) (the lamp's or the camera's), (N, 3)."""
-    return points @ view[:3, :3].T + view[:3, 3]
-
-
 def map_visibility(moments: torch.Tensor, points_light: torch.Tensor, K_map: torch.Tensor) -> torch.Tensor:
     """(N, 1) lit fraction V ∈ [0, 1] of points (N, 3) in the lamp's frame against its moment shadow map (3, H, W)
     (see the module docstring); 1 behind the lamp and outside the map."""
@@ -195,13 +190,13 @@ def spot_visibility(gaussians: GaussianParams, light: SpotLight, shadow_map: Sha
     maps may be reused for a few steps); its gradient reaches the lamp's current position only, the shadows' own
     (see the module docstring)."""
     with torch.no_grad():
-        points = _in_frame(gaussians.means, shadow_map.world_to_lamp)
+        points = points_in_view(gaussians.means, shadow_map.world_to_lamp)
         depth = points[:, 2].clamp_min(1e-3)
         lamp_lit, occluder_depth = _lit_fraction(shadow_map.moments, points, shadow_map.K_map, depth)
         # only what the lamp does not fully see can be in a shadow: the rest of the work is on these
         blocked = torch.nonzero(lamp_lit[:, 0] < 1.0)[:, 0]
         if camera_relative:
-            seen = _in_frame(gaussians.means[blocked], shadow_map.world_to_camera)
+            seen = points_in_view(gaussians.means[blocked], shadow_map.world_to_camera)
             camera_lit = _lit_fraction(shadow_map.camera_moments, seen, shadow_map.K_map, seen[:, 2].clamp_min(1e-3))[0]
             own = camera_lit.clamp_min(MIN_CAMERA_LIT)
         else:
