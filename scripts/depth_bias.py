@@ -8,7 +8,7 @@ ray: the depth at which the pixel's colour is shaded, so the distance the spotli
 true depth at the pixels the model covers (accumulated opacity above 0.95) away from depth edges (true depth within
 5 % over each 3x3 neighbourhood). Prints the median, mean and quartiles of that ratio, the median difference in
 centimetres by true depth, and the median spread of the Gaussians' depths along a pixel's ray (standard deviation over
-mean, from the depth moments of RelightableScene.render_with_depth_moments). The figures of docs/results.md ("What
+mean: RelightableScene.render_with_depth_moments, losses.ray_depth_statistics). The figures of docs/results.md ("What
 limits the learned lamp's position") came from this command.
 """
 
@@ -21,6 +21,7 @@ import torch
 from scipy.ndimage import maximum_filter, minimum_filter
 
 from spotlessgs.io.exr import read_frame_exr
+from spotlessgs.training.losses import ray_depth_statistics
 from spotlessgs.training.trainer import load_run
 
 #: Pixels count where the model's accumulated opacity exceeds this and the true depth varies less than EDGE_RATIO.
@@ -42,7 +43,7 @@ def depth_comparison(run: str) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
                 raise SystemExit(f"{views.dataset.source}: frame {index} has no EXR (no true depth)")
             true = read_frame_exr(exr).depth
             out, moments = scene.render_with_depth_moments(views.cameras[index])
-            model, alpha, moments = out.depth.numpy(), out.alpha.numpy(), moments.numpy()
+            model, alpha = out.depth.numpy(), out.alpha.numpy()
             if model.shape != true.shape:
                 raise SystemExit(f"{run}: trained at {model.shape[1]}x{model.shape[0]}, the EXRs are "
                                  f"{true.shape[1]}x{true.shape[0]}: the ratio needs the dataset's own size")
@@ -50,11 +51,10 @@ def depth_comparison(run: str) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
             safe = np.where(finite, true, 1.0)
             smooth = maximum_filter(safe, 3) / minimum_filter(safe, 3) < EDGE_RATIO
             keep = finite & smooth & (alpha > MIN_ALPHA)
-            mean = moments[..., 0][keep] / alpha[keep]
-            variance = np.clip(moments[..., 1][keep] / alpha[keep] - mean * mean, 0.0, None)
+            mean, variance = ray_depth_statistics(moments, out.alpha, torch.from_numpy(keep))
             model_depths.append(model[keep])
             true_depths.append(true[keep])
-            spreads.append(np.sqrt(variance) / mean)
+            spreads.append((variance.sqrt() / mean).numpy())
     return np.concatenate(model_depths), np.concatenate(true_depths), np.concatenate(spreads)
 
 

@@ -32,6 +32,16 @@ def normal_shape_loss(normals: torch.Tensor, axes: torch.Tensor, visible: torch.
 DEPTH_SPREAD_MIN_ALPHA = 0.5
 
 
+def ray_depth_statistics(moments: torch.Tensor, alpha: torch.Tensor, where: torch.Tensor
+                         ) -> tuple[torch.Tensor, torch.Tensor]:
+    """The mean and variance (M,) of the Gaussians' depths along the rays of the pixels ``where`` (H, W) bool (M of
+    them), from the depth moments (H, W, 2) [S1, S2] = [Σ w z, Σ w z²] and the accumulated opacity A = Σ w (H, W):
+    mean = S1 / A, variance = S2 / A - mean² (kept ≥ 0 against rounding)."""
+    weight = alpha[where]
+    mean = moments[..., 0][where] / weight
+    return mean, (moments[..., 1][where] / weight - mean * mean).clamp_min(0.0)
+
+
 def depth_spread_loss(moments: torch.Tensor, alpha: torch.Tensor) -> torch.Tensor:
     """The mean, over pixels with accumulated opacity A ≥ DEPTH_SPREAD_MIN_ALPHA, of the squared coefficient of
     variation of the Gaussians' depths along the pixel's ray, var / mean² with mean = S1 / A and var = S2 / A - mean²,
@@ -41,9 +51,7 @@ def depth_spread_loss(moments: torch.Tensor, alpha: torch.Tensor) -> torch.Tenso
     covered = alpha >= DEPTH_SPREAD_MIN_ALPHA
     if not bool(covered.any()):
         return moments.sum() * 0.0
-    weight = alpha[covered]
-    mean = moments[..., 0][covered] / weight
-    variance = (moments[..., 1][covered] / weight - mean * mean).clamp_min(0.0)
+    mean, variance = ray_depth_statistics(moments, alpha, covered)
     return (variance / (mean * mean).clamp_min(1e-6)).mean()
 
 
