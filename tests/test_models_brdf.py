@@ -198,3 +198,32 @@ def test_unclamped_brdf_keeps_glossy_lobes_and_their_albedo():
     assert _scalar(peak.min()) > 100.0
     clamped = LearnedBRDF(seed=0)(torch.full((1, 3), 0.7), torch.full((1, 1), 0.05), torch.ones(1, 1), up, up, up)
     assert _scalar(clamped.max()) == 1.0
+
+
+def test_burley_factor_off_leaves_a_lambertian_diffuse_lobe():
+    """Lit and seen 60° off the normal from one direction (ĥ = l̂, l·h = 1), a fully rough dielectric's Burley factor
+    is (1 + (F_D90 - 1)(1 - cos 60°)⁵)² with F_D90 = ½ + 2 = 2.5, i.e. (1 + 1.5 / 32)²; without it the diffuse lobe is
+    a/π. The specular lobe is the same either way, and so the difference is a/π ((1 + 1.5/32)² - 1)."""
+    n = torch.tensor([[0.0, 0.0, 1.0]], dtype=F64)
+    d = torch.tensor([[math.sin(math.pi / 3), 0.0, 0.5]], dtype=F64)
+    a = torch.tensor([[0.6, 0.3, 0.1]], dtype=F64)
+    rough, metal = torch.ones(1, 1, dtype=F64), torch.zeros(1, 1, dtype=F64)
+    with_factor = disney_brdf(a, rough, metal, n, d, d)
+    lambertian = disney_brdf(a, rough, metal, n, d, d, burley=False)
+    torch.testing.assert_close(with_factor - lambertian, a / math.pi * ((1.0 + 1.5 / 32.0) ** 2 - 1.0))
+    metal_only = disney_brdf(a, rough, torch.ones(1, 1, dtype=F64), n, d, d, burley=False)
+    torch.testing.assert_close(metal_only, disney_brdf(a, rough, torch.ones(1, 1, dtype=F64), n, d, d))
+    learned = LearnedBRDF(seed=0, hidden=8, burley=False).double()
+    torch.testing.assert_close(learned(a, rough, metal, n, d, d), math.pi * lambertian)  # zero-initialised MLP
+
+
+def test_directional_albedo_without_burley_has_a_unit_diffuse_integral():
+    """The Lambertian lobe's cosine integral is exactly 1 (C = 2 ∫ μ dμ); Burley's is not: at ρ = 0, F_D90 = ½ and
+    C = 2 ∫ (1 - ½ (1 - μ)⁵) μ dμ = 1 - B(2, 6) = 1 - 1/42. The specular columns do not depend on the diffuse lobe."""
+    from spotlessgs.models.brdf import directional_albedo_table
+
+    burley = directional_albedo_table(size=5, samples=512)
+    lambertian = directional_albedo_table(size=5, samples=512, burley=False)
+    torch.testing.assert_close(lambertian[:, 2], torch.ones(5, dtype=F64))
+    torch.testing.assert_close(lambertian[:, :2], burley[:, :2])
+    assert abs(float(burley[0, 2]) - (1.0 - 1.0 / 42.0)) < 1e-5

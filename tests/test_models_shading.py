@@ -383,6 +383,25 @@ def test_unclamped_learned_brdf_relights_with_the_tabulated_directional_albedo()
     assert models.brdf.upper_clamp
 
 
+def test_lambertian_diffuse_setting_reaches_the_learned_brdf_and_its_relit_albedo():
+    """TrainConfig.brdf_burley_diffuse=False reaches the learned BRDF through model_config, and an unclamped model
+    relights with the table of the Lambertian lobe: a rough dielectric's directional albedo differs from Burley's."""
+    from spotlessgs.models.brdf import disney_directional_albedo
+    from spotlessgs.training.config import TrainConfig
+    from spotlessgs.training.trainer import model_config
+
+    config = model_config("spotless", TrainConfig(brdf_hidden=16, brdf_burley_diffuse=False, brdf_upper_clamp=False))
+    assert not config.brdf_burley_diffuse
+    models = build_appearance_models(config, seed=1)
+    assert not models.brdf.burley
+    g = _scene()
+    relit = shade(config, g, None, models.lf_light, models.brdf, CAM, relight_l0=[1.0, 1.0, 1.0])
+    torch.testing.assert_close(relit, disney_directional_albedo(g.albedo, g.roughness, g.metalness, burley=False),
+                               rtol=1e-5, atol=1e-6)
+    assert not torch.allclose(relit, disney_directional_albedo(g.albedo, g.roughness, g.metalness), atol=1e-3)
+    assert build_appearance_models(model_config("spotless", TrainConfig(brdf_hidden=16)), seed=1).brdf.burley
+
+
 def _rotated(g: GaussianParams, q: np.ndarray) -> GaussianParams:
     """The Gaussians' positions and normals turned by the rotation q (3, 3) about the origin (same colours)."""
     with torch.no_grad():

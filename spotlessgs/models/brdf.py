@@ -13,6 +13,7 @@ Disney/GGX, all dot products of unit vectors, h = normalize(l + v):
     F = F0 + (1 - F0)(1 - l·h)⁵,  F0 = lerp(0.04, a, η)      Schlick Fresnel, metalness η
     f_spec = D F G1(n·l) G1(n·v) / (4 (n·l)(n·v)) = D F / (4 (n·l (1-k) + k)(n·v (1-k) + k))
     f_diff = (1 - η) a/π (1 + (F_D90 - 1)(1 - n·l)⁵)(1 + (F_D90 - 1)(1 - n·v)⁵),  F_D90 = ½ + 2 ρ (l·h)²   (Burley)
+    or, without Burley's factor (``burley=False``), the Lambertian f_diff = (1 - η) a/π
 Guards: n·l and n·v are clamped to [ε, 1] (ε = 1e-4) inside the BRDF, α ≥ 1e-3, and the G1 ratio is simplified
 algebraically so that no denominator goes below k² ≥ 1/64. The model is symmetric in (l, v) (reciprocity).
 
@@ -54,6 +55,7 @@ def disney_brdf(
     normals: torch.Tensor,
     view_dirs: torch.Tensor,
     light_dirs: torch.Tensor,
+    burley: bool = True,
 ) -> torch.Tensor:
     """Physical Disney/GGX BRDF f (1/sr), without the cosine factor.
 
@@ -62,6 +64,8 @@ def disney_brdf(
         roughness: (N, 1) or (N,) ρ in [0, 1].
         metalness: (N, 1) or (N,) η in [0, 1].
         normals, view_dirs, light_dirs: (N, 3) unit vectors n̂, v̂ (point → camera), l̂ (point → light).
+        burley: the diffuse lobe with Burley's retro-reflection factor (brighter towards grazing for rough surfaces
+            lit and seen from one direction, darker for smooth ones); False: the Lambertian lobe (1 - η) a/π.
     Returns:
         (N, 3) BRDF values ≥ 0, finite for all inputs including ρ = 0, grazing and back-facing directions.
     """
@@ -83,9 +87,10 @@ def disney_brdf(
     fresnel = f0 + (1.0 - f0) * (1.0 - l_h) ** 5
     specular = ndf * vis * fresnel
 
-    fd90 = 0.5 + 2.0 * rough * l_h * l_h
     diffuse = (1.0 - metal) * albedo / math.pi
-    diffuse = diffuse * (1.0 + (fd90 - 1.0) * (1.0 - n_l) ** 5) * (1.0 + (fd90 - 1.0) * (1.0 - n_v) ** 5)
+    if burley:
+        fd90 = 0.5 + 2.0 * rough * l_h * l_h
+        diffuse = diffuse * (1.0 + (fd90 - 1.0) * (1.0 - n_l) ** 5) * (1.0 + (fd90 - 1.0) * (1.0 - n_v) ** 5)
     return diffuse + specular
 
 
@@ -110,7 +115,8 @@ ALBEDO_TABLE_SIZE = 257
 ALBEDO_TABLE_SAMPLES = 4096
 
 
-def directional_albedo_table(size: int = ALBEDO_TABLE_SIZE, samples: int = ALBEDO_TABLE_SAMPLES) -> torch.Tensor:
+def directional_albedo_table(size: int = ALBEDO_TABLE_SIZE, samples: int = ALBEDO_TABLE_SAMPLES,
+                             burley: bool = True) -> torch.Tensor:
     """The unclamped Disney model's directional albedo seen along the normal (v̂ = n̂), split so that it is linear in
     the material: R = (1 - η) a C(ρ) + F0 A(ρ) + B(ρ), F0 = lerp(0.04, a, η). Returns (size, 3) float64 rows
     [A, B, C] at ρ = linspace(0, 1, size).
@@ -119,7 +125,7 @@ def directional_albedo_table(size: int = ALBEDO_TABLE_SIZE, samples: int = ALBED
     the specular one importance-samples the GGX half-vector (cos²θ_h = (1 - u) / (1 + (α² - 1) u), u uniform; then
     f cos / pdf = 4 V(n·l) n·l with l̂ the mirror of n̂ about ĥ and V the visibility term of :func:`disney_brdf`),
     exact for any roughness where a cosine-weighted quadrature misses a sharp lobe; the diffuse one integrates Burley's
-    factor over μ = n·l (C = 2 ∫ F_B(μ) μ dμ, (l·h)² = (1 + μ) / 2).
+    factor over μ = n·l (C = 2 ∫ F_B(μ) μ dμ, (l·h)² = (1 + μ) / 2), or is exactly 1 without it (``burley=False``).
     """
     rough = torch.linspace(0.0, 1.0, size, dtype=torch.float64)[:, None]
     u = (torch.arange(samples, dtype=torch.float64)[None] + 0.5) / samples
@@ -132,25 +138,29 @@ def directional_albedo_table(size: int = ALBEDO_TABLE_SIZE, samples: int = ALBED
     schlick = (1.0 - cos_h) ** 5
     spec_a = (weight * (1.0 - schlick)).mean(1)
     spec_b = (weight * schlick).mean(1)
-    mu = u
-    fd90 = 0.5 + 2.0 * rough * (1.0 + mu) / 2.0
-    diffuse = 2.0 * ((1.0 + (fd90 - 1.0) * (1.0 - mu) ** 5) * mu).mean(1)
+    if burley:
+        mu = u
+        fd90 = 0.5 + 2.0 * rough * (1.0 + mu) / 2.0
+        diffuse = 2.0 * ((1.0 + (fd90 - 1.0) * (1.0 - mu) ** 5) * mu).mean(1)
+    else:
+        diffuse = torch.ones_like(spec_a)
     return torch.stack([spec_a, spec_b, diffuse], dim=1)
 
 
-_ALBEDO_TABLE: torch.Tensor | None = None
+# The tables of directional_albedo_table, by whether the diffuse lobe has Burley's factor; built once per process.
+_ALBEDO_TABLES: dict[bool, torch.Tensor] = {}
 
 
-def disney_directional_albedo(albedo: torch.Tensor, roughness: torch.Tensor, metalness: torch.Tensor) -> torch.Tensor:
+def disney_directional_albedo(albedo: torch.Tensor, roughness: torch.Tensor, metalness: torch.Tensor,
+                              burley: bool = True) -> torch.Tensor:
     """The unclamped Disney model's directional albedo under uniform light seen along the normal,
     R = (1/π) ∫ π f cos dω, (N, 3), from :func:`directional_albedo_table` (linear in ρ between its rows, so
-    differentiable in a, ρ and η). Shapes as in :func:`disney_brdf`."""
-    global _ALBEDO_TABLE
-    if _ALBEDO_TABLE is None:  # 257 x 4096 quadrature, about 0.3 s; once per process
-        _ALBEDO_TABLE = directional_albedo_table()
+    differentiable in a, ρ and η). Shapes and ``burley`` as in :func:`disney_brdf`."""
+    if burley not in _ALBEDO_TABLES:  # 257 x 4096 quadrature, about 0.3 s
+        _ALBEDO_TABLES[burley] = directional_albedo_table(burley=burley)
     rough = _column(roughness, "roughness").clamp(0.0, 1.0)
     metal = _column(metalness, "metalness")
-    table = _ALBEDO_TABLE.to(device=albedo.device, dtype=albedo.dtype)
+    table = _ALBEDO_TABLES[burley].to(device=albedo.device, dtype=albedo.dtype)
     position = rough * (table.shape[0] - 1)
     low = position.floor().clamp(max=table.shape[0] - 2).long().squeeze(1)
     frac = position - low[:, None].to(position.dtype)
@@ -170,6 +180,8 @@ class LearnedBRDF(nn.Module):
         upper_clamp: clamp f̃ at 1 (the research code's bound). It is no white-furnace bound: a glossy lobe's peak is
             far above 1, so the clamp flattens glossy and metallic surfaces (a metal of ρ = 0.1 and a = 0.7 reflects
             3 % of uniform light instead of 70 %). False: f̃ = π f_Disney · modulation, only kept ≥ 0.
+        burley: the Disney diffuse lobe with Burley's retro-reflection factor (the paper's); False: Lambertian
+            (see :func:`disney_brdf`).
     """
 
     def __init__(
@@ -179,9 +191,11 @@ class LearnedBRDF(nn.Module):
         residual: float = BRDF_RESIDUAL,
         seed: int = 0,
         upper_clamp: bool = True,
+        burley: bool = True,
     ) -> None:
         super().__init__()
         self.upper_clamp = upper_clamp
+        self.burley = burley
         if not 0.0 <= residual < 1.0:
             raise ValueError(f"LearnedBRDF residual must be in [0, 1) to keep the factor positive, got {residual}")
         self.num_frequencies = num_frequencies
@@ -212,7 +226,7 @@ class LearnedBRDF(nn.Module):
         light_dirs: torch.Tensor,
     ) -> torch.Tensor:
         """π-scaled reflectance f̃ (N, 3) in [0, 1]; argument shapes as in `disney_brdf`."""
-        analytic = math.pi * disney_brdf(albedo, roughness, metalness, normals, view_dirs, light_dirs)
+        analytic = math.pi * disney_brdf(albedo, roughness, metalness, normals, view_dirs, light_dirs, self.burley)
         reflectance = analytic * self.modulation(normals, view_dirs, light_dirs)
         return reflectance.clamp(0.0, 1.0) if self.upper_clamp else reflectance
 

@@ -90,6 +90,11 @@ class ModelConfig:
     # directional albedo R is the Disney model's, tabulated with an importance-sampled quadrature
     # (brdf.disney_directional_albedo), in relighting and in the irradiance shading alike.
     brdf_upper_clamp: bool = True
+    # The learned BRDF's diffuse lobe with Burley's retro-reflection factor (the paper's Disney model) or Lambertian
+    # (LearnedBRDF.burley; also the directional albedo's table). Burley's factor brightens a rough surface towards
+    # grazing when it is lit and seen from one direction, as a lamp beside the camera does, so it trades against
+    # the spotlight's fall-off and position.
+    brdf_burley_diffuse: bool = True
     # Degree 0..3 of a second SH light for the lamp's own bounce light, evaluated at the normal in the camera frame
     # (it moves with the camera, as light bounced off what the lamp lights does), shaded like the low-frequency light
     # in training and left out of relighting; -1: none (the paper's). Only the variants with an SH light have one
@@ -266,7 +271,7 @@ def model_reflectance(
     model's (`disney_directional_albedo`: a table lookup, no network pass, right for glossy lobes that the clamp
     f̃ ≤ 1 flattens); otherwise `relit_reflectance` (the albedo itself for a Lambertian BRDF)."""
     if isinstance(brdf, LearnedBRDF) and (not brdf.upper_clamp or cfg.low_frequency_shading == "irradiance"):
-        return disney_directional_albedo(albedo, roughness, metalness)
+        return disney_directional_albedo(albedo, roughness, metalness, brdf.burley)
     return relit_reflectance(albedo, roughness, metalness, normals, brdf, cfg.relight_directions)
 
 
@@ -415,6 +420,7 @@ def build_appearance_models(
         light.set_pose_trainable(False)
     lf_light = ConstantAmbient(ambient_init) if cfg.ambient == "constant" else LowFrequencyLight(cfg.sh_degree)
     brdf = LambertianBRDF() if cfg.brdf == "lambert" else LearnedBRDF(hidden=cfg.brdf_hidden, seed=seed,
-                                                                     upper_clamp=cfg.brdf_upper_clamp)
+                                                                     upper_clamp=cfg.brdf_upper_clamp,
+                                                                     burley=cfg.brdf_burley_diffuse)
     bounce = LowFrequencyLight(cfg.bounce_degree) if cfg.bounce_degree >= 0 else None
     return AppearanceModels(light, lf_light, brdf, bounce)

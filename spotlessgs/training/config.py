@@ -102,6 +102,9 @@ class TrainConfig:
     learn_falloff: bool = True
     # The learned BRDF's f̃ clamped at 1 (the research code's) or not (ModelConfig.brdf_upper_clamp).
     brdf_upper_clamp: bool = True
+    # The learned BRDF's diffuse lobe with Burley's retro-reflection factor (the paper's) or Lambertian
+    # (ModelConfig.brdf_burley_diffuse).
+    brdf_burley_diffuse: bool = True
     # Degree of the lamp's bounce light, an SH of the camera-frame normal that is part of the SH light and left out of
     # relighting (ModelConfig.bounce_light_degree; -1: none, the paper's). Degree 2 relit the bedroom best (uniform
     # ground truth: 23.79 / 24.41 / 24.22 dB for degrees 1 / 2 / 3, 23.18 without; docs/results.md).
