@@ -578,3 +578,22 @@ def test_residual_light_adds_the_dimmed_lamps_to_the_spotlit_input_only(dataset,
     renderer = json.loads((out / "transforms.json").read_text())["spotless"]["renderer"]
     assert renderer["residual_light"] == 0.2
     assert "residual_light" not in json.loads((dataset / "transforms.json").read_text())["spotless"]["renderer"]
+
+
+def test_the_simulators_diffuse_lobe_is_lambertian_without_burleys_retro_reflection():
+    """The simulator's materials (Principled BSDF, specular layer off) lit and seen from one direction reflect exactly
+    cos θ at every roughness, so their diffuse lobe is Lambertian; the learned BRDF's Disney lobe would be
+    (1 + 1.5 (1 - cos 75°)⁵)² = 1.78 times brighter at 75° for ρ = 1 (brdf_burley_diffuse)."""
+    import math
+    import sys
+
+    result = subprocess.run([sys.executable, "-m", "simulator.blender.diffuse_lobe", "--samples", "8", "--threads", "1"],
+                            cwd=ROOT, capture_output=True, text=True, timeout=300, check=True)
+    rows = [line.strip("|").split("|") for line in result.stdout.splitlines() if line.startswith("| 0.") or
+            line.startswith("| 1.")]
+    assert len(rows) == 15
+    for roughness, angle, measured, lambertian, burley in rows:
+        assert abs(float(measured) - 1.0) < 0.01, (roughness, angle, measured)
+        if roughness.strip() == "1.0" and angle.strip() == "75°":
+            assert float(burley) == pytest.approx((1.0 + 1.5 * (1.0 - math.cos(math.radians(75.0))) ** 5) ** 2,
+                                                  abs=1e-3)
