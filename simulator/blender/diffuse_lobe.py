@@ -27,7 +27,7 @@ import bpy
 import numpy as np
 import torch
 
-from simulator.blender.renderer import CyclesSettings, _channels, _render_exr, _world_strength, configure
+from simulator.blender.renderer import CyclesSettings, configure, exr_channels, render_exr, set_world_strength
 from simulator.blender.scene_builder import BuiltScene, build_material, reset_blender
 from simulator.scene_model import Material
 from spotlessgs.models.brdf import disney_brdf
@@ -84,11 +84,11 @@ def measure(samples: int, threads: int) -> list[tuple[float, float, float]]:
             square = _scene(roughness)
             configure(CyclesSettings(width=IMAGE_SIZE, height=IMAGE_SIZE, samples=samples, denoise=False,
                                      max_bounces=0, threads=threads, device="cpu"))
-            _world_strength(0.0)  # the lamp alone: a new world's grey background would light the square evenly
+            set_world_strength(0.0)  # the lamp alone: a new world's grey background would light the square evenly
             radiance = {}
             for angle in ANGLES_DEG:
                 square.rotation_euler = (math.radians(angle), 0.0, 0.0)
-                image = _channels(_render_exr(Path(tmp), "lobe"), (".Combined.G",), Path(tmp))
+                image = exr_channels(render_exr(Path(tmp), "lobe"), (".Combined.G",), Path(tmp))
                 c = IMAGE_SIZE // 2
                 radiance[angle] = float(image[c - CENTRE:c + CENTRE, c - CENTRE:c + CENTRE].mean())
             for angle in ANGLES_DEG:

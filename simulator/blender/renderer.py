@@ -120,7 +120,8 @@ def configure(settings: CyclesSettings) -> str:
     return device
 
 
-def _world_strength(value: float) -> None:
+def set_world_strength(value: float) -> None:
+    """Make the world (environment) a white background of strength ``value``; 0 leaves only the scene's lights."""
     bg = bpy.context.scene.world.node_tree.nodes.get("Background")
     if bg is not None:
         bg.inputs["Strength"].default_value = float(value)
@@ -141,7 +142,7 @@ def _set_mode(built: BuiltScene, mode: str, settings: CyclesSettings) -> None:
         fixture.hide_render = dimmed <= 0.0
     for socket, strength in built.emission_inputs:
         socket.default_value = strength * dimmed
-    _world_strength(settings.ambient if spot else 0.0)
+    set_world_strength(settings.ambient if spot else 0.0)
 
 
 #: Custom property on each ground-truth light: its full power (W) as built.
@@ -169,13 +170,13 @@ def _uniform_light(built: BuiltScene):
     saved = [(ob, name, getattr(ob, name)) for ob in built.meshes for name in _INDIRECT_VISIBILITY]
     for ob, name, _value in saved:
         setattr(ob, name, False)
-    _world_strength(1.0)
+    set_world_strength(1.0)
     try:
         yield
     finally:
         for ob, name, value in saved:
             setattr(ob, name, value)
-        _world_strength(0.0)
+        set_world_strength(0.0)
 
 
 @dataclass
@@ -206,7 +207,9 @@ class RenderedPair:
     glossy: np.ndarray | None = None
 
 
-def _channels(chans: dict[str, np.ndarray], suffixes: tuple[str, ...], path: Path) -> np.ndarray:
+def exr_channels(chans: dict[str, np.ndarray], suffixes: tuple[str, ...], path: Path) -> np.ndarray:
+    """The channels of ``chans`` (from :func:`render_exr`) whose names end with ``suffixes``, stacked (H, W, C), or
+    (H, W) for one suffix; a missing channel raises RuntimeError naming ``path``."""
     out = []
     for suffix in suffixes:
         hits = [k for k in chans if k.endswith(suffix)]
@@ -216,7 +219,9 @@ def _channels(chans: dict[str, np.ndarray], suffixes: tuple[str, ...], path: Pat
     return np.stack(out, axis=-1) if len(out) > 1 else out[0]
 
 
-def _render_exr(workdir: Path, name: str) -> dict[str, np.ndarray]:
+def render_exr(workdir: Path, name: str) -> dict[str, np.ndarray]:
+    """Render the scene as it stands and return every channel of the multilayer EXR (read back from a temporary
+    file ``workdir/name.exr``, removed afterwards)."""
     bpy.ops.render.render(write_still=False)
     path = workdir / f"{name}.exr"
     try:
@@ -311,28 +316,28 @@ def render_pair(built: BuiltScene, c2w_blender: np.ndarray, settings: CyclesSett
         _set_mode(built, "uneven", settings)
         if blurred:
             with _camera_motion(built, (shutter[0], c2w, shutter[1])):
-                spot = _render_exr(work, "uneven")
+                spot = render_exr(work, "uneven")
             _place(built, c2w)
         else:
-            spot = _render_exr(work, "uneven")
+            spot = render_exr(work, "uneven")
         _set_mode(built, "gt", settings)
-        gt = _render_exr(work, "gt")
+        gt = render_exr(work, "gt")
         uniform = None
         if settings.uniform_gt:
             with _uniform_light(built):
-                uniform = _render_exr(work, "gt_uniform")
+                uniform = render_exr(work, "gt_uniform")
     combined = (".Combined.R", ".Combined.G", ".Combined.B")
     sharp = gt if blurred else spot  # the geometry passes of a sharp render (identical in both when nothing moves)
-    depth = blender_depth_to_planar(_channels(sharp, (".Depth.Z",), work))
+    depth = blender_depth_to_planar(exr_channels(sharp, (".Depth.Z",), work))
     return RenderedPair(
-        uneven=_channels(spot, combined, work).astype(np.float32),
-        gt=_channels(gt, combined, work).astype(np.float32),
+        uneven=exr_channels(spot, combined, work).astype(np.float32),
+        gt=exr_channels(gt, combined, work).astype(np.float32),
         depth=depth,
-        normal=_channels(sharp, (".Normal.X", ".Normal.Y", ".Normal.Z"), work).astype(np.float32),
-        albedo=_channels(gt, (".Diffuse Color.R", ".Diffuse Color.G", ".Diffuse Color.B"), work).astype(np.float32),
-        emission=_channels(gt, (".Emission.R", ".Emission.G", ".Emission.B"), work).astype(np.float32),
-        gt_uniform=None if uniform is None else _channels(uniform, combined, work).astype(np.float32),
-        glossy=_channels(gt, (".Glossy Color.R", ".Glossy Color.G", ".Glossy Color.B"), work).astype(np.float32),
+        normal=exr_channels(sharp, (".Normal.X", ".Normal.Y", ".Normal.Z"), work).astype(np.float32),
+        albedo=exr_channels(gt, (".Diffuse Color.R", ".Diffuse Color.G", ".Diffuse Color.B"), work).astype(np.float32),
+        emission=exr_channels(gt, (".Emission.R", ".Emission.G", ".Emission.B"), work).astype(np.float32),
+        gt_uniform=None if uniform is None else exr_channels(uniform, combined, work).astype(np.float32),
+        glossy=exr_channels(gt, (".Glossy Color.R", ".Glossy Color.G", ".Glossy Color.B"), work).astype(np.float32),
     )
 
 
