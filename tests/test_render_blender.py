@@ -580,20 +580,24 @@ def test_residual_light_adds_the_dimmed_lamps_to_the_spotlit_input_only(dataset,
     assert "residual_light" not in json.loads((dataset / "transforms.json").read_text())["spotless"]["renderer"]
 
 
-def test_the_simulators_diffuse_lobe_is_lambertian_without_burleys_retro_reflection():
+def test_the_renderers_light_response_is_what_the_light_models_assume():
     """The simulator's materials (Principled BSDF, specular layer off) lit and seen from one direction reflect exactly
-    cos θ at every roughness, so their diffuse lobe is Lambertian; the learned BRDF's Disney lobe would be
-    (1 + 1.5 (1 - cos 75°)⁵)² = 1.78 times brighter at 75° for ρ = 1 (brdf_burley_diffuse)."""
+    cos θ at every roughness: their diffuse lobe is Lambertian, where the learned BRDF's Disney lobe would be
+    (1 + 1.5 (1 - cos 75°)⁵)² = 1.78 times brighter at 75° for ρ = 1 (brdf_burley_diffuse). The simulator's spotlight
+    has the profile that the calibrated DarkGS fits (light.cone_profile) within its 2 cm emitter's soft edge."""
     import math
     import sys
 
-    result = subprocess.run([sys.executable, "-m", "simulator.blender.diffuse_lobe", "--samples", "8", "--threads", "1"],
-                            cwd=ROOT, capture_output=True, text=True, timeout=300, check=True)
-    rows = [line.strip("|").split("|") for line in result.stdout.splitlines() if line.startswith("| 0.") or
-            line.startswith("| 1.")]
-    assert len(rows) == 15
-    for roughness, angle, measured, lambertian, burley in rows:
-        assert abs(float(measured) - 1.0) < 0.01, (roughness, angle, measured)
-        if roughness.strip() == "1.0" and angle.strip() == "75°":
-            assert float(burley) == pytest.approx((1.0 + 1.5 * (1.0 - math.cos(math.radians(75.0))) ** 5) ** 2,
-                                                  abs=1e-3)
+    result = subprocess.run([sys.executable, "-m", "simulator.blender.light_response", "--samples", "8",
+                             "--threads", "1", "--json"], cwd=ROOT, capture_output=True, text=True, timeout=300,
+                            check=True)
+    report = json.loads(result.stdout.strip().splitlines()[-1])
+    assert len(report["diffuse_lobe"]) == 15
+    for row in report["diffuse_lobe"]:
+        assert abs(row["measured"] - 1.0) < 0.01, row
+    steep = next(r for r in report["diffuse_lobe"] if r["roughness"] == 1.0 and r["angle_deg"] == 75.0)
+    assert steep["burley"] == pytest.approx((1.0 + 1.5 * (1.0 - math.cos(math.radians(75.0))) ** 5) ** 2, abs=1e-6)
+    profile = report["spot_profile"]
+    assert profile[0]["angle_deg"] == pytest.approx(0.0, abs=0.3) and profile[-1]["angle_deg"] > 40.0
+    assert max(abs(r["measured"] - r["cone_profile"]) for r in profile) < 0.03
+    assert any(0.1 < r["measured"] < 0.9 for r in profile)  # the row crosses the cone's edge
