@@ -34,7 +34,7 @@ import numpy as np
 import torch
 
 from simulator.blender.renderer import CyclesSettings, configure, exr_channels, render_exr, set_world_strength
-from simulator.blender.scene_builder import BuiltScene, build_material, reset_blender
+from simulator.blender.scene_builder import BuiltScene, build_material, reset_blender, spotlight_data
 from simulator.lighting import SPOTLIGHT_PRESETS
 from simulator.scene_model import Material
 from spotlessgs.models.brdf import disney_brdf
@@ -54,6 +54,7 @@ PLANE_DISTANCE = 1.0
 PLANE_SIDE = 10.0
 PROFILE_FIELD_OF_VIEW_DEG = 90.0
 PROFILE_WIDTH = 201
+PROFILE_HEIGHT = 5  # odd: the middle row's centre is on the axis
 PROFILE_STRIDE = 5
 
 
@@ -126,16 +127,13 @@ def spot_profile(samples: int, threads: int) -> list[tuple[float, float, float]]
     PROFILE_STRIDE-th pixel from the axis outwards."""
     spot = SPOTLIGHT_PRESETS["uneven"]
     reset_blender()
-    lamp = bpy.data.lights.new("lamp", type="SPOT")
-    lamp.energy = float(spot.power_w)
-    lamp.spot_size = math.radians(spot.cone_angle_deg)
-    lamp.spot_blend = float(spot.blend)
-    lamp.shadow_soft_size = float(spot.radius_m)
-    _camera_light_and_plane(lamp, PROFILE_FIELD_OF_VIEW_DEG, PLANE_SIDE, PLANE_DISTANCE, 0.5)
-    _configure(PROFILE_WIDTH, 3, samples, threads)
+    _camera_light_and_plane(spotlight_data(spot), PROFILE_FIELD_OF_VIEW_DEG, PLANE_SIDE, PLANE_DISTANCE, 0.5)
+    _configure(PROFILE_WIDTH, PROFILE_HEIGHT, samples, threads)
     with tempfile.TemporaryDirectory() as tmp:
         image = exr_channels(render_exr(Path(tmp), "profile"), (".Combined.G",), Path(tmp))
-    row = image[image.shape[0] // 2].astype(np.float64)  # the middle row: through the axis
+    if image.shape != (PROFILE_HEIGHT, PROFILE_WIDTH):
+        raise RuntimeError(f"spot_profile: Blender rendered {image.shape}, not ({PROFILE_HEIGHT}, {PROFILE_WIDTH})")
+    row = image[PROFILE_HEIGHT // 2].astype(np.float64)  # the middle row: through the axis
     tan_half = math.tan(math.radians(PROFILE_FIELD_OF_VIEW_DEG) / 2.0)
     theta = np.arctan(np.abs((np.arange(PROFILE_WIDTH) + 0.5) / PROFILE_WIDTH * 2.0 - 1.0) * tan_half)
     centre = PROFILE_WIDTH // 2

@@ -157,6 +157,17 @@ def spot_pose_in_blender_camera(spot: SpotlightConfig) -> np.ndarray:
     return pose
 
 
+def spotlight_data(spot: SpotlightConfig) -> bpy.types.Light:
+    """A Blender spot light with the camera-mounted spotlight's power, colour, cone, blend and emitter radius."""
+    data = bpy.data.lights.new("spotlight", type="SPOT")
+    data.energy = float(spot.power_w)
+    data.color = tuple(spot.color)
+    data.spot_size = float(np.deg2rad(spot.cone_angle_deg))
+    data.spot_blend = float(spot.blend)
+    data.shadow_soft_size = float(spot.radius_m)
+    return data
+
+
 def build_scene(scene: Scene, spot: SpotlightConfig, ceiling_glow: float, intrinsics,
                 lambertian: bool = False) -> BuiltScene:
     """Create every object of ``scene`` plus the camera and its spotlight in the current (empty) Blender scene.
@@ -176,13 +187,7 @@ def build_scene(scene: Scene, spot: SpotlightConfig, ceiling_glow: float, intrin
     bscene.collection.objects.link(camera)
     bscene.camera = camera
 
-    spot_data = bpy.data.lights.new("spotlight", type="SPOT")
-    spot_data.energy = float(spot.power_w)
-    spot_data.color = tuple(spot.color)
-    spot_data.spot_size = float(np.deg2rad(spot.cone_angle_deg))
-    spot_data.spot_blend = float(spot.blend)
-    spot_data.shadow_soft_size = float(spot.radius_m)
-    spotlight = bpy.data.objects.new("spotlight", spot_data)
+    spotlight = bpy.data.objects.new("spotlight", spotlight_data(spot))
     bscene.collection.objects.link(spotlight)
 
     built = BuiltScene(camera=camera, spotlight=spotlight, spot_local=spot_pose_in_blender_camera(spot))
