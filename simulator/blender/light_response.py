@@ -67,8 +67,8 @@ def burley_factor(roughness: float, angle_deg: float) -> float:
     rough, metal = torch.full((1, 1), roughness, dtype=torch.float64), torch.zeros(1, 1, dtype=torch.float64)
     with_factor = disney_brdf(albedo, rough, metal, normal, direction, direction)
     lambertian = disney_brdf(albedo, rough, metal, normal, direction, direction, burley=False)
-    diffuse = 0.5 / math.pi
-    return float(((with_factor - lambertian)[0, 0] + diffuse) / diffuse)
+    diffuse = albedo[0, 0] / math.pi  # the Lambertian lobe; the specular lobe cancels in the difference
+    return float(1.0 + (with_factor - lambertian)[0, 0] / diffuse)
 
 
 def _camera_light_and_plane(light: bpy.types.Light, field_of_view_deg: float, side: float, distance: float,
