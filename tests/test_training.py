@@ -280,24 +280,25 @@ def test_a_run_from_before_a_setting_existed_resumes_with_its_default(bedroom, t
     """A run whose config.json predates a TrainConfig field and a ModelConfig switch (both absent from the file)
     resumes: the missing settings take their defaults, which are what the run trained with. (A custom ModelConfig's
     switches, kept in run.json, are completed with their defaults the same way.)"""
-    from spotlessgs.training.trainer import train
+    from spotlessgs.training.config import TrainConfig
+    from spotlessgs.training.trainer import load_run, train
 
-    from spotlessgs.training.trainer import load_run
-
-    # a run from before the bounce light and the camera-relative shadows: it trained with neither (its shadows, had
-    # it turned them on, the lamp's map alone), whatever today's defaults
+    # a run from before the bounce light, the camera-relative shadows and the depth-spread term: it trained with none
+    # of them (its shadows, had it turned them on, the lamp's map alone), whatever today's defaults
     cfg = _tiny(iterations=40, image_width=40, densify_from=1000, checkpoint_every=20, bounce_light_degree=-1,
-                shadow_camera_relative=False)
+                shadow_camera_relative=False, depth_spread_weight=0.0)
     train(bedroom, tmp_path / "run", "darkgs+sh", cfg, seed=0, progress=False, stop_after=20)
     path = tmp_path / "run" / "config.json"
     saved = json.loads(path.read_text())
     for name in ("low_frequency_shading", "bounce_light_degree", "shadow_camera_relative"):
         del saved["train"][name]
         del saved["model_config"][name]
+    del saved["train"]["depth_spread_weight"]  # a TrainConfig field only
     path.write_text(json.dumps(saved))
-    scene = load_run(tmp_path / "run", device="cpu")[0]
+    scene, _, config, _ = load_run(tmp_path / "run", device="cpu")
     assert scene.appearance.bounce_light is None  # absent: the value before it
     assert not scene.config.shadow_camera_relative
+    assert config.depth_spread_weight == 0.0 != TrainConfig().depth_spread_weight  # absent: 0, not today's 0.1
     result = train(bedroom, tmp_path / "run", "darkgs+sh", cfg, seed=0, progress=False, resume=True)
     assert result.steps == 40
     with pytest.raises(ValueError, match="other settings"):  # a setting that differs from its default still counts
@@ -305,6 +306,9 @@ def test_a_run_from_before_a_setting_existed_resumes_with_its_default(bedroom, t
               progress=False, resume=True)
     with pytest.raises(ValueError, match=r"bounce_light_degree: run -1, now 2"):  # ... and names itself
         train(bedroom, tmp_path / "run", "darkgs+sh", cfg.replace(bounce_light_degree=2), seed=0,
+              progress=False, resume=True)
+    with pytest.raises(ValueError, match=r"depth_spread_weight: run 0.0, now 0.1"):
+        train(bedroom, tmp_path / "run", "darkgs+sh", cfg.replace(depth_spread_weight=0.1), seed=0,
               progress=False, resume=True)
 
 
@@ -358,15 +362,23 @@ def test_spot_shadows_train_reload_and_leave_relighting_alone(bedroom, tmp_path)
 
 
 @pytest.mark.blender
-def test_the_depth_spread_term_trains_and_is_saved(bedroom, tmp_path):
+def test_the_depth_spread_term_trains_is_saved_and_leaves_3dgs_alone(bedroom, tmp_path):
+    """The term changes a relightable model's training and is saved with the run; 3DGS (no light) trains the same at
+    any weight."""
     from spotlessgs.training.trainer import load_run, train
 
-    cfg = _tiny(iterations=30, image_width=40, densify_from=1000, checkpoint_every=30, depth_spread_weight=1.0)
-    run = tmp_path / "run"
-    train(bedroom, run, "darkgs", cfg, seed=0, progress=False)
-    rows = [json.loads(line) for line in (run / "metrics.jsonl").read_text().splitlines()]
-    assert rows and all(math.isfinite(r["loss"]) for r in rows)
-    assert load_run(run, device="cpu")[2].depth_spread_weight == 1.0
+    cfg = _tiny(iterations=30, image_width=40, densify_from=1000, checkpoint_every=30, log_every=10)
+
+    def losses(variant: str, weight: float) -> list[float]:
+        run = tmp_path / f"{variant}-{weight}"
+        train(bedroom, run, variant, cfg.replace(depth_spread_weight=weight), seed=0, progress=False)
+        assert load_run(run, device="cpu")[2].depth_spread_weight == weight
+        return [json.loads(line)["loss"] for line in (run / "metrics.jsonl").read_text().splitlines()]
+
+    with_term = losses("darkgs", 1.0)
+    assert with_term and all(math.isfinite(v) for v in with_term)
+    assert with_term != losses("darkgs", 0.0)
+    assert losses("3dgs", 1.0) == losses("3dgs", 0.0)
 
 
 @pytest.mark.blender

@@ -517,6 +517,8 @@ def _train_locked(data_dir: Path, run_dir: Path, variant: str | ModelConfig, con
     except OSError as exc:
         bar.close()
         raise (write_error(metrics_path, exc) or exc) from exc
+    # the depth-spread term shapes the geometry a light shades; 3DGS (no light) trains without it at any weight
+    depth_spread_weight = config.depth_spread_weight if scene.config.light_model != "none" else 0.0
     t0 = time.perf_counter()
     loss_value = float("nan")
     try:
@@ -529,7 +531,7 @@ def _train_locked(data_dir: Path, run_dir: Path, variant: str | ModelConfig, con
             camera = corrected_camera(cameras[k], row) if refining else cameras[k]
             render_options = {"backend": config.raster_backend, "num_threads": config.num_threads,
                               "shadow_map": shadow_maps.get(scene, k, step, camera)}
-            if config.depth_spread_weight > 0:
+            if depth_spread_weight > 0:
                 out, depth_moments = scene.render_with_depth_moments(camera, **render_options)
             else:
                 out = scene.render(camera, **render_options)
@@ -545,8 +547,8 @@ def _train_locked(data_dir: Path, run_dir: Path, variant: str | ModelConfig, con
                 target = torch.where(ignored[k][..., None], recorded.detach().clamp(0.0, 1.0), target)
                 clipped = clipped | ignored[k]
             loss, parts = photometric_loss(recorded, target, clipped, config.ssim_lambda, config.loss_space)
-            if config.depth_spread_weight > 0:
-                loss = loss + config.depth_spread_weight * depth_spread_loss(depth_moments, out.alpha)
+            if depth_spread_weight > 0:
+                loss = loss + depth_spread_weight * depth_spread_loss(depth_moments, out.alpha)
             if prior is not None and scene.appearance.light is not None:
                 loss = loss + scene.appearance.light.light_prior_loss(prior, config.light_prior_weight)
             if config.normal_axis_weight > 0:
