@@ -286,19 +286,22 @@ def test_a_run_from_before_a_setting_existed_resumes_with_its_default(bedroom, t
     # a run from before the bounce light, the camera-relative shadows and the depth-spread term: it trained with none
     # of them (its shadows, had it turned them on, the lamp's map alone), whatever today's defaults
     cfg = _tiny(iterations=40, image_width=40, densify_from=1000, checkpoint_every=20, bounce_light_degree=-1,
-                shadow_camera_relative=False, depth_spread_weight=0.0)
+                shadow_camera_relative=False, depth_spread_weight=0.0, depth_spread="on")
     train(bedroom, tmp_path / "run", "darkgs+sh", cfg, seed=0, progress=False, stop_after=20)
     path = tmp_path / "run" / "config.json"
     saved = json.loads(path.read_text())
     for name in ("low_frequency_shading", "bounce_light_degree", "shadow_camera_relative"):
         del saved["train"][name]
         del saved["model_config"][name]
-    del saved["train"]["depth_spread_weight"]  # a TrainConfig field only
+    for name in ("depth_spread_weight", "depth_spread"):  # TrainConfig fields only
+        del saved["train"][name]
     path.write_text(json.dumps(saved))
     scene, _, config, _ = load_run(tmp_path / "run", device="cpu")
     assert scene.appearance.bounce_light is None  # absent: the value before it
     assert not scene.config.shadow_camera_relative
-    assert config.depth_spread_weight == 0.0 != TrainConfig().depth_spread_weight  # absent: 0, not today's 0.1
+    # absent: weight 0, not today's 0.1, and a weight that applies to every model, as the term did before "auto"
+    assert (config.depth_spread_weight, config.depth_spread) == (0.0, "on")
+    assert TrainConfig().depth_spread_weight == 0.1 and TrainConfig().depth_spread == "auto"
     result = train(bedroom, tmp_path / "run", "darkgs+sh", cfg, seed=0, progress=False, resume=True)
     assert result.steps == 40
     with pytest.raises(ValueError, match="other settings"):  # a setting that differs from its default still counts
@@ -362,23 +365,57 @@ def test_spot_shadows_train_reload_and_leave_relighting_alone(bedroom, tmp_path)
 
 
 @pytest.mark.blender
-def test_the_depth_spread_term_trains_is_saved_and_leaves_3dgs_alone(bedroom, tmp_path):
-    """The term changes a relightable model's training and is saved with the run; 3DGS (no light) trains the same at
-    any weight."""
+def test_the_depth_spread_term_trains_and_is_saved_and_auto_leaves_simulator_renders_alone(bedroom, tmp_path):
+    """"on": the term changes a relightable model's training and is saved with the run; "auto" trains the simulator's
+    bedroom (no camera effects) exactly as without the term."""
     from spotlessgs.training.trainer import load_run, train
 
     cfg = _tiny(iterations=30, image_width=40, densify_from=1000, checkpoint_every=30, log_every=10)
 
-    def losses(variant: str, weight: float) -> list[float]:
-        run = tmp_path / f"{variant}-{weight}"
-        train(bedroom, run, variant, cfg.replace(depth_spread_weight=weight), seed=0, progress=False)
-        assert load_run(run, device="cpu")[2].depth_spread_weight == weight
+    def losses(mode: str, weight: float) -> list[float]:
+        run = tmp_path / f"{mode}-{weight}"
+        train(bedroom, run, "darkgs", cfg.replace(depth_spread=mode, depth_spread_weight=weight), seed=0,
+              progress=False)
+        saved = load_run(run, device="cpu")[2]
+        assert (saved.depth_spread, saved.depth_spread_weight) == (mode, weight)
         return [json.loads(line)["loss"] for line in (run / "metrics.jsonl").read_text().splitlines()]
 
-    with_term = losses("darkgs", 1.0)
+    with_term = losses("on", 1.0)
+    without = losses("off", 1.0)
     assert with_term and all(math.isfinite(v) for v in with_term)
-    assert with_term != losses("darkgs", 0.0)
-    assert losses("3dgs", 1.0) == losses("3dgs", 0.0)
+    assert with_term != without
+    assert losses("auto", 1.0) == without
+
+
+@pytest.mark.parametrize("meta, variant, mode, expected", [
+    ({}, "spotless", "auto", 0.1),                                              # a real camera
+    ({}, "darkgs", "auto", 0.1),
+    ({}, "3dgs", "auto", 0.0),                                                  # no light to relight with
+    ({"scene_id": "bedroom"}, "spotless", "auto", 0.0),                         # our simulator's render
+    ({"scene_id": "bedroom", "camera_effects": {"noise": 1}}, "spotless", "auto", 0.1),  # ... imitating a camera
+    ({"scene_id": "bedroom"}, "3dgs", "on", 0.1),                               # "on": every model, any data
+    ({}, "spotless", "off", 0.0),
+])
+def test_when_the_depth_spread_term_trains(meta, variant, mode, expected):
+    from types import SimpleNamespace
+
+    from spotlessgs.models.shading import MODEL_VARIANTS
+    from spotlessgs.training.config import TrainConfig
+    from spotlessgs.training.trainer import depth_spread_weight_for
+
+    views = SimpleNamespace(dataset=SimpleNamespace(meta=meta))
+    config = TrainConfig(depth_spread=mode, depth_spread_weight=0.1)
+    assert depth_spread_weight_for(config, views, MODEL_VARIANTS[variant]) == expected
+
+
+@pytest.mark.parametrize("kwargs, match", [({"depth_spread": "always"}, "depth_spread must be 'auto', 'on' or 'off'"),
+                                           ({"depth_spread_weight": -0.1}, "depth_spread_weight must be finite"),
+                                           ({"depth_spread_weight": float("nan")}, "depth_spread_weight must be finite")])
+def test_train_config_rejects_bad_depth_spread_settings(kwargs, match):
+    from spotlessgs.training.config import TrainConfig
+
+    with pytest.raises(ValueError, match=match):
+        TrainConfig(**kwargs)
 
 
 @pytest.mark.blender

@@ -291,13 +291,29 @@ def _payload(step: int, scene: RelightableScene, opts, strategy: DensifyStrategy
     return payload
 
 
-def photometric_enabled(config: TrainConfig, views: TrainingViews) -> bool:
-    """``config.photometric``, with ``auto`` on for a dataset from a real camera (no "spotless" block) or one whose
-    block lists ``camera_effects``, off for our simulator's renders (one fixed exposure, no vignetting)."""
-    if config.photometric != "auto":
-        return config.photometric == "on"
+def from_a_real_camera(views: TrainingViews) -> bool:
+    """Whether the views come from a real camera (no "spotless" block) or from our simulator's copy that imitates one
+    (its block lists ``camera_effects``), not from our simulator's plain renders (one fixed exposure, no vignetting,
+    a dense start)."""
     meta = views.dataset.meta
     return "scene_id" not in meta or bool(meta.get("camera_effects"))
+
+
+def photometric_enabled(config: TrainConfig, views: TrainingViews) -> bool:
+    """``config.photometric``, with ``auto`` on for views :func:`from_a_real_camera`."""
+    if config.photometric != "auto":
+        return config.photometric == "on"
+    return from_a_real_camera(views)
+
+
+def depth_spread_weight_for(config: TrainConfig, views: TrainingViews, model: ModelConfig) -> float:
+    """The weight the depth-spread term trains ``model`` with (0: not at all): ``config.depth_spread_weight`` when
+    ``config.depth_spread`` is "on", or "auto" for a model with a light on views :func:`from_a_real_camera`."""
+    if config.depth_spread == "off":
+        return 0.0
+    if config.depth_spread == "auto" and (model.light_model == "none" or not from_a_real_camera(views)):
+        return 0.0
+    return config.depth_spread_weight
 
 
 def build_photometric(config: TrainConfig, views: TrainingViews, split: ViewSplit,
@@ -517,8 +533,7 @@ def _train_locked(data_dir: Path, run_dir: Path, variant: str | ModelConfig, con
     except OSError as exc:
         bar.close()
         raise (write_error(metrics_path, exc) or exc) from exc
-    # the depth-spread term shapes the geometry a light shades; 3DGS (no light) trains without it at any weight
-    depth_spread_weight = config.depth_spread_weight if scene.config.light_model != "none" else 0.0
+    depth_spread_weight = depth_spread_weight_for(config, views, scene.config)
     t0 = time.perf_counter()
     loss_value = float("nan")
     try:
