@@ -278,8 +278,8 @@ def test_resume_with_spot_shadows_reuses_the_checkpointed_maps(bedroom, tmp_path
 @pytest.mark.blender
 def test_a_run_from_before_a_setting_existed_resumes_with_its_default(bedroom, tmp_path):
     """A run whose config.json predates a TrainConfig field and a ModelConfig switch (both absent from the file)
-    resumes: the missing settings take their defaults, which are what the run trained with. (A custom ModelConfig's
-    switches, kept in run.json, are completed with their defaults the same way.)"""
+    resumes: the missing settings take what the run trained with, their PREDATING_VALUES where listed, else their
+    defaults. (A custom ModelConfig's switches, kept in run.json, are completed the same way.)"""
     from spotlessgs.training.config import TrainConfig
     from spotlessgs.training.trainer import load_run, train
 
@@ -378,7 +378,10 @@ def test_the_depth_spread_term_trains_and_is_saved_and_auto_leaves_simulator_ren
               progress=False)
         saved = load_run(run, device="cpu")[2]
         assert (saved.depth_spread, saved.depth_spread_weight) == (mode, weight)
-        return [json.loads(line)["loss"] for line in (run / "metrics.jsonl").read_text().splitlines()]
+        assert json.loads((run / "train_summary.json").read_text())["depth_spread_weight"] == (
+            0.0 if mode != "on" else weight)
+        # the photometric L1 (the logged loss would differ by the term itself even if it trained nothing)
+        return [json.loads(line)["l1"] for line in (run / "metrics.jsonl").read_text().splitlines()]
 
     with_term = losses("on", 1.0)
     without = losses("off", 1.0)
@@ -406,6 +409,16 @@ def test_when_the_depth_spread_term_trains(meta, variant, mode, expected):
     views = SimpleNamespace(dataset=SimpleNamespace(meta=meta))
     config = TrainConfig(depth_spread=mode, depth_spread_weight=0.1)
     assert depth_spread_weight_for(config, views, MODEL_VARIANTS[variant]) == expected
+
+
+def test_a_run_from_before_the_depth_spread_switch_keeps_its_weight_for_every_model():
+    """Runs saved while ``depth_spread_weight`` existed without ``depth_spread`` trained with that weight for every
+    model, 3DGS included: they come back as "on" with their weight."""
+    from spotlessgs.training.config import TrainConfig, with_defaults
+
+    saved = {k: v for k, v in dataclasses.asdict(TrainConfig(depth_spread_weight=1.0)).items() if k != "depth_spread"}
+    config = TrainConfig(**with_defaults(TrainConfig, saved))
+    assert (config.depth_spread, config.depth_spread_weight) == ("on", 1.0)
 
 
 @pytest.mark.parametrize("kwargs, match", [({"depth_spread": "always"}, "depth_spread must be 'auto', 'on' or 'off'"),

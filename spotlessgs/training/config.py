@@ -137,10 +137,10 @@ class TrainConfig:
     depth_spread_weight: float = 0.1
     # When the term trains (trainer.depth_spread_weight_for): "auto": for models with a light on datasets from real
     # cameras (no "spotless" block; their starts are sparse SfM points) or our simulator's copies that imitate one
-    # (their block lists camera effects), where at 0.1 every relightable model gains on every seed (the robot copy:
-    # SpotlessGS +0.18 / +1.17 dB, lamps-on / uniform ground truth); off for 3DGS and for our simulator's renders, where
-    # it gains on the bedroom but loses up to 0.34 dB on the glossy room (docs/results.md, "The depth-spread term:
-    # on for real cameras"). "on": every model, 3DGS included; "off".
+    # (their block lists camera effects), where at 0.1 every model with a light relit as well or better (the robot
+    # copy: SpotlessGS +0.18 / +1.17 dB, lamps-on / uniform ground truth, three seeds); off for 3DGS and for our
+    # simulator's renders, where it gains on the bedroom but loses up to 0.34 dB on the glossy room (docs/results.md,
+    # "The depth-spread term: on for real cameras"). "on": every model, 3DGS included; "off".
     depth_spread: str = "auto"
 
     # Photometric camera (spotlessgs.models.photometric): learn a per-frame exposure and the lens's vignetting.

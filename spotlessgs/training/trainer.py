@@ -647,6 +647,7 @@ def _train_locked(data_dir: Path, run_dir: Path, variant: str | ModelConfig, con
             "test_psnr_reconstruction": test_psnr, "device": str(device),
             "validation_views": split.validation, "validation_psnr": val_psnr, "validation_psnr_dark": val_dark,
             "photometric": photometric is not None, "refine_poses": poses is not None,
+            "depth_spread_weight": depth_spread_weight,  # what the term trained with, `depth_spread` resolved
             "test_views_aligned": aligned is not None and bool(views.test),
         })
         if isinstance(strategy, BudgetStrategy):
