@@ -372,7 +372,7 @@ def test_the_depth_spread_term_trains_and_is_saved_and_auto_leaves_simulator_ren
 
     cfg = _tiny(iterations=30, image_width=40, densify_from=1000, checkpoint_every=30, log_every=10)
 
-    def losses(mode: str, weight: float) -> list[float]:
+    def l1_curve(mode: str, weight: float) -> list[float]:
         run = tmp_path / f"{mode}-{weight}"
         train(bedroom, run, "darkgs", cfg.replace(depth_spread=mode, depth_spread_weight=weight), seed=0,
               progress=False)
@@ -383,11 +383,11 @@ def test_the_depth_spread_term_trains_and_is_saved_and_auto_leaves_simulator_ren
         # the photometric L1 (the logged loss would differ by the term itself even if it trained nothing)
         return [json.loads(line)["l1"] for line in (run / "metrics.jsonl").read_text().splitlines()]
 
-    with_term = losses("on", 1.0)
-    without = losses("off", 1.0)
+    with_term = l1_curve("on", 1.0)
+    without = l1_curve("off", 1.0)
     assert with_term and all(math.isfinite(v) for v in with_term)
     assert with_term != without
-    assert losses("auto", 1.0) == without
+    assert l1_curve("auto", 1.0) == without
 
 
 @pytest.mark.parametrize("meta, variant, mode, expected", [

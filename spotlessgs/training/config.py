@@ -15,6 +15,9 @@ from typing import Any
 #: Spaces the photometric loss compares images in (TrainConfig.loss_space; spotlessgs.training.losses).
 LOSS_SPACES = ("linear", "srgb")
 
+#: Values of the TrainConfig switches whose "auto" the trainer resolves from the data (photometric, depth_spread).
+SWITCH_VALUES = ("auto", "on", "off")
+
 #: Settings whose default is not what a run trained with before the setting existed. Absent from an older run's saved
 #: settings, such a setting takes this value instead of the default, so the run reloads and resumes as it trained.
 PREDATING_VALUES: dict[str, Any] = {"bounce_light_degree": -1, "shadow_camera_relative": False,
@@ -231,11 +234,11 @@ class TrainConfig:
     device: str = "auto"
 
     def __post_init__(self) -> None:
-        if self.photometric not in ("auto", "on", "off"):
+        if self.photometric not in SWITCH_VALUES:
             raise ValueError(f"TrainConfig: photometric must be 'auto', 'on' or 'off', got {self.photometric!r}")
         if not (math.isfinite(self.normal_axis_weight) and self.normal_axis_weight >= 0):
             raise ValueError(f"TrainConfig: normal_axis_weight must be finite and >= 0, got {self.normal_axis_weight}")
-        if self.depth_spread not in ("auto", "on", "off"):
+        if self.depth_spread not in SWITCH_VALUES:
             raise ValueError(f"TrainConfig: depth_spread must be 'auto', 'on' or 'off', got {self.depth_spread!r}")
         if not (math.isfinite(self.depth_spread_weight) and self.depth_spread_weight >= 0):
             raise ValueError(f"TrainConfig: depth_spread_weight must be finite and >= 0, "
