@@ -16,7 +16,7 @@ from conftest import synthetic_box_dataset
 from spotlessgs.io.camera_batch import Cameras
 from spotlessgs.io.cameras import Intrinsics
 from spotlessgs.models.shading import ModelConfig
-from spotlessgs.training.config import preset
+from spotlessgs.training.config import TrainConfig, preset
 from spotlessgs.training.trainer import validation_steps
 from spotlessgs.training.validation import held_out_score, holdout_blocks
 from spotlessgs.training.selection import (
@@ -411,6 +411,16 @@ def test_train_model_auto_writes_the_decision_prints_the_table_and_trains_the_ch
     with pytest.raises(ValueError, match="other selection settings"):
         select_model(box_room, out, _tiny(iterations=300, image_width=32), 0, SelectionConfig(tolerance_db=0.9),
                      resume=True)
+    # other training settings under the same selection settings: refused by name (the proxies would differ)
+    with pytest.raises(ValueError, match=r"other selection settings.*\(train depth_spread: run 'auto', now 'on'\)"):
+        select_model(box_room, out, TrainConfig(**{**decision["settings"]["train"], "depth_spread": "on"}), 0,
+                     SelectionConfig(tolerance_db=0.3), resume=True)
+    assert decision["settings"]["train"]["depth_spread"] == "auto"
+    # a decision written before the training settings were recorded is reused as it was
+    unrecorded = {**decision, "settings": {k: v for k, v in decision["settings"].items() if k != "train"}}
+    (out / SELECTION_FILE).write_text(json.dumps(unrecorded))
+    assert select_model(box_room, out, _tiny(iterations=300, image_width=32), 0, SelectionConfig(tolerance_db=0.3),
+                        resume=True) == unrecorded
     old = {**decision, "version": 4}  # a decision of an older selection: refused with what to do, not reused
     (out / SELECTION_FILE).write_text(json.dumps(old))
     with pytest.raises(ValueError, match="model selection version 4, this is version 5.*to decide again"):

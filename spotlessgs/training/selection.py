@@ -307,7 +307,8 @@ def _settings(config: TrainConfig, selection: SelectionConfig, seed: int, data_d
             "reflectance_proxy_iterations": proxy_config(config, selection,
                                                          selection.reflectance_proxy_fraction).iterations,
             "base_iterations": proxy_config(config, selection, selection.base_fraction).iterations,
-            "full_iterations": config.iterations, "seed": seed, "data_dir": str(data_dir)}
+            "full_iterations": config.iterations, "seed": seed, "data_dir": str(data_dir),
+            "train": dataclasses.asdict(config)}
 
 
 def _score(data_dir: Path, proxy_dir: Path, model: ModelConfig, config: TrainConfig, seed: int,
@@ -352,9 +353,15 @@ def select_model(
                              f"{SELECTION_VERSION} (other candidates and measurements); remove {path} and "
                              f"{run_dir / 'selection'} to decide again, or use a new --out")
         stored = decision.get("settings") if isinstance(decision.get("settings"), dict) else {}
-        moved = {"data_dir"}  # the dataset may have moved (--data DIR): not another setting
-        if {k: v for k, v in stored.items() if k not in moved} != {k: v for k, v in settings.items() if k not in moved}:
-            raise ValueError(f"{path}: --resume with other selection settings than the run was started with")
+        moved = ("data_dir", "train")  # the dataset may have moved (--data DIR): not another setting; train: below
+        differ = trainer.differing_settings({k: v for k, v in stored.items() if k not in moved},
+                                            {k: v for k, v in settings.items() if k not in moved})
+        if "train" in stored:  # absent in decisions written before the training settings were recorded
+            old_train = with_defaults(TrainConfig, stored["train"]) if isinstance(stored["train"], dict) else None
+            differ += [f"train {d}" for d in trainer.differing_settings(old_train, settings["train"])]
+        if differ:
+            raise ValueError(f"{path}: --resume with other selection settings than the run was started with "
+                             f"({'; '.join(differ)})")
         require_keys(decision, path, "model selection decision", ("chosen", "chosen_model"))
         if not isinstance(decision["chosen_model"], dict):
             raise InputError(f"{path}: damaged model selection decision: 'chosen_model' is not a JSON object")

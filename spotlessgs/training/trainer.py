@@ -437,7 +437,7 @@ def _train_locked(data_dir: Path, run_dir: Path, variant: str | ModelConfig, con
         old_run = dict(old["run"])
         if isinstance(old_run.get("model_config"), dict):
             old_run["model_config"] = with_defaults(ModelConfig, old_run["model_config"])
-        differ = _differing_settings(old_train, resolved["train"]) + _differing_settings(
+        differ = differing_settings(old_train, resolved["train"]) + differing_settings(
             {k: v for k, v in old_run.items() if k not in moved}, {k: v for k, v in run_info.items() if k not in moved})
         if differ:
             raise ValueError(f"{run_dir}: --resume with other settings than the run was started with "
@@ -702,7 +702,7 @@ def read_metrics(path: Path) -> list[dict]:
     return records
 
 
-def _differing_settings(old: Any, new: Any) -> list[str]:
+def differing_settings(old: Any, new: Any) -> list[str]:
     """``name: run X, now Y`` for each top-level key whose JSON value differs between two settings dicts (or one
     entry for two values that are not both dicts)."""
     old, new = json.loads(json.dumps(old)), json.loads(json.dumps(new))
