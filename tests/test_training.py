@@ -249,6 +249,14 @@ def test_resume_equals_an_uninterrupted_run(bedroom, tmp_path):
         train(bedroom, tmp_path / "split", "darkgs+sh", cfg.replace(lr_albedo=0.01), seed=3, resume=True,
               progress=False)
     train(bedroom, tmp_path / "split", "darkgs+sh", cfg, seed=3, progress=False, resume=True)
+    # resuming the finished run trains nothing and keeps the timing and last loss of the session that trained it
+    timing = ("seconds_this_session", "ms_per_step", "final_loss")
+    summary = json.loads((tmp_path / "full" / "train_summary.json").read_text())
+    again = train(bedroom, tmp_path / "full", "darkgs+sh", cfg, seed=3, progress=False, resume=True)
+    assert again.steps == 60 and again.ms_per_step == summary["ms_per_step"] > 1.0
+    assert again.final_loss == summary["final_loss"] and summary["final_loss"] is not None
+    resumed = json.loads((tmp_path / "full" / "train_summary.json").read_text())
+    assert {k: resumed[k] for k in timing} == {k: summary[k] for k in timing}
     a, b = load_checkpoint(tmp_path / "full"), load_checkpoint(tmp_path / "split")
     assert a["step"] == b["step"] == 60
     for name, tensor in a["gaussians"].items():

@@ -631,8 +631,13 @@ def _train_locked(data_dir: Path, run_dir: Path, variant: str | ModelConfig, con
         val_psnr = sum(r["validation_psnr"] for r in scores) / len(scores)
         val_dark = sum(r["validation_psnr_dark"] for r in scores) / len(scores)
         _stop_after_training(stop, end, ckpt_file)
-    result = TrainResult(run_dir, end, seconds, 1000.0 * seconds / max(steps_done, 1), len(scene.gaussians),
-                         loss_value, test_psnr, val_psnr, val_dark)
+    ms_per_step = 1000.0 * seconds / max(steps_done, 1)
+    if steps_done == 0:  # resumed after its last step: the timing and last loss are those of the session that trained
+        earlier = _summary_of_finished_session(run_dir, end)
+        if earlier is not None:
+            seconds, ms_per_step, loss_value = earlier
+    result = TrainResult(run_dir, end, seconds, ms_per_step, len(scene.gaussians), loss_value, test_psnr, val_psnr,
+                         val_dark)
     if end == config.iterations:
         write_light_report(scene, views, run_dir)
         if photometric is not None:
@@ -643,7 +648,7 @@ def _train_locked(data_dir: Path, run_dir: Path, variant: str | ModelConfig, con
         write_json(run_dir / "train_summary.json", {"schema_version": RUN_SCHEMA_VERSION,
             "steps": result.steps, "seconds_this_session": seconds, "ms_per_step": result.ms_per_step,
             "num_gaussians": result.num_gaussians,
-            "final_loss": loss_value if math.isfinite(loss_value) else None,  # None: resumed a finished run
+            "final_loss": loss_value if math.isfinite(loss_value) else None,  # None: not logged (no step run)
             "test_psnr_reconstruction": test_psnr, "device": str(device),
             "validation_views": split.validation, "validation_psnr": val_psnr, "validation_psnr_dark": val_dark,
             "photometric": photometric is not None, "refine_poses": poses is not None,
@@ -654,6 +659,22 @@ def _train_locked(data_dir: Path, run_dir: Path, variant: str | ModelConfig, con
             write_json(run_dir / "gaussian_budget.json", {"schema_version": RUN_SCHEMA_VERSION,
                                                           **budget_report(strategy, len(scene.gaussians), config)})
     return result
+
+
+def _summary_of_finished_session(run_dir: Path, steps: int) -> tuple[float, float, float] | None:
+    """(seconds, ms per step, final loss; NaN where not logged) of the session whose train_summary.json in
+    ``run_dir`` ended at step ``steps``, so that resuming a finished run keeps them instead of timing a session that
+    ran no step; None when there is no such readable summary."""
+    try:
+        earlier = read_json(run_dir / "train_summary.json", "training summary",
+                            ("steps", "seconds_this_session", "ms_per_step"))
+    except (FileNotFoundError, InputError):
+        return None
+    seconds, ms_per_step, loss = (earlier["seconds_this_session"], earlier["ms_per_step"],
+                                  earlier.get("final_loss"))
+    if earlier["steps"] != steps or not all(isinstance(v, (int, float)) for v in (seconds, ms_per_step)):
+        return None
+    return float(seconds), float(ms_per_step), float(loss) if isinstance(loss, (int, float)) else float("nan")
 
 
 def _stop_before_training(stop: StopRequest, run_dir: Path) -> None:
