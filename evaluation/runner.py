@@ -37,7 +37,7 @@ from evaluation.plots import save_image_grid, save_trajectory_plot
 from evaluation.report import write_markdown, write_results_json
 from evaluation.sfm import SfmConfig, SfmResult, run_sfm
 from evaluation.temporal import (
-    PosedFrame, exposure_leak, sequence_flicker, temporal_scores, warped_temporal_scores,
+    PosedFrame, excess_flicker, exposure_leak, sequence_flicker, temporal_scores, warped_temporal_scores,
 )
 from spotlessgs.io.cameras import Intrinsics, opengl_to_opencv_c2w
 from spotlessgs.io.dataset import GROUND_TRUTHS
@@ -554,6 +554,15 @@ def _exposure_leak(paths: Sequence[Path], data: DatasetViews, config: EvalConfig
                              data.exposure_gains)
 
 
+def _excess_flicker(paths: Sequence[Path], data: DatasetViews, config: EvalConfig) -> float | None:
+    """:func:`evaluation.temporal.excess_flicker` of the sequence ``paths`` (one image per frame of ``data``, in
+    order) against the ground truth; None when a frame has no ground truth or there are fewer than two frames."""
+    if len(paths) < 2 or not all(f.gt_path is not None and f.gt_path.is_file() for f in data.frames):
+        return None
+    with _torch_threads(config.num_threads), torch.no_grad():
+        return excess_flicker((_chw(_load(p)) for p in paths), (_chw(_load(f.gt_path)) for f in data.frames))
+
+
 def ground_truth_flicker(data: DatasetViews, config: EvalConfig = EvalConfig()) -> float | None:
     """The flicker (:func:`evaluation.temporal.sequence_flicker`) of the dataset's ground-truth sequence, every
     frame in order (the frames' ``gt_path``: the kind the dataset was read with); None when a frame has none."""
@@ -650,6 +659,10 @@ def _evaluate_run_locked(run: Path, data_root: Path, relit_dir: Path, out: Path,
         leak = _exposure_leak([relit_dir / f.name for f in data.frames], data, config)
         if leak is not None:
             results["tmp_exposure_leak"] = leak
+    # against the ground truth read (config.ground_truth), so also where the temporal metrics are not asked for
+    excess = _excess_flicker([relit_dir / f.name for f in data.frames], data, config)
+    if excess is not None:
+        results["tmp_flicker_excess"] = excess
     panels = {}
     names = [f.name for f in data.frames]
     true = {f.name: opengl_to_opencv_c2w(f.c2w_opengl) for f in data.frames}

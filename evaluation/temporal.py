@@ -71,6 +71,27 @@ def sequence_flicker(frames: Iterable[Tensor]) -> float:
     return TemporalScores([], [], [brightness_step(a, b) for a, b in consecutive_pairs(frames)]).flicker
 
 
+def excess_flicker(pred: Iterable[Tensor], reference: Iterable[Tensor]) -> float:
+    """The flicker of a predicted sequence that its reference does not have: the mean over consecutive pairs of
+    |log(b(pred, t+1) / b(pred, t)) - log(b(ref, t+1) / b(ref, t))|, b the mean linear brightness of a (3, H, W) sRGB
+    frame. 0: the prediction's brightness changes from frame to frame exactly as the reference's (a relit sequence
+    whose steps all come from what enters the view); the brightness steps of the scene itself do not count, unlike
+    :func:`sequence_flicker`'s. NaN for fewer than two frames.
+
+    Raises:
+        ValueError: the sequences differ in length.
+    """
+    try:
+        levels = [(math.log(mean_linear_brightness(p)), math.log(mean_linear_brightness(r)))
+                  for p, r in zip(pred, reference, strict=True)]
+    except ValueError as exc:
+        raise ValueError(f"excess_flicker: the prediction and the reference differ in length ({exc})") from None
+    if len(levels) < 2:
+        return math.nan
+    steps = [abs((p1 - p0) - (r1 - r0)) for (p0, r0), (p1, r1) in zip(levels, levels[1:])]
+    return float(sum(steps) / len(steps))
+
+
 def exposure_leak(pred: Iterable[Tensor], reference: Iterable[Tensor], gains: Sequence[float]) -> float:
     """How much of a camera's exposure changes a predicted sequence carries: the least-squares slope of
     log(mean linear brightness of the prediction / that of the reference) against log(exposure gain), over the frames

@@ -72,6 +72,9 @@ def test_run_results_keys_and_values(run_results, run_dir):
     # warped temporal consistency is available (depth EXRs) and beats the plain figure on a static scene
     assert r["tmp_psnr_warped"] > r["tmp_psnr"] + 5
     assert r["input"]["tmp_psnr"] is not None
+    # a perfect relighting's brightness changes as the truth's: no flicker beyond it (8-bit rounding only), whatever
+    # its own
+    assert r["tmp_flicker_excess"] < 0.002 and r["tmp_flicker"] > 0.01
 
 
 def test_run_sfm_relit_registers_everything(run_results):

@@ -186,3 +186,28 @@ def test_exposure_leak_is_the_slope_of_the_brightness_ratio_against_the_gain():
     assert math.isnan(exposure_leak(frames(steady), frames(reference), [2.0] * 6))
     with pytest.raises(ValueError, match="6 frames but 5 gains"):
         exposure_leak(frames(steady), frames(reference), gains[:5])
+
+
+def test_excess_flicker_counts_only_the_brightness_steps_the_reference_does_not_take():
+    """A prediction that follows its reference's brightness, however much that changes, has no excess flicker; one
+    that is the reference times gains g_t has exactly mean |log(g_t+1 / g_t)| (pinned by hand: log(2) + log(2) +
+    log(1.5), over three pairs); fewer than two frames give NaN; sequences of different lengths are refused."""
+    from evaluation.temporal import excess_flicker
+    from spotlessgs.io.colorspace import linear_to_srgb
+
+    rng = np.random.default_rng(5)
+    reference = [rng.uniform(0.02, 0.15, (6, 8, 3)) * level for level in (1.0, 3.0, 0.5, 2.0)]  # none clipped
+
+    def frames(images):
+        return [torch.from_numpy(linear_to_srgb(im)).permute(2, 0, 1) for im in images]
+
+    assert sequence_flicker(iter(frames(reference))) > 0.5  # the scene's own steps are large ...
+    assert excess_flicker(frames(reference), frames(reference)) == 0.0  # ... and do not count
+    assert excess_flicker(frames([1.7 * im for im in reference]), frames(reference)) == pytest.approx(0.0, abs=1e-9)
+    gains = [1.0, 2.0, 1.0, 1.5]
+    expected = (math.log(2.0) + math.log(2.0) + math.log(1.5)) / 3  # 0.59728
+    assert excess_flicker(frames([g * im for g, im in zip(gains, reference)]), frames(reference)) == \
+        pytest.approx(expected, abs=1e-9)
+    assert math.isnan(excess_flicker(frames(reference[:1]), frames(reference[:1])))
+    with pytest.raises(ValueError, match="excess_flicker: the prediction and the reference differ in length"):
+        excess_flicker(frames(reference), frames(reference[:3]))

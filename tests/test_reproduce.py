@@ -185,6 +185,11 @@ def test_robot_camera_copy_starts_from_triangulated_points_and_is_set_against_th
     assert inputs[flicker] > 0 and truth[flicker] > 0 and inputs[flicker] != truth[flicker]
     uniform = next(r for r in rows if r[1] == "Uniform ground truth (even, shadow-free)")
     assert uniform[flicker] > 0 and uniform[flicker] != truth[flicker]
+    # the relit steps beyond each truth's: at least the difference of the flickers (mean |a - b| >= |mean |a| -
+    # mean |b||); the truths have none of their own
+    for column, reference in (("Flicker beyond the GT", truth), ("Flicker beyond the uniform GT", uniform)):
+        assert ours[columns.index(column)] >= abs(ours[flicker] - reference[flicker]) - 1e-12
+        assert ours[columns.index(column)] > 0 and reference[columns.index(column)] is None
     leak = columns.index("Exposure leak")  # the camera's true gains are known: every sequence gets its slope
     assert all(isinstance(r[leak], float) and math.isfinite(r[leak]) for r in (ours, inputs))
     claims = {a["claim"]: a for a in results["agreement"]}
@@ -193,6 +198,9 @@ def test_robot_camera_copy_starts_from_triangulated_points_and_is_set_against_th
                   "the relit sequence flickers no more than the ground truth",
                   "the relit sequence flickers no more than the uniform ground truth"):
         assert claims[f"Acceptance on bedroom-robot: {claim}"]["status"] in ("agrees", "disagrees")
+    excess = ours[columns.index("Flicker beyond the uniform GT")]
+    assert f"beyond the uniform ground truth's steps (what enters the view) {excess:.3f}" in claims[
+        "Acceptance on bedroom-robot: the relit sequence flickers no more than the ground truth"]["text"]
     assert "### Robot camera — what each method loses against the ideal input" in (out / "REPORT.md").read_text()
 
 

@@ -31,6 +31,9 @@ def test_each_row_trains_once_and_the_table_gives_cost_and_gain(rooms, tmp_path)
     assert result.exit_code == 0, result.output
     saved = json.loads((out / RESULTS_JSON).read_text())
     assert [r["row"] for r in saved["rows"]] == ["robot", "lens-ignored"]
+    for r in saved["rows"]:  # mean |a - b| >= |mean |a| - mean |b||; these rooms have no uniform ground truth
+        assert r["flicker_excess"] >= abs(r["flicker"] - r["flicker_truth"]) - 1e-12
+        assert r["flicker_excess"] > 0 and "flicker_excess_uniform" not in r
     assert (out / RESULTS_MD).read_text() in result.output
     # the lens-ignored copy reads the same images as a pinhole; the robot dataset itself is untouched
     copy = json.loads((out / "data-lens-ignored" / "transforms.json").read_text())
@@ -45,6 +48,19 @@ def test_each_row_trains_once_and_the_table_gives_cost_and_gain(rooms, tmp_path)
         saved["rows"]
     bad = CliRunner().invoke(main, [*args[:8], "--rows", "robot,fisheye"])
     assert bad.exit_code == 2 and "unknown rows ['fisheye']" in bad.output
+    # a row trained under other settings is not reused: one line names each, nothing is retrained or rewritten
+    other = CliRunner().invoke(main, [*args, "--seed", "1", "--set", "depth_spread=off"])
+    assert other.exit_code == 2 and "Traceback" not in other.output
+    assert "the row was trained with other settings (seed: row 0, now 1; set: row [], now [['depth_spread', " \
+           "'off']]); use a new --out" in other.output
+    assert checkpoint.stat().st_mtime_ns == stamp and json.loads((out / RESULTS_JSON).read_text()) == saved
+    # --set reaches every row's training; the row records what it trained with
+    switched = CliRunner().invoke(main, [*args[:6], "--out", str(tmp_path / "off"), "--rows", "robot", "--preset", "tiny",
+                                         "--iterations", "20", "--set", "depth_spread=off"])
+    assert switched.exit_code == 0, switched.output
+    config = json.loads((tmp_path / "off" / "robot" / "run" / "config.json").read_text())
+    row = json.loads((tmp_path / "off" / RESULTS_JSON).read_text())["rows"][0]
+    assert config["train"]["depth_spread"] == "off" and row["trained_with"]["set"] == [["depth_spread", "off"]]
 
 
 def test_the_table_states_each_components_cost_and_gain_against_the_full_robot_row():
@@ -52,7 +68,11 @@ def test_the_table_states_each_components_cost_and_gain_against_the_full_robot_r
         return {"row": name, "switched_off": name, "ms_per_step": ms, "psnr_aligned": psnr, "ssim_aligned": 0.5,
                 "flicker": 0.1, "flicker_truth": 0.09}
 
-    table = markdown_table([row("ideal", 30.0, 19.5), row("robot", 35.0, 19.0), row("no-photometric", 33.5, 18.7)])
+    table = markdown_table([row("ideal", 30.0, 19.5), {**row("robot", 35.0, 19.0), "flicker_excess": 0.052,
+                                                       "flicker_excess_uniform": 0.0261},
+                            row("no-photometric", 33.5, 18.7)])
     lines = table.splitlines()
+    assert "| 0.100 (0.090) | 0.052 / 0.026 |" in lines[3]  # the relit flicker beyond each truth's
+    assert "| 0.100 (0.090) | – / – |" in lines[2]  # a row saved before those were measured
     assert lines[2].endswith("| – | -0.50 (robot − ideal) |")
     assert lines[4].endswith("| +1.5 | +0.30 |")  # the photometric camera: 1.5 ms per step for 0.3 dB

@@ -25,8 +25,8 @@ from spotlessgs.experiments.benchmark import VARIANTS
 
 def trainer_settings(_ctx: Any, _param: Any, texts: tuple[str, ...]) -> tuple[tuple[str, Any], ...]:
     """click callback of a repeatable ``--set KEY=VALUE`` option: the (TrainConfig field, typed value) pairs
-    (spotlessgs.training.config.parse_setting); click.BadParameter naming a bad one. `spotless train` and
-    `spotless benchmark models` both use it."""
+    (spotlessgs.training.config.parse_setting); click.BadParameter naming a bad one. `spotless train`,
+    `spotless benchmark models` and `spotless benchmark robot` use it."""
     from spotlessgs.training.config import parse_setting  # deferred: commands load without the library
 
     try:
@@ -116,13 +116,16 @@ def selection(data_dirs, out, preset, iterations, image_width, threads, seeds, m
 @click.option("--iterations", type=click.IntRange(1), default=None, help="Override the preset's iteration count.")
 @click.option("--threads", default=1, show_default=True, type=click.IntRange(1))
 @click.option("--seed", default=0, show_default=True, type=int)
-def robot(ideal, robot, out, rows, model, preset, iterations, threads, seed):
+@click.option("--set", "settings", multiple=True, metavar="KEY=VALUE", callback=trainer_settings,
+              help="Train every row with this trainer setting (a TrainConfig field; repeat the option; a row's own "
+                   "switch wins), e.g. --set depth_spread=off.")
+def robot(ideal, robot, out, rows, model, preset, iterations, threads, seed, settings):
     """What each robot-camera component costs per training step and buys in relit PSNR (one row per component)."""
     from spotlessgs.experiments.robot_benchmark import ROWS, markdown_table, run_robot_benchmark
 
     logging.basicConfig(level=logging.INFO, format="%(levelname)s %(name)s: %(message)s")
     names = row_names(rows, tuple(ROWS))
-    results = run_robot_benchmark(ideal, robot, out, names, model, preset, threads, seed, iterations)
+    results = run_robot_benchmark(ideal, robot, out, names, model, preset, threads, seed, iterations, settings)
     click.echo(markdown_table(results))
 
 

@@ -2,7 +2,7 @@
 
     spotless reproduce --preset quick --out out/quick --jobs 2
     spotless benchmark robot --ideal out/quick/datasets/bedroom-uneven --robot out/quick/datasets/bedroom-robot \\
-        --out bench/robot --threads 2
+        --out bench/robot --threads 2 [--set depth_spread=off]
 
 One model (SpotlessGS by default) is trained once per row on the same robot-camera dataset (lens, auto-exposure,
 vignetting, noise, a sparse start without normals), each row with one component switched off, and once on the ideal
@@ -18,7 +18,8 @@ input of the same room as the reference:
   the lens buys, against what its larger working image costs per step.
 
 Each row: training ms/step (wall clock, this machine: compare rows of one run), relit PSNR / SSIM of the test views
-after one exposure gain, the relit sequence's flicker, and the differences to ``robot``. Rows are resumable: a rerun
+after one exposure gain, the relit sequence's flicker and its flicker beyond the ground truths' (the brightness steps
+that what enters the view does not explain), and the differences to ``robot``. Rows are resumable: a rerun
 skips trained rows (their run folders hold the result) and trains the rest.
 """
 
@@ -69,15 +70,29 @@ def lens_ignored_copy(robot: Path, out: Path) -> Path:
 
 
 def run_row(name: str, data: Path, out: Path, model: str, preset: str, threads: int, seed: int,
-            iterations: int | None) -> dict[str, Any]:
+            iterations: int | None, settings: Sequence[tuple[str, Any]] = ()) -> dict[str, Any]:
     """Train row ``name`` on ``data`` into ``out/name`` (resumed when interrupted), relight and score its test views;
-    the row's result, also kept in ``out/name/row.json`` so that a rerun skips it."""
+    the row's result, also kept in ``out/name/row.json`` so that a rerun with the same settings skips it.
+    ``settings``: TrainConfig (field, value) pairs for every row; the row's own switches win over them.
+
+    Raises:
+        ValueError: ``out/name`` holds a row trained with other settings (each named).
+    """
     from spotlessgs.run import RunSpec, train
 
+    trained_with = json.loads(json.dumps({"model": model, "preset": preset, "seed": seed, "iterations": iterations,
+                                          "threads": threads, "set": [list(pair) for pair in settings]}))
     row_file = out / name / "row.json"
     if row_file.is_file():
-        return read_json(row_file, "benchmark row")
-    overrides = (("num_threads", threads), *ROWS[name][1])
+        row = read_json(row_file, "benchmark row")
+        earlier = row.get("trained_with")  # absent in rows of earlier versions: reused as before
+        if isinstance(earlier, dict) and earlier != trained_with:
+            differ = [f"{k}: row {earlier.get(k)!r}, now {v!r}" for k, v in trained_with.items()
+                      if earlier.get(k) != v]
+            raise ValueError(f"{row_file}: the row was trained with other settings ({'; '.join(differ)}); use a new "
+                             f"--out")
+        return row
+    overrides = (("num_threads", threads), *settings, *ROWS[name][1])
     if iterations is not None:
         overrides += (("iterations", iterations),)
     run = train(RunSpec(data=data, model=model, preset=preset, seed=seed, overrides=overrides), out / name / "run",
@@ -86,17 +101,21 @@ def run_row(name: str, data: Path, out: Path, model: str, preset: str, threads: 
     temporal = _flicker(out / name / "relit", data)
     row = {"row": name, "switched_off": ROWS[name][2], "data": str(data), "ms_per_step": run.summary["ms_per_step"],
            "gaussians": run.summary["num_gaussians"], "psnr_aligned": scores["psnr_aligned"],
-           "ssim_aligned": scores["ssim_aligned"], "psnr": scores["psnr"], **temporal}
+           "ssim_aligned": scores["ssim_aligned"], "psnr": scores["psnr"], **temporal, "trained_with": trained_with}
     write_json(row_file, row)
     return row
 
 
 def _flicker(relit: Path, data: Path) -> dict[str, float]:
-    """The relit sequence's and the ground truth's flicker (evaluation.temporal.sequence_flicker)."""
+    """The relit sequence's and the ground truth's flicker (evaluation.temporal.sequence_flicker), and the relit
+    sequence's flicker beyond each ground truth's (evaluation.temporal.excess_flicker: ``flicker_excess`` against the
+    lamps-on one, ``flicker_excess_uniform`` against the uniform one when the dataset has it)."""
     import torch
 
     from evaluation.dataset import read_dataset
-    from evaluation.temporal import sequence_flicker
+    from evaluation.temporal import excess_flicker, sequence_flicker
+    from spotlessgs.io.dataset import available_ground_truths
+    from spotlessgs.io.dataset import read_dataset as read_dataset_description
     from spotlessgs.io.images import read_image
 
     def frames(paths):
@@ -104,14 +123,21 @@ def _flicker(relit: Path, data: Path) -> dict[str, float]:
             yield torch.from_numpy(read_image(path)).permute(2, 0, 1)
 
     views = read_dataset(data)
-    return {"flicker": sequence_flicker(frames(relit / f.name for f in views.frames)),
-            "flicker_truth": sequence_flicker(frames(f.gt_path for f in views.frames))}
+    relit_paths = [relit / f.name for f in views.frames]
+    truth = [f.gt_path for f in views.frames]
+    scores = {"flicker": sequence_flicker(frames(relit_paths)), "flicker_truth": sequence_flicker(frames(truth)),
+              "flicker_excess": excess_flicker(frames(relit_paths), frames(truth))}
+    if "uniform" in available_ground_truths(read_dataset_description(data)):
+        uniform = [f.gt_path for f in read_dataset(data, "uniform").frames]
+        scores["flicker_excess_uniform"] = excess_flicker(frames(relit_paths), frames(uniform))
+    return scores
 
 
 def run_robot_benchmark(ideal: Path, robot: Path, out: Path, rows: Sequence[str] = tuple(ROWS), model: str = "spotless",
-                        preset: str = "quick", threads: int = 1, seed: int = 0,
-                        iterations: int | None = None) -> list[dict[str, Any]]:
-    """Every row of :data:`ROWS` asked for, in order; writes ``out/robot_components.json`` and ``.md``."""
+                        preset: str = "quick", threads: int = 1, seed: int = 0, iterations: int | None = None,
+                        settings: Sequence[tuple[str, Any]] = ()) -> list[dict[str, Any]]:
+    """Every row of :data:`ROWS` asked for, in order, each trained with the TrainConfig ``settings`` (field, value)
+    besides its own switches; writes ``out/robot_components.json`` and ``.md``."""
     unknown = [r for r in rows if r not in ROWS]
     if unknown:
         raise ValueError(f"unknown rows {unknown}; choose from {list(ROWS)}")
@@ -122,10 +148,10 @@ def run_robot_benchmark(ideal: Path, robot: Path, out: Path, rows: Sequence[str]
         kind = ROWS[name][0]
         data = lens_ignored_copy(robot, out / "data-lens-ignored") if kind == "lens-ignored" else datasets[kind]
         log.info("robot benchmark: row %s on %s", name, data)
-        results.append(run_row(name, data, out, model, preset, threads, seed, iterations))
-    settings = {"model": model, "preset": preset, "threads": threads, "seed": seed, "iterations": iterations,
-                "ideal": str(ideal), "robot": str(robot)}
-    write_json(out / RESULTS_JSON, {"settings": settings, "rows": results, "provenance": provenance(seed=seed)})
+        results.append(run_row(name, data, out, model, preset, threads, seed, iterations, settings))
+    recorded = {"model": model, "preset": preset, "threads": threads, "seed": seed, "iterations": iterations,
+                "set": [list(pair) for pair in settings], "ideal": str(ideal), "robot": str(robot)}
+    write_json(out / RESULTS_JSON, {"settings": recorded, "rows": results, "provenance": provenance(seed=seed)})
     write_text(out / RESULTS_MD, markdown_table(results))
     return results
 
@@ -134,7 +160,8 @@ def markdown_table(rows: Sequence[dict[str, Any]]) -> str:
     """The rows as a Markdown table, each with its cost (ms/step) and what it buys (dB) against ``robot``."""
     full = next((r for r in rows if r["row"] == "robot"), None)
     lines = ["| row | switched off | ms / step | relit PSNR aligned (dB) | SSIM aligned | flicker (truth) | "
-             "the component costs (ms / step) | and buys (dB) |", "|---|---|---|---|---|---|---|---|"]
+             "flicker beyond the truth's: lamps-on / uniform | the component costs (ms / step) | and buys (dB) |",
+             "|---|---|---|---|---|---|---|---|---|"]
     for r in rows:
         cost = buys = "–"
         if full is not None and r["row"] not in ("robot", "ideal"):
@@ -142,6 +169,9 @@ def markdown_table(rows: Sequence[dict[str, Any]]) -> str:
             buys = f"{full['psnr_aligned'] - r['psnr_aligned']:+.2f}"
         elif full is not None and r["row"] == "ideal":
             buys = f"{full['psnr_aligned'] - r['psnr_aligned']:+.2f} (robot − ideal)"
+        excess = " / ".join("–" if r.get(key) is None else f"{r[key]:.3f}"  # rows of earlier versions lack them
+                            for key in ("flicker_excess", "flicker_excess_uniform"))
         lines.append(f"| {r['row']} | {r['switched_off']} | {r['ms_per_step']:.1f} | {r['psnr_aligned']:.2f} | "
-                     f"{r['ssim_aligned']:.3f} | {r['flicker']:.3f} ({r['flicker_truth']:.3f}) | {cost} | {buys} |")
+                     f"{r['ssim_aligned']:.3f} | {r['flicker']:.3f} ({r['flicker_truth']:.3f}) | {excess} | {cost} | "
+                     f"{buys} |")
     return "\n".join(lines) + "\n"
