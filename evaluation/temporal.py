@@ -13,6 +13,7 @@ models, :mod:`spotlessgs.io.lens`).
 
 from __future__ import annotations
 
+import itertools
 import math
 from dataclasses import dataclass
 from typing import Iterable, Iterator, Sequence
@@ -81,11 +82,11 @@ def excess_flicker(pred: Iterable[Tensor], reference: Iterable[Tensor]) -> float
     Raises:
         ValueError: the sequences differ in length.
     """
-    try:
-        levels = [(math.log(mean_linear_brightness(p)), math.log(mean_linear_brightness(r)))
-                  for p, r in zip(pred, reference, strict=True)]
-    except ValueError as exc:
-        raise ValueError(f"excess_flicker: the prediction and the reference differ in length ({exc})") from None
+    levels, missing = [], object()
+    for p, r in itertools.zip_longest(pred, reference, fillvalue=missing):
+        if p is missing or r is missing:
+            raise ValueError("excess_flicker: the prediction and the reference differ in length")
+        levels.append((math.log(mean_linear_brightness(p)), math.log(mean_linear_brightness(r))))
     if len(levels) < 2:
         return math.nan
     steps = [abs((p1 - p0) - (r1 - r0)) for (p0, r0), (p1, r1) in zip(levels, levels[1:])]

@@ -494,6 +494,11 @@ def test_ctrl_c_after_the_last_step_skips_the_final_evaluation_and_resume_finish
     monkeypatch.undo()
     result = trainer.train(box, run, "3dgs", config, seed=0, resume=True, progress=False)
     assert result.steps == 3 and (run / "train_summary.json").is_file()
+    # the resume trained no step: its summary has the interrupted session's time per step and last loss
+    logged = json.loads((run / "metrics.jsonl").read_text().splitlines()[-1])
+    summary = json.loads((run / "train_summary.json").read_text())
+    assert logged["step"] == 3 and (summary["ms_per_step"], summary["final_loss"]) == (logged["ms_per_step"],
+                                                                                       logged["loss"])
 
 
 # ---- 9. `--model auto` refuses --out inside --data before creating anything --------------------------------------

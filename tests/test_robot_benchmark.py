@@ -51,16 +51,22 @@ def test_each_row_trains_once_and_the_table_gives_cost_and_gain(rooms, tmp_path)
     # a row trained under other settings is not reused: one line names each, nothing is retrained or rewritten
     other = CliRunner().invoke(main, [*args, "--seed", "1", "--set", "depth_spread=off"])
     assert other.exit_code == 2 and "Traceback" not in other.output
-    assert "the row was trained with other settings (seed: row 0, now 1; set: row [], now [['depth_spread', " \
-           "'off']]); use a new --out" in other.output
+    assert "the row was trained with other settings (depth_spread: run 'auto', now 'off'; seed: run 0, now 1); " \
+           "use a new --out" in other.output
     assert checkpoint.stat().st_mtime_ns == stamp and json.loads((out / RESULTS_JSON).read_text()) == saved
-    # --set reaches every row's training; the row records what it trained with
+    # the settings it trained with, however given, are the same settings: reused (the preset's own iteration count)
+    same = CliRunner().invoke(main, [*args[:10], "--preset", "tiny", "--iterations", "20", "--set", "depth_spread=auto",
+                                     "--set", "num_threads=1"])
+    assert same.exit_code == 0, same.output
+    assert checkpoint.stat().st_mtime_ns == stamp and json.loads((out / RESULTS_JSON).read_text())["rows"] == \
+        saved["rows"]
+    # --set reaches every row's training
     switched = CliRunner().invoke(main, [*args[:6], "--out", str(tmp_path / "off"), "--rows", "robot", "--preset", "tiny",
                                          "--iterations", "20", "--set", "depth_spread=off"])
     assert switched.exit_code == 0, switched.output
     config = json.loads((tmp_path / "off" / "robot" / "run" / "config.json").read_text())
     row = json.loads((tmp_path / "off" / RESULTS_JSON).read_text())["rows"][0]
-    assert config["train"]["depth_spread"] == "off" and row["trained_with"]["set"] == [["depth_spread", "off"]]
+    assert config["train"]["depth_spread"] == "off" and row["row"] == "robot"
 
 
 def test_the_table_states_each_components_cost_and_gain_against_the_full_robot_row():

@@ -25,6 +25,7 @@ skips trained rows (their run folders hold the result) and trains the rest.
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import logging
 import shutil
@@ -69,39 +70,61 @@ def lens_ignored_copy(robot: Path, out: Path) -> Path:
     return out
 
 
-def run_row(name: str, data: Path, out: Path, model: str, preset: str, threads: int, seed: int,
-            iterations: int | None, settings: Sequence[tuple[str, Any]] = ()) -> dict[str, Any]:
-    """Train row ``name`` on ``data`` into ``out/name`` (resumed when interrupted), relight and score its test views;
-    the row's result, also kept in ``out/name/row.json`` so that a rerun with the same settings skips it.
-    ``settings``: TrainConfig (field, value) pairs for every row; the row's own switches win over them.
+def row_spec(name: str, data: Path, model: str, preset: str, threads: int, seed: int, iterations: int | None,
+             settings: Sequence[tuple[str, Any]] = ()):
+    """The :class:`~spotlessgs.run.RunSpec` row ``name`` trains on ``data``: ``settings`` (TrainConfig (field,
+    value) pairs for every row), then the row's own switches, which win over them."""
+    from spotlessgs.run import RunSpec
 
-    Raises:
-        ValueError: ``out/name`` holds a row trained with other settings (each named).
-    """
-    from spotlessgs.run import RunSpec, train
-
-    trained_with = json.loads(json.dumps({"model": model, "preset": preset, "seed": seed, "iterations": iterations,
-                                          "threads": threads, "set": [list(pair) for pair in settings]}))
-    row_file = out / name / "row.json"
-    if row_file.is_file():
-        row = read_json(row_file, "benchmark row")
-        earlier = row.get("trained_with")  # absent in rows of earlier versions: reused as before
-        if isinstance(earlier, dict) and earlier != trained_with:
-            differ = [f"{k}: row {earlier.get(k)!r}, now {v!r}" for k, v in trained_with.items()
-                      if earlier.get(k) != v]
-            raise ValueError(f"{row_file}: the row was trained with other settings ({'; '.join(differ)}); use a new "
-                             f"--out")
-        return row
     overrides = (("num_threads", threads), *settings, *ROWS[name][1])
     if iterations is not None:
         overrides += (("iterations", iterations),)
-    run = train(RunSpec(data=data, model=model, preset=preset, seed=seed, overrides=overrides), out / name / "run",
-                resume=(out / name / "run" / "run.json").is_file(), progress=False)
-    scores = run.score_views(out / name / "relit", "all", threads)
+    return RunSpec(data=data, model=model, preset=preset, seed=seed, overrides=overrides)
+
+
+def check_row_settings(row_dir: Path, spec) -> None:
+    """Refuse a finished row whose run was trained with other settings than ``spec`` (its resolved TrainConfig, model
+    and seed, as the trainer compares a resume; settings added since the run take what it trained with). A row
+    without its run's config.json is not checked.
+
+    Raises:
+        ValueError: the settings differ (each named); InputError: the run's config.json is damaged.
+    """
+    from spotlessgs.training.config import TrainConfig, with_defaults
+    from spotlessgs.training.trainer import differing_settings
+
+    config_file = row_dir / "run" / "config.json"
+    if not (row_dir / "row.json").is_file() or not config_file.is_file():
+        return
+    saved = read_json(config_file, "run settings", ("train", "run"))
+    old_train = with_defaults(TrainConfig, saved["train"]) if isinstance(saved["train"], dict) else saved["train"]
+    old_run = saved["run"] if isinstance(saved["run"], dict) else {}
+    differ = differing_settings(old_train, dataclasses.asdict(spec.train_config())) + differing_settings(
+        {k: old_run.get(k) for k in ("model", "seed")}, {"model": spec.model, "seed": spec.seed})
+    if differ:
+        raise ValueError(f"{row_dir}: the row was trained with other settings ({'; '.join(differ)}); use a new --out")
+
+
+def run_row(name: str, data: Path, out: Path, spec) -> dict[str, Any]:
+    """Train row ``name`` (its :func:`row_spec` ``spec``) on ``data`` into ``out/name`` (resumed when interrupted),
+    relight and score its test views; the row's result, also kept in ``out/name/row.json`` so that a rerun with the
+    same settings skips it.
+
+    Raises:
+        ValueError: ``out/name`` holds a row trained with other settings (:func:`check_row_settings`).
+    """
+    from spotlessgs.run import train
+
+    row_file = out / name / "row.json"
+    if row_file.is_file():
+        check_row_settings(out / name, spec)
+        return read_json(row_file, "benchmark row")
+    run = train(spec, out / name / "run", resume=(out / name / "run" / "run.json").is_file(), progress=False)
+    scores = run.score_views(out / name / "relit", "all", spec.train_config().num_threads)
     temporal = _flicker(out / name / "relit", data)
     row = {"row": name, "switched_off": ROWS[name][2], "data": str(data), "ms_per_step": run.summary["ms_per_step"],
            "gaussians": run.summary["num_gaussians"], "psnr_aligned": scores["psnr_aligned"],
-           "ssim_aligned": scores["ssim_aligned"], "psnr": scores["psnr"], **temporal, "trained_with": trained_with}
+           "ssim_aligned": scores["ssim_aligned"], "psnr": scores["psnr"], **temporal}
     write_json(row_file, row)
     return row
 
@@ -142,13 +165,17 @@ def run_robot_benchmark(ideal: Path, robot: Path, out: Path, rows: Sequence[str]
     if unknown:
         raise ValueError(f"unknown rows {unknown}; choose from {list(ROWS)}")
     out.mkdir(parents=True, exist_ok=True)
-    datasets = {"ideal": ideal, "robot": robot}
+    datasets = {"ideal": ideal, "robot": robot, "lens-ignored": out / "data-lens-ignored"}
+    specs = {name: row_spec(name, datasets[ROWS[name][0]], model, preset, threads, seed, iterations, settings)
+             for name in rows}
+    for name, spec in specs.items():  # every finished row checked before any trains
+        check_row_settings(out / name, spec)
     results = []
     for name in rows:
-        kind = ROWS[name][0]
-        data = lens_ignored_copy(robot, out / "data-lens-ignored") if kind == "lens-ignored" else datasets[kind]
+        data = lens_ignored_copy(robot, datasets["lens-ignored"]) if ROWS[name][0] == "lens-ignored" \
+            else datasets[ROWS[name][0]]
         log.info("robot benchmark: row %s on %s", name, data)
-        results.append(run_row(name, data, out, model, preset, threads, seed, iterations, settings))
+        results.append(run_row(name, data, out, specs[name]))
     recorded = {"model": model, "preset": preset, "threads": threads, "seed": seed, "iterations": iterations,
                 "set": [list(pair) for pair in settings], "ideal": str(ideal), "robot": str(robot)}
     write_json(out / RESULTS_JSON, {"settings": recorded, "rows": results, "provenance": provenance(seed=seed)})

@@ -632,10 +632,10 @@ def _train_locked(data_dir: Path, run_dir: Path, variant: str | ModelConfig, con
         val_dark = sum(r["validation_psnr_dark"] for r in scores) / len(scores)
         _stop_after_training(stop, end, ckpt_file)
     ms_per_step = 1000.0 * seconds / max(steps_done, 1)
-    if steps_done == 0:  # resumed after its last step: the timing and last loss are those of the session that trained
-        earlier = _summary_of_finished_session(run_dir, end)
-        if earlier is not None:
-            seconds, ms_per_step, loss_value = earlier
+    if steps_done == 0:  # resumed after its last step: the time per step and last loss of the session that trained
+        logged = _last_logged_step(run_dir, end)
+        if logged is not None:
+            ms_per_step, loss_value = logged
     result = TrainResult(run_dir, end, seconds, ms_per_step, len(scene.gaussians), loss_value, test_psnr, val_psnr,
                          val_dark)
     if end == config.iterations:
@@ -661,20 +661,17 @@ def _train_locked(data_dir: Path, run_dir: Path, variant: str | ModelConfig, con
     return result
 
 
-def _summary_of_finished_session(run_dir: Path, steps: int) -> tuple[float, float, float] | None:
-    """(seconds, ms per step, final loss; NaN where not logged) of the session whose train_summary.json in
-    ``run_dir`` ended at step ``steps``, so that resuming a finished run keeps them instead of timing a session that
-    ran no step; None when there is no such readable summary."""
-    try:
-        earlier = read_json(run_dir / "train_summary.json", "training summary",
-                            ("steps", "seconds_this_session", "ms_per_step"))
-    except (FileNotFoundError, InputError):
-        return None
-    seconds, ms_per_step, loss = (earlier["seconds_this_session"], earlier["ms_per_step"],
-                                  earlier.get("final_loss"))
-    if earlier["steps"] != steps or not all(isinstance(v, (int, float)) for v in (seconds, ms_per_step)):
-        return None
-    return float(seconds), float(ms_per_step), float(loss) if isinstance(loss, (int, float)) else float("nan")
+def _last_logged_step(run_dir: Path, step: int) -> tuple[float, float] | None:
+    """(ms per step, loss) that ``run_dir``'s metrics.jsonl logged at ``step`` (the mean over the session that reached
+    it), so that a resume that trains nothing (the run had reached ``step``) reports them instead of timing a session
+    without steps; None when no such record exists."""
+    for record in reversed(read_metrics(run_dir / "metrics.jsonl")):
+        if record.get("step") == step:
+            ms_per_step, loss = record.get("ms_per_step"), record.get("loss")
+            if isinstance(ms_per_step, (int, float)) and isinstance(loss, (int, float)):
+                return float(ms_per_step), float(loss)
+            return None
+    return None
 
 
 def _stop_before_training(stop: StopRequest, run_dir: Path) -> None:
