@@ -186,7 +186,7 @@ def test_rerun_reuses_finished_runs_and_refuses_other_settings(bench, monkeypatc
 
     assert without_paired_fps(after["rooms"]) == without_paired_fps(before["rooms"])
     assert all(r["relit_fps"] > 0 for room in after["rooms"].values() for r in room["runs"].values())
-    with pytest.raises(ValueError, match="trained with other settings; use a new --out"):
+    with pytest.raises(ValueError, match=r"the run was trained with other settings \(num_threads: run 1, now 2\); use a new --out"):
         # other thread count: the selection's settings match (its decision is reused), the trained runs' do not
         run_selection_benchmark(rooms, out, BenchmarkSettings("tiny", 40, 32, 2, 0, 8))
 

@@ -169,24 +169,34 @@ def pose_errors(est_c2w: np.ndarray, true_c2w: np.ndarray, fit: Sequence[int]) -
     return out
 
 
+def row_spec(name: str, data: Path, model: str, preset: str, threads: int, seed: int, iterations: int | None,
+             overrides: tuple[tuple[str, Any], ...] = ()):
+    """The :class:`~spotlessgs.run.RunSpec` row ``name`` trains on ``data`` (``overrides``: more TrainConfig fields
+    of every row; the row's pose refinement switch is set before them)."""
+    from spotlessgs.run import RunSpec
+
+    overrides = (("num_threads", threads), ("refine_poses", ROWS[name][1]), *overrides)
+    if iterations is not None:
+        overrides += (("iterations", iterations),)
+    return RunSpec(data=data, model=model, preset=preset, seed=seed, overrides=overrides)
+
+
 def run_row(name: str, data: Path, truth: Path, out: Path, model: str, preset: str, threads: int, seed: int,
             iterations: int | None, overrides: tuple[tuple[str, Any], ...] = ()) -> dict[str, Any]:
     """Train row ``name`` on ``data`` into ``out/name`` (resumed when interrupted; ``overrides``: more TrainConfig
     fields), measure its poses against the dataset ``truth`` and score its relit test views; the row's result, also
     kept in ``out/name/row.json``."""
+    from spotlessgs.experiments.run_settings import check_finished_row
     from spotlessgs.io.dataset import read_dataset
-    from spotlessgs.run import RunSpec, train
+    from spotlessgs.run import train
 
-    row_file = out / name / "row.json"
+    spec = row_spec(name, data, model, preset, threads, seed, iterations, overrides)
+    row_file, run_dir = out / name / "row.json", out / name / "run"
     if row_file.is_file():
+        check_finished_row(out / name, spec)
         return read_json(row_file, "benchmark row")
     refine = ROWS[name][1]
-    overrides = (("num_threads", threads), ("refine_poses", refine), *overrides)
-    if iterations is not None:
-        overrides += (("iterations", iterations),)
-    run_dir = out / name / "run"
-    run = train(RunSpec(data=data, model=model, preset=preset, seed=seed, overrides=overrides), run_dir,
-                resume=(run_dir / "run.json").is_file(), progress=False)
+    run = train(spec, run_dir, resume=(run_dir / "run.json").is_file(), progress=False)
     given = read_dataset(data)
     true = read_dataset(truth).c2w_opencv
     train_views = list(given.split.train)
@@ -217,6 +227,8 @@ def run_pose_benchmark(data: Path, out: Path, translation_m: float, rotation_deg
     """Every row of :data:`ROWS` named in ``rows`` (``overrides``: TrainConfig fields of every row, e.g. the pose
     refinement's settings; ``error_model`` and ``points``: see the module docstring); writes
     ``OUT/pose_refinement.json`` and ``.md``."""
+    from spotlessgs.experiments.run_settings import check_finished_row
+
     unknown = sorted(set(rows) - set(ROWS))
     if unknown:
         raise ValueError(f"unknown rows {unknown}; choose from {list(ROWS)}")
@@ -227,6 +239,9 @@ def run_pose_benchmark(data: Path, out: Path, translation_m: float, rotation_deg
     clean = data if points == "kept" else perturbed_copy(data, out / "clean_data", 0.0, 0.0, seed, error_model,
                                                          points)
     datasets = {"clean": clean, "perturbed": perturbed}
+    for name in rows:  # every finished row checked before any trains
+        check_finished_row(out / name, row_spec(name, datasets[ROWS[name][0]], model, preset, threads, seed,
+                                                iterations, overrides))
     results = [run_row(name, datasets[ROWS[name][0]], data, out, model, preset, threads, seed, iterations, overrides)
                for name in rows]
     write_json(out / RESULTS_JSON, {"rows": results, "translation_m": translation_m, "rotation_deg": rotation_deg,

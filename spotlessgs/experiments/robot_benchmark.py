@@ -20,12 +20,12 @@ input of the same room as the reference:
 Each row: training ms/step (wall clock, this machine: compare rows of one run), relit PSNR / SSIM of the test views
 after one exposure gain, the relit sequence's flicker and its flicker beyond the ground truths' (the brightness steps
 that what enters the view does not explain), and the differences to ``robot``. Rows are resumable: a rerun
-skips trained rows (their run folders hold the result) and trains the rest.
+skips trained rows (their run folders hold the result) and trains the rest; a row trained under other settings
+(``--set``, seed, preset, ...) is refused by name, before anything trains.
 """
 
 from __future__ import annotations
 
-import dataclasses
 import json
 import logging
 import shutil
@@ -82,42 +82,21 @@ def row_spec(name: str, data: Path, model: str, preset: str, threads: int, seed:
     return RunSpec(data=data, model=model, preset=preset, seed=seed, overrides=overrides)
 
 
-def check_row_settings(row_dir: Path, spec) -> None:
-    """Refuse a finished row whose run was trained with other settings than ``spec`` (its resolved TrainConfig, model
-    and seed, as the trainer compares a resume; settings added since the run take what it trained with). A row
-    without its run's config.json is not checked.
-
-    Raises:
-        ValueError: the settings differ (each named); InputError: the run's config.json is damaged.
-    """
-    from spotlessgs.training.config import TrainConfig, with_defaults
-    from spotlessgs.training.trainer import differing_settings
-
-    config_file = row_dir / "run" / "config.json"
-    if not (row_dir / "row.json").is_file() or not config_file.is_file():
-        return
-    saved = read_json(config_file, "run settings", ("train", "run"))
-    old_train = with_defaults(TrainConfig, saved["train"]) if isinstance(saved["train"], dict) else saved["train"]
-    old_run = saved["run"] if isinstance(saved["run"], dict) else {}
-    differ = differing_settings(old_train, dataclasses.asdict(spec.train_config())) + differing_settings(
-        {k: old_run.get(k) for k in ("model", "seed")}, {"model": spec.model, "seed": spec.seed})
-    if differ:
-        raise ValueError(f"{row_dir}: the row was trained with other settings ({'; '.join(differ)}); use a new --out")
-
-
 def run_row(name: str, data: Path, out: Path, spec) -> dict[str, Any]:
     """Train row ``name`` (its :func:`row_spec` ``spec``) on ``data`` into ``out/name`` (resumed when interrupted),
     relight and score its test views; the row's result, also kept in ``out/name/row.json`` so that a rerun with the
     same settings skips it.
 
     Raises:
-        ValueError: ``out/name`` holds a row trained with other settings (:func:`check_row_settings`).
+        ValueError: ``out/name`` holds a row trained with other settings
+            (:func:`spotlessgs.experiments.run_settings.check_finished_row`).
     """
+    from spotlessgs.experiments.run_settings import check_finished_row
     from spotlessgs.run import train
 
     row_file = out / name / "row.json"
     if row_file.is_file():
-        check_row_settings(out / name, spec)
+        check_finished_row(out / name, spec)
         return read_json(row_file, "benchmark row")
     run = train(spec, out / name / "run", resume=(out / name / "run" / "run.json").is_file(), progress=False)
     scores = run.score_views(out / name / "relit", "all", spec.train_config().num_threads)
@@ -161,6 +140,8 @@ def run_robot_benchmark(ideal: Path, robot: Path, out: Path, rows: Sequence[str]
                         settings: Sequence[tuple[str, Any]] = ()) -> list[dict[str, Any]]:
     """Every row of :data:`ROWS` asked for, in order, each trained with the TrainConfig ``settings`` (field, value)
     besides its own switches; writes ``out/robot_components.json`` and ``.md``."""
+    from spotlessgs.experiments.run_settings import check_finished_row
+
     unknown = [r for r in rows if r not in ROWS]
     if unknown:
         raise ValueError(f"unknown rows {unknown}; choose from {list(ROWS)}")
@@ -169,7 +150,7 @@ def run_robot_benchmark(ideal: Path, robot: Path, out: Path, rows: Sequence[str]
     specs = {name: row_spec(name, datasets[ROWS[name][0]], model, preset, threads, seed, iterations, settings)
              for name in rows}
     for name, spec in specs.items():  # every finished row checked before any trains
-        check_row_settings(out / name, spec)
+        check_finished_row(out / name, spec)
     results = []
     for name in rows:
         data = lens_ignored_copy(robot, datasets["lens-ignored"]) if ROWS[name][0] == "lens-ignored" \

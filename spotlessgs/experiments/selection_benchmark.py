@@ -37,6 +37,7 @@ from typing import Any
 
 from evaluation.dataset import read_dataset
 from spotlessgs.io.atomic import write_json, write_text
+from spotlessgs.experiments.run_settings import refuse_other_settings
 from spotlessgs.io.provenance import provenance
 from spotlessgs.run import AUTO, Run, RunSpec, given_overrides, train
 from spotlessgs.training.budget_plot import BudgetPoint, plot_budget
@@ -112,14 +113,6 @@ def selection_summary(decision: dict[str, Any]) -> dict[str, Any]:
             "low_frequency_light": decision["low_frequency_light"], "seconds": decision.get("seconds")}
 
 
-def _check_same_settings(run_dir: Path, config, seed: int) -> None:
-    """ValueError when the existing run in ``run_dir`` was trained with other settings than ``config``/``seed``."""
-    old = json.loads((run_dir / "config.json").read_text())
-    wanted = json.loads(json.dumps(dataclasses.asdict(config)))
-    if old["train"] != wanted or old["run"]["seed"] != seed:
-        raise ValueError(f"{run_dir}: this run was trained with other settings; use a new --out")
-
-
 def measure_run(spec: RunSpec, run_dir: Path, threads: int) -> dict:
     """Train ``spec`` (unless ``train_summary.json`` exists), relight every view and score the test views of one run.
 
@@ -131,7 +124,7 @@ def measure_run(spec: RunSpec, run_dir: Path, threads: int) -> dict:
     """
     summary_path, row_path = run_dir / "train_summary.json", run_dir / ROW_FILE
     if summary_path.is_file():
-        _check_same_settings(run_dir, spec.train_config(), spec.seed)
+        refuse_other_settings(run_dir, spec)
         if row_path.is_file():
             return json.loads(row_path.read_text())
         run = Run.load(run_dir)

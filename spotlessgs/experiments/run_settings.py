@@ -1,0 +1,51 @@
+"""A benchmark's finished run is reused only under the settings it was trained with.
+
+The benchmarks keep each trained run in their output folder and skip it on a rerun. A rerun asked for other settings
+(another seed, preset, ``--set``) must not report the old run as if it were the new one: :func:`refuse_other_settings`
+compares what the run's ``config.json`` records (its resolved TrainConfig, completed for settings added since the run
+as the trainer completes them on a resume, its model and seed) with a :class:`~spotlessgs.run.RunSpec`, and names
+every difference.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from pathlib import Path
+
+from spotlessgs.io.json_files import read_json
+from spotlessgs.run import AUTO, RunSpec
+from spotlessgs.training.config import TrainConfig, with_defaults
+from spotlessgs.training.trainer import differing_settings
+
+
+def settings_differences(run_dir: Path, spec: RunSpec) -> list[str]:
+    """``name: run X, now Y`` for each training setting, and the model (unless ``spec`` asks for ``auto``) and seed,
+    in which the run in ``run_dir`` (its ``config.json``) differs from ``spec``.
+
+    Raises:
+        InputError: ``config.json`` is missing or damaged (names the file).
+    """
+    saved = read_json(run_dir / "config.json", "run settings", ("train", "run"))
+    old_train = with_defaults(TrainConfig, saved["train"]) if isinstance(saved["train"], dict) else saved["train"]
+    old_run = saved["run"] if isinstance(saved["run"], dict) else {}
+    # a `--model auto` run holds the model its selection chose (that selection compares its own settings on a resume)
+    keys = ("seed",) if spec.model == AUTO else ("model", "seed")
+    wanted = {"model": spec.model, "seed": spec.seed}
+    return differing_settings(old_train, dataclasses.asdict(spec.train_config())) + differing_settings(
+        {key: old_run.get(key) for key in keys}, {key: wanted[key] for key in keys})
+
+
+def refuse_other_settings(run_dir: Path, spec: RunSpec, what: str = "the run") -> None:
+    """Raise ValueError (``RUN: the run was trained with other settings (...); use a new --out``) when the run in
+    ``run_dir`` was trained with other settings than ``spec``; ``what`` names it in the message."""
+    differ = settings_differences(run_dir, spec)
+    if differ:
+        raise ValueError(f"{run_dir}: {what} was trained with other settings ({'; '.join(differ)}); use a new --out")
+
+
+def check_finished_row(row_dir: Path, spec: RunSpec) -> None:
+    """A benchmark row kept as ``row_dir/row.json`` beside its run ``row_dir/run``: refuse it (ValueError naming each
+    difference) when its run was trained with other settings than ``spec``. A row without both files is not checked
+    (an unfinished row resumes through the trainer, which compares the settings itself)."""
+    if (row_dir / "row.json").is_file() and (row_dir / "run" / "config.json").is_file():
+        refuse_other_settings(row_dir / "run", spec, "the row")
