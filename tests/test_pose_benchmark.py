@@ -98,3 +98,8 @@ def test_a_triangulated_copy_gets_its_own_points_from_its_own_poses(room, tmp_pa
     stamp = (drifted / POINTS_FILE).stat().st_mtime_ns
     assert perturbed_copy(room, tmp_path / "drift", 0.05, 0.5, seed=0, model="drift", points="triangulated") == drifted
     assert (drifted / POINTS_FILE).stat().st_mtime_ns == stamp
+    # ... and asked for with other settings, refused by name instead of returned as if it were that copy
+    with pytest.raises(ValueError, match=r"drift: the perturbed copy was made with other settings \(translation_m: "
+                                         r"copy 0.05, now 0.03; seed: copy 0, now 1\); use a new --out"):
+        perturbed_copy(room, tmp_path / "drift", 0.03, 0.5, seed=1, model="drift", points="triangulated")
+    assert (drifted / POINTS_FILE).stat().st_mtime_ns == stamp

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import shutil
 
 import pytest
 from click.testing import CliRunner
@@ -60,6 +61,14 @@ def test_each_row_trains_once_and_the_table_gives_cost_and_gain(rooms, tmp_path)
     assert same.exit_code == 0, same.output
     assert checkpoint.stat().st_mtime_ns == stamp and json.loads((out / RESULTS_JSON).read_text())["rows"] == \
         saved["rows"]
+    # the lens-ignored copy of another robot dataset (other poses) is refused, not reused
+    other_robot = tmp_path / "other-robot"
+    shutil.copytree(rooms / "robot", other_robot)
+    moved = json.loads((other_robot / "transforms.json").read_text())
+    moved["frames"][0]["transform_matrix"][0][3] += 0.1
+    (other_robot / "transforms.json").write_text(json.dumps(moved))
+    refused = CliRunner().invoke(main, [*args[:4], "--robot", str(other_robot), *args[6:]])
+    assert refused.exit_code == 2 and "the lens-ignored copy was made from another dataset than" in refused.output
     # --set reaches every row's training
     switched = CliRunner().invoke(main, [*args[:6], "--out", str(tmp_path / "off"), "--rows", "robot", "--preset", "tiny",
                                          "--iterations", "20", "--set", "depth_spread=off"])

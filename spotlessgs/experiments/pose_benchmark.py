@@ -119,10 +119,23 @@ def perturbed_copy(data: Path, out: Path, translation_m: float, rotation_deg: fl
     ``translation_m`` and ``rotation_deg`` (random directions seeded by ``seed``; both zero: the poses unchanged), and
     whose point cloud is ``points`` (``kept`` or ``triangulated`` with the copy's poses); made once, atomically (an
     interrupted copy is redone). The perturbation is recorded in the copy's ``spotless`` block as
-    ``pose_perturbation``."""
+    ``pose_perturbation``.
+
+    Raises:
+        ValueError: an unknown point source, or ``out`` holds a copy made with other settings (each named).
+    """
     if points not in POINT_SOURCES:
         raise ValueError(f"unknown point source {points!r}; choose from {list(POINT_SOURCES)}")
+    wanted = {"translation_m": translation_m, "rotation_deg": rotation_deg, "model": model, "points": points,
+              "seed": seed}
     if (out / "transforms.json").is_file():
+        block = read_json(out / "transforms.json", "perturbed copy").get("spotless")
+        made = block.get("pose_perturbation") if isinstance(block, dict) else None
+        made = made if isinstance(made, dict) else {}
+        differ = [f"{k}: copy {made.get(k)!r}, now {v!r}" for k, v in wanted.items() if made.get(k) != v]
+        if differ:
+            raise ValueError(f"{out}: the perturbed copy was made with other settings ({'; '.join(differ)}); use a "
+                             f"new --out")
         return out
     partial = out.with_name(out.name + ".partial")
     shutil.rmtree(partial, ignore_errors=True)
@@ -136,9 +149,7 @@ def perturbed_copy(data: Path, out: Path, translation_m: float, rotation_deg: fl
                             rotation_deg, model, rng)
     for frame, pose in zip(transforms["frames"], moved):
         frame["transform_matrix"] = pose.tolist()
-    transforms.setdefault("spotless", {})["pose_perturbation"] = {
-        "translation_m": translation_m, "rotation_deg": rotation_deg, "model": model, "points": points, "seed": seed,
-        "source": str(data)}
+    transforms.setdefault("spotless", {})["pose_perturbation"] = {**wanted, "source": str(data)}
     write_json(partial / "transforms.json", transforms)
     if points == "triangulated":
         from spotlessgs.prepare.points import add_sfm_points

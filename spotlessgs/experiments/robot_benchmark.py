@@ -52,17 +52,33 @@ ROWS: dict[str, tuple[str, tuple[tuple[str, Any], ...], str]] = {
 RESULTS_JSON, RESULTS_MD = "robot_components.json", "robot_components.md"
 
 
+#: The distortion fields of a transforms.json record (top level or per frame) that the lens-ignored copy sets to 0.
+DISTORTION_KEYS = ("k1", "k2", "k3", "k4", "p1", "p2")
+
+
 def lens_ignored_copy(robot: Path, out: Path) -> Path:
     """A copy of the dataset ``robot`` whose cameras have no distortion (what a tool that ignores the lens sees);
-    made once, atomically (an interrupted copy is redone)."""
+    made once, atomically (an interrupted copy is redone).
+
+    Raises:
+        ValueError: ``out`` holds a copy of another dataset (other frames or poses).
+    """
+    def frames(transforms: dict) -> list:
+        return [{k: v for k, v in f.items() if k not in DISTORTION_KEYS} if isinstance(f, dict) else f
+                for f in transforms["frames"]]
+
     if (out / "transforms.json").is_file():
+        made = read_json(out / "transforms.json", "lens-ignored copy", ("frames",))
+        if frames(made) != frames(read_json(robot / "transforms.json", "robot dataset", ("frames",))):
+            raise ValueError(f"{out}: the lens-ignored copy was made from another dataset than {robot} (other frames "
+                             f"or poses); use a new --out")
         return out
     partial = out.with_name(out.name + ".partial")
     shutil.rmtree(partial, ignore_errors=True)
     shutil.copytree(robot, partial)
     transforms = json.loads((partial / "transforms.json").read_text(encoding="utf-8"))
     for record in [transforms, *transforms["frames"]]:
-        for key in ("k1", "k2", "k3", "k4", "p1", "p2"):
+        for key in DISTORTION_KEYS:
             if key in record:
                 record[key] = 0.0
     write_json(partial / "transforms.json", transforms)
