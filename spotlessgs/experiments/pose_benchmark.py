@@ -192,16 +192,14 @@ def row_spec(name: str, data: Path, model: str, preset: str, threads: int, seed:
     return RunSpec(data=data, model=model, preset=preset, seed=seed, overrides=overrides)
 
 
-def run_row(name: str, data: Path, truth: Path, out: Path, model: str, preset: str, threads: int, seed: int,
-            iterations: int | None, overrides: tuple[tuple[str, Any], ...] = ()) -> dict[str, Any]:
-    """Train row ``name`` on ``data`` into ``out/name`` (resumed when interrupted; ``overrides``: more TrainConfig
-    fields), measure its poses against the dataset ``truth`` and score its relit test views; the row's result, also
-    kept in ``out/name/row.json``."""
+def run_row(name: str, data: Path, truth: Path, out: Path, spec, threads: int) -> dict[str, Any]:
+    """Train row ``name`` (its :func:`row_spec` ``spec``) on ``data`` into ``out/name`` (resumed when interrupted),
+    measure its poses against the dataset ``truth`` and score its relit test views with ``threads``; the row's
+    result, also kept in ``out/name/row.json`` (a rerun under the same settings reuses it)."""
     from spotlessgs.experiments.run_settings import check_finished_row
     from spotlessgs.io.dataset import read_dataset
     from spotlessgs.run import train
 
-    spec = row_spec(name, data, model, preset, threads, seed, iterations, overrides)
     row_file, run_dir = out / name / "row.json", out / name / "run"
     if row_file.is_file():
         check_finished_row(out / name, spec)
@@ -250,11 +248,11 @@ def run_pose_benchmark(data: Path, out: Path, translation_m: float, rotation_deg
     clean = data if points == "kept" else perturbed_copy(data, out / "clean_data", 0.0, 0.0, seed, error_model,
                                                          points)
     datasets = {"clean": clean, "perturbed": perturbed}
-    for name in rows:  # every finished row checked before any trains
-        check_finished_row(out / name, row_spec(name, datasets[ROWS[name][0]], model, preset, threads, seed,
-                                                iterations, overrides))
-    results = [run_row(name, datasets[ROWS[name][0]], data, out, model, preset, threads, seed, iterations, overrides)
-               for name in rows]
+    specs = {name: row_spec(name, datasets[ROWS[name][0]], model, preset, threads, seed, iterations, overrides)
+             for name in rows}
+    for name, spec in specs.items():  # every finished row checked before any trains
+        check_finished_row(out / name, spec)
+    results = [run_row(name, datasets[ROWS[name][0]], data, out, specs[name], threads) for name in rows]
     write_json(out / RESULTS_JSON, {"rows": results, "translation_m": translation_m, "rotation_deg": rotation_deg,
                                     "error_model": error_model, "points": points,
                                     "model": model, "preset": preset, "iterations": iterations, "threads": threads,

@@ -14,8 +14,7 @@ from pathlib import Path
 
 from spotlessgs.io.json_files import read_json
 from spotlessgs.run import AUTO, RunSpec
-from spotlessgs.training.config import TrainConfig, with_defaults
-from spotlessgs.training.trainer import differing_settings
+from spotlessgs.training.trainer import differing_settings, differing_train_settings
 
 
 def settings_differences(run_dir: Path, spec: RunSpec) -> list[str]:
@@ -26,12 +25,11 @@ def settings_differences(run_dir: Path, spec: RunSpec) -> list[str]:
         InputError: ``config.json`` is missing or damaged (names the file).
     """
     saved = read_json(run_dir / "config.json", "run settings", ("train", "run"))
-    old_train = with_defaults(TrainConfig, saved["train"]) if isinstance(saved["train"], dict) else saved["train"]
     old_run = saved["run"] if isinstance(saved["run"], dict) else {}
     # a `--model auto` run holds the model its selection chose (that selection compares its own settings on a resume)
     keys = ("seed",) if spec.model == AUTO else ("model", "seed")
     wanted = {"model": spec.model, "seed": spec.seed}
-    return differing_settings(old_train, dataclasses.asdict(spec.train_config())) + differing_settings(
+    return differing_train_settings(saved["train"], dataclasses.asdict(spec.train_config())) + differing_settings(
         {key: old_run.get(key) for key in keys}, {key: wanted[key] for key in keys})
 
 

@@ -357,8 +357,7 @@ def select_model(
         differ = trainer.differing_settings({k: v for k, v in stored.items() if k not in moved},
                                             {k: v for k, v in settings.items() if k not in moved})
         if "train" in stored:  # absent in decisions written before the training settings were recorded
-            old_train = with_defaults(TrainConfig, stored["train"]) if isinstance(stored["train"], dict) else None
-            differ += [f"train {d}" for d in trainer.differing_settings(old_train, settings["train"])]
+            differ += [f"train {d}" for d in trainer.differing_train_settings(stored["train"], settings["train"])]
         if differ:
             raise ValueError(f"{path}: --resume with other selection settings than the run was started with "
                              f"({'; '.join(differ)})")

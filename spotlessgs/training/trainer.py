@@ -433,11 +433,10 @@ def _train_locked(data_dir: Path, run_dir: Path, variant: str | ModelConfig, con
         # the dataset may have moved (--data DIR), an older version wrote the file: not another setting
         moved = ("data_dir", "data_dir_relative", "schema_version")
         # settings added since the run began take their defaults (what the run trained with), the model's too
-        old_train = with_defaults(TrainConfig, old["train"]) if isinstance(old["train"], dict) else old["train"]
         old_run = dict(old["run"])
         if isinstance(old_run.get("model_config"), dict):
             old_run["model_config"] = with_defaults(ModelConfig, old_run["model_config"])
-        differ = differing_settings(old_train, resolved["train"]) + differing_settings(
+        differ = differing_train_settings(old["train"], resolved["train"]) + differing_settings(
             {k: v for k, v in old_run.items() if k not in moved}, {k: v for k, v in run_info.items() if k not in moved})
         if differ:
             raise ValueError(f"{run_dir}: --resume with other settings than the run was started with "
@@ -718,6 +717,13 @@ def read_metrics(path: Path) -> list[dict]:
         except json.JSONDecodeError:
             continue
     return records
+
+
+def differing_train_settings(saved: Any, new: dict[str, Any]) -> list[str]:
+    """:func:`differing_settings` of a TrainConfig as a run or decision saved it (``saved``; completed with
+    :func:`~spotlessgs.training.config.with_defaults` for the settings added since, as the run trained) and the
+    fields of a TrainConfig ``new`` (``dataclasses.asdict``)."""
+    return differing_settings(with_defaults(TrainConfig, saved) if isinstance(saved, dict) else saved, new)
 
 
 def differing_settings(old: Any, new: Any) -> list[str]:
