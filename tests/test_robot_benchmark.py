@@ -67,8 +67,16 @@ def test_each_row_trains_once_and_the_table_gives_cost_and_gain(rooms, tmp_path)
     moved = json.loads((other_robot / "transforms.json").read_text())
     moved["frames"][0]["transform_matrix"][0][3] += 0.1
     (other_robot / "transforms.json").write_text(json.dumps(moved))
-    refused = CliRunner().invoke(main, [*args[:4], "--robot", str(other_robot), *args[6:]])
+    refused = CliRunner().invoke(main, [*args[:4], "--robot", str(other_robot), *args[6:8], "--rows", "lens-ignored",
+                                        *args[10:]])
     assert refused.exit_code == 2 and "the lens-ignored copy was made from another dataset than" in refused.output
+    # ... and so is a finished row trained on the robot dataset when --robot now holds other files
+    results = (out / RESULTS_JSON).read_bytes()
+    refused = CliRunner().invoke(main, [*args[:4], "--robot", str(other_robot), *args[6:]])
+    assert refused.exit_code == 2 and "Traceback" not in refused.output
+    assert f"the row was trained with other settings (dataset: trained on other files than {other_robot} holds)" \
+        in refused.output
+    assert checkpoint.stat().st_mtime_ns == stamp and (out / RESULTS_JSON).read_bytes() == results
     # --set reaches every row's training
     switched = CliRunner().invoke(main, [*args[:6], "--out", str(tmp_path / "off"), "--rows", "robot", "--preset", "tiny",
                                          "--iterations", "20", "--set", "depth_spread=off"])

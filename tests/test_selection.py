@@ -408,6 +408,17 @@ def test_train_model_auto_writes_the_decision_prints_the_table_and_trains_the_ch
     assert json.loads((out / SELECTION_FILE).read_text()) == decision
     from spotlessgs.training.selection import select_model
 
+    # the same settings on other files (a frame changed): refused by name, the decision kept
+    changed = tmp_path / "changed-data"
+    shutil.copytree(box_room, changed)
+    frames = sorted((changed / "images").glob("*.png"))
+    shutil.copyfile(frames[1], frames[0])
+    with pytest.raises(ValueError, match=r"other selection settings than the run was started with \(dataset: "
+                                         r"decided on other files than .*changed-data holds\)"):
+        select_model(changed, out, TrainConfig(**decision["settings"]["train"]), 0, SelectionConfig(tolerance_db=0.3),
+                     resume=True)
+    assert json.loads((out / SELECTION_FILE).read_text()) == decision
+
     with pytest.raises(ValueError, match="other selection settings"):
         select_model(box_room, out, _tiny(iterations=300, image_width=32), 0, SelectionConfig(tolerance_db=0.9),
                      resume=True)

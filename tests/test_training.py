@@ -7,12 +7,14 @@ import dataclasses
 
 import json
 import math
+import shutil
 from pathlib import Path
 
 import numpy as np
 import pytest
 import torch
 
+from spotlessgs.io.dataset import read_dataset
 from spotlessgs.models.gaussians import GaussianParams
 from spotlessgs.training.losses import clipped_l1, depth_spread_loss, photometric_loss
 from spotlessgs.training.strategy import DensifyConfig, DensifyStrategy
@@ -235,8 +237,22 @@ def test_tiny_training_does_real_work(bedroom, tmp_path):
 
 
 @pytest.mark.blender
+def _changed_copy(data, where):
+    """A copy of the dataset ``data`` at ``where`` with one pixel of its first frame changed."""
+    from spotlessgs.io.images import read_image, write_png
+
+    shutil.copytree(data, where)
+    frame = where / read_dataset(where).file_paths[0]
+    image = read_image(frame)
+    image[0, 0] = 1.0 - image[0, 0]
+    write_png(frame, image)
+    return where
+
+
 def test_resume_equals_an_uninterrupted_run(bedroom, tmp_path):
-    from spotlessgs.training.checkpoint import load_checkpoint
+    from spotlessgs.io.dataset_fingerprint import dataset_fingerprint
+    from spotlessgs.io.errors import InputError
+    from spotlessgs.training.checkpoint import checkpoint_path, load_checkpoint
     from spotlessgs.training.trainer import train
 
     cfg = _tiny(iterations=60, image_width=40, densify_from=20, densify_until=50, densify_every=10,
@@ -248,6 +264,15 @@ def test_resume_equals_an_uninterrupted_run(bedroom, tmp_path):
     with pytest.raises(ValueError, match=r"other settings .*\(lr_albedo: run 0\.\d+, now 0\.01\)"):
         train(bedroom, tmp_path / "split", "darkgs+sh", cfg.replace(lr_albedo=0.01), seed=3, resume=True,
               progress=False)
+    # the same settings on other files (one pixel of one frame changed): refused, the run left as it was
+    changed = _changed_copy(bedroom, tmp_path / "changed")
+    stamp = (tmp_path / "split" / "run.json").read_bytes(), checkpoint_path(tmp_path / "split").stat().st_mtime_ns
+    with pytest.raises(InputError, match=r"split: --resume on another dataset: the files of .*changed differ from "
+                                         r"those the run was trained on"):
+        train(changed, tmp_path / "split", "darkgs+sh", cfg, seed=3, resume=True, progress=False)
+    assert stamp == ((tmp_path / "split" / "run.json").read_bytes(),
+                     checkpoint_path(tmp_path / "split").stat().st_mtime_ns)
+    assert json.loads(stamp[0])["data_fingerprint"] == dataset_fingerprint(read_dataset(bedroom))
     train(bedroom, tmp_path / "split", "darkgs+sh", cfg, seed=3, progress=False, resume=True)
     # resuming the finished run trains nothing and reports the time per step and last loss of the session that
     # trained it, as its last step logged them (not the time of a session without steps)

@@ -3,8 +3,8 @@
 The benchmarks keep each trained run in their output folder and skip it on a rerun. A rerun asked for other settings
 (another seed, preset, ``--set``) must not report the old run as if it were the new one: :func:`refuse_other_settings`
 compares what the run's ``config.json`` records (its resolved TrainConfig, completed for settings added since the run
-as the trainer completes them on a resume, its model and seed) with a :class:`~spotlessgs.run.RunSpec`, and names
-every difference.
+as the trainer completes them on a resume, its model and seed) and the fingerprint of its dataset's files
+(``run.json``) with a :class:`~spotlessgs.run.RunSpec` and its dataset, and names every difference.
 """
 
 from __future__ import annotations
@@ -12,14 +12,18 @@ from __future__ import annotations
 import dataclasses
 from pathlib import Path
 
+from spotlessgs.io.dataset import read_dataset
+from spotlessgs.io.dataset_fingerprint import dataset_fingerprint, other_dataset
 from spotlessgs.io.json_files import read_json
 from spotlessgs.run import AUTO, RunSpec
+from spotlessgs.training.checkpoint import read_run_info
 from spotlessgs.training.trainer import differing_settings, differing_train_settings
 
 
 def settings_differences(run_dir: Path, spec: RunSpec) -> list[str]:
     """``name: run X, now Y`` for each training setting, and the model (unless ``spec`` asks for ``auto``) and seed,
-    in which the run in ``run_dir`` (its ``config.json``) differs from ``spec``.
+    in which the run in ``run_dir`` (its ``config.json``) differs from ``spec``, and ``dataset: ...`` when it was
+    trained on other files than ``spec.data`` holds (:func:`dataset_difference`).
 
     Raises:
         InputError: ``config.json`` is missing or damaged (names the file).
@@ -29,8 +33,19 @@ def settings_differences(run_dir: Path, spec: RunSpec) -> list[str]:
     # a `--model auto` run holds the model its selection chose (that selection compares its own settings on a resume)
     keys = ("seed",) if spec.model == AUTO else ("model", "seed")
     wanted = {"model": spec.model, "seed": spec.seed}
-    return differing_train_settings(saved["train"], dataclasses.asdict(spec.train_config())) + differing_settings(
-        {key: old_run.get(key) for key in keys}, {key: wanted[key] for key in keys})
+    return (differing_train_settings(saved["train"], dataclasses.asdict(spec.train_config()))
+            + differing_settings({key: old_run.get(key) for key in keys}, {key: wanted[key] for key in keys})
+            + dataset_difference(run_dir, spec.data))
+
+
+def dataset_difference(run_dir: Path, data: Path) -> list[str]:
+    """``["dataset: ..."]`` when the run in ``run_dir`` was trained on other files than the dataset ``data`` holds
+    now (:mod:`spotlessgs.io.dataset_fingerprint`), else []; [] too for a run saved before fingerprints (no
+    ``data_fingerprint`` in its run.json), which has nothing to compare."""
+    recorded = read_run_info(run_dir).get("data_fingerprint") if (run_dir / "run.json").is_file() else None
+    if recorded is None or not other_dataset(recorded, dataset_fingerprint(read_dataset(data))):
+        return []
+    return [f"dataset: trained on other files than {data} holds"]
 
 
 def refuse_other_settings(run_dir: Path, spec: RunSpec, what: str = "the run") -> None:

@@ -52,6 +52,8 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from spotlessgs.io.atomic import write_json
+from spotlessgs.io.dataset import read_dataset
+from spotlessgs.io.dataset_fingerprint import dataset_fingerprint, other_dataset
 from spotlessgs.io.errors import InputError
 from spotlessgs.io.folder_lock import folder_lock
 from spotlessgs.io.json_files import read_json, require_keys
@@ -353,11 +355,15 @@ def select_model(
                              f"{SELECTION_VERSION} (other candidates and measurements); remove {path} and "
                              f"{run_dir / 'selection'} to decide again, or use a new --out")
         stored = decision.get("settings") if isinstance(decision.get("settings"), dict) else {}
-        moved = ("data_dir", "train")  # the dataset may have moved (--data DIR): not another setting; train: below
+        # the dataset may have moved (--data DIR): not another setting; train, data_fingerprint: below
+        moved = ("data_dir", "train", "data_fingerprint")
         differ = trainer.differing_settings({k: v for k, v in stored.items() if k not in moved},
                                             {k: v for k, v in settings.items() if k not in moved})
         if "train" in stored:  # absent in decisions written before the training settings were recorded
             differ += [f"train {d}" for d in trainer.differing_train_settings(stored["train"], settings["train"])]
+        recorded = stored.get("data_fingerprint")  # absent in decisions written before 2026-11-26
+        if recorded is not None and other_dataset(recorded, dataset_fingerprint(read_dataset(data_dir))):
+            differ.append(f"dataset: decided on other files than {data_dir} holds")
         if differ:
             raise ValueError(f"{path}: --resume with other selection settings than the run was started with "
                              f"({'; '.join(differ)})")
@@ -422,7 +428,9 @@ def select_model(
         "phase_tolerance_db": phase_tolerance(selection),
         "candidates": [dataclasses.asdict(r) for r in scored],
         "base": {"steps": base.steps, "validation_psnr": base.validation_psnr, "ms_per_step": base.ms_per_step},
-        "settings": settings,
+        # the files the candidates trained on, as the shared base run recorded them
+        "settings": {**settings, "data_fingerprint": read_json(base_dir / "run.json", "run description").get(
+            "data_fingerprint")},
         "seconds": time.perf_counter() - start,
     }
     write_json(path, decision)

@@ -20,6 +20,7 @@ import numpy as np
 import torch
 
 from spotlessgs.io.dataset import load_initial_points
+from spotlessgs.io.dataset_fingerprint import dataset_fingerprint, other_dataset
 from spotlessgs.io.atomic import remove_partial_files, write_json
 from spotlessgs.io.errors import InputError, write_error
 from spotlessgs.io.folder_lock import folder_lock
@@ -430,8 +431,9 @@ def _train_locked(data_dir: Path, run_dir: Path, variant: str | ModelConfig, con
         old = read_json(run_dir / "config.json", "run settings", ("train", "run"))
         if not isinstance(old["run"], dict):
             raise InputError(f"{run_dir / 'config.json'}: damaged run settings: 'run' is not a JSON object")
-        # the dataset may have moved (--data DIR), an older version wrote the file: not another setting
-        moved = ("data_dir", "data_dir_relative", "schema_version")
+        # the dataset may have moved (--data DIR), an older version wrote the file: not another setting; the
+        # dataset's files are compared once loaded (data_fingerprint)
+        moved = ("data_dir", "data_dir_relative", "schema_version", "data_fingerprint")
         # settings added since the run began take their defaults (what the run trained with), the model's too
         old_run = dict(old["run"])
         if isinstance(old_run.get("model_config"), dict):
@@ -441,11 +443,17 @@ def _train_locked(data_dir: Path, run_dir: Path, variant: str | ModelConfig, con
         if differ:
             raise ValueError(f"{run_dir}: --resume with other settings than the run was started with "
                              f"({'; '.join(differ)})")
-        write_json(run_dir / "run.json", run_info)  # where the dataset is now
 
     views = load_training_views(data_dir, config.image_width, config.linear_input, config.saturation_threshold)
     if not views.train:
         raise ValueError(f"{data_dir}: the split has no training views")
+    # which files the run trains on; compared on a resume (a run saved before the fingerprint has none to compare)
+    run_info["data_fingerprint"] = dataset_fingerprint(views.dataset)
+    if resume and has_checkpoint:
+        if other_dataset(read_run_info(run_dir).get("data_fingerprint"), run_info["data_fingerprint"]):
+            raise InputError(f"{run_dir}: --resume on another dataset: the files of {data_dir} differ from those the "
+                             f"run was trained on; resume it with its own dataset (--data) or use a new --out")
+        write_json(run_dir / "run.json", run_info)  # where the dataset is now
     _stop_before_training(stop, run_dir)  # Ctrl-C while the images loaded: stop now, before anything is written
     split = split_training_views(views.train, config.validation_every)
     judge_from = config.densify_from  # the budget judges growth from the preset's start, also after a sparse start

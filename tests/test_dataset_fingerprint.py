@@ -1,0 +1,106 @@
+"""A dataset's fingerprint (spotlessgs.io.dataset_fingerprint) and the refusals it makes possible: a resume, a
+benchmark's finished row and a model selection's decision on other files than the run trained on."""
+
+from __future__ import annotations
+
+import dataclasses
+import hashlib
+import json
+import shutil
+
+import numpy as np
+import pytest
+
+from evaluation.synthetic import render_room_sequence, write_dataset_folder
+from spotlessgs.experiments.run_settings import check_finished_row, settings_differences
+from spotlessgs.io.dataset import read_dataset
+from spotlessgs.io.dataset_fingerprint import dataset_fingerprint, other_dataset, training_input_files
+from spotlessgs.io.errors import InputError
+from spotlessgs.io.images import read_image, write_png
+from spotlessgs.run import RunSpec
+
+
+@pytest.fixture(scope="module")
+def room(tmp_path_factory):
+    root = tmp_path_factory.mktemp("fingerprint") / "room"
+    write_dataset_folder(render_room_sequence(num_frames=5, width=20, height=16, seed=4), root, with_depth=False)
+    return root
+
+
+def _copy(room, where):
+    shutil.copytree(room, where)
+    return where
+
+
+def test_the_fingerprint_hashes_each_training_file_by_its_relative_name_and_bytes(room):
+    dataset = read_dataset(room)
+    files = training_input_files(dataset)
+    assert files == [room / "transforms.json", *(room / "images" / f"frame_{k:05d}.png" for k in range(5))]
+    whole = hashlib.sha256()  # the documented recipe, computed here independently of the module
+    for path in files:
+        name = path.relative_to(room).as_posix()
+        whole.update(f"{name}\0{hashlib.sha256(path.read_bytes()).hexdigest()}\n".encode())
+    assert dataset_fingerprint(dataset) == "sha256:" + whole.hexdigest()
+
+
+def test_a_moved_dataset_keeps_its_fingerprint_and_any_change_to_its_training_input_changes_it(room, tmp_path):
+    original = dataset_fingerprint(read_dataset(room))
+    assert dataset_fingerprint(read_dataset(_copy(room, tmp_path / "moved" / "elsewhere"))) == original
+    # the ground truth is not training input: another one trains the same
+    truth = _copy(room, tmp_path / "truth")
+    write_png(truth / "gt" / "frame_00002.png", np.zeros((16, 20, 3), np.float32))
+    assert dataset_fingerprint(read_dataset(truth)) == original
+    changed = {}
+    pixel = _copy(room, tmp_path / "pixel")  # one pixel of one frame
+    image = read_image(pixel / "images" / "frame_00003.png")
+    image[5, 7] = 1.0 - image[5, 7]
+    write_png(pixel / "images" / "frame_00003.png", image)
+    changed["pixel"] = pixel
+    pose = _copy(room, tmp_path / "pose")  # one pose
+    record = json.loads((pose / "transforms.json").read_text())
+    record["frames"][1]["transform_matrix"][0][3] += 0.01
+    (pose / "transforms.json").write_text(json.dumps(record))
+    changed["pose"] = pose
+    sidecar = _copy(room, tmp_path / "sidecar")  # a frame's exposure record, which training reads
+    (sidecar / "images" / "frame_00000.json").write_text(json.dumps({"exposure_time": 0.01}))
+    changed["sidecar"] = sidecar
+    assert training_input_files(read_dataset(sidecar))[1:3] == [sidecar / "images" / "frame_00000.png",
+                                                                sidecar / "images" / "frame_00000.json"]
+    fingerprints = {name: dataset_fingerprint(read_dataset(path)) for name, path in changed.items()}
+    assert len({original, *fingerprints.values()}) == 4, fingerprints
+
+
+def test_an_unreadable_file_is_named(room, tmp_path):
+    broken = _copy(room, tmp_path / "broken")
+    (broken / "images" / "frame_00001.png").unlink()
+    (broken / "images" / "frame_00001.png").mkdir()  # a folder where an image should be: it cannot be read
+    with pytest.raises(InputError, match=r"images/frame_00001\.png: cannot read the dataset file"):
+        dataset_fingerprint(read_dataset(broken))
+
+
+def test_a_run_without_a_fingerprint_is_not_compared():
+    assert not other_dataset(None, "sha256:00")
+    assert not other_dataset("sha256:00", "sha256:00")
+    assert other_dataset("sha256:01", "sha256:00")
+
+
+def test_a_finished_row_trained_on_other_files_is_refused_and_one_on_a_moved_copy_reused(room, tmp_path):
+    spec = RunSpec(data=room, model="spotless", preset="tiny")
+    run = tmp_path / "row" / "run"
+    run.mkdir(parents=True)
+    (run / "config.json").write_text(json.dumps({"train": dataclasses.asdict(spec.train_config()),
+                                                 "run": {"model": "spotless", "seed": 0}}))
+    (run / "run.json").write_text(json.dumps({"data_dir": str(room),
+                                              "data_fingerprint": dataset_fingerprint(read_dataset(room))}))
+    (tmp_path / "row" / "row.json").write_text("{}")
+    check_finished_row(tmp_path / "row", spec)
+    moved = _copy(room, tmp_path / "moved")
+    check_finished_row(tmp_path / "row", RunSpec(data=moved, model="spotless", preset="tiny"))
+    other = _copy(room, tmp_path / "other")
+    (other / "images" / "frame_00004.png").write_bytes((room / "images" / "frame_00000.png").read_bytes())
+    with pytest.raises(ValueError, match=r"row/run: the row was trained with other settings \(dataset: trained on "
+                                         r"other files than .*other holds\); use a new --out"):
+        check_finished_row(tmp_path / "row", RunSpec(data=other, model="spotless", preset="tiny"))
+    # a run saved before fingerprints has nothing to compare: reused as before
+    (run / "run.json").write_text(json.dumps({"data_dir": str(room)}))
+    assert settings_differences(run, RunSpec(data=other, model="spotless", preset="tiny")) == []
