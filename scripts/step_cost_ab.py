@@ -1,11 +1,12 @@
 """What a training setting costs per step: whole runs with and without it, alternated, one at a time.
 
     python3 scripts/step_cost_ab.py DATA OUT --set depth_spread=on [--set depth_spread_weight=0.1] [--variant spotless]
-        [--preset quick] [--repeats 4] [--seed 0]
+        [--base depth_spread_every=4] [--preset quick] [--repeats 4] [--seed 0]
 
 Trains ``--repeats`` pairs of runs of ``--variant`` on DATA into OUT/a-rR and OUT/b-rR (OUT new or empty): A with the
-preset's settings as they are, B with the ``--set`` changes, in the order A B, B A, A B, B A, ...: with an even number
-of repeats a machine whose speed drifts steadily during the measurement favours neither. (On a real camera's data
+preset's settings and the ``--base`` ones, B with those and the ``--set`` changes, in the order A B, B A, A B, B A,
+...: with an even number of repeats a machine whose speed drifts steadily during the measurement favours neither.
+(On a real camera's data
 `depth_spread=auto` already trains the term: compare `--set depth_spread=off` there.) A setting that changes
 densification changes the number of Gaussians too, so whole runs are the unit, not a block of steps on one model
 (scripts/pose_step_cost.py). Run it on an otherwise idle machine. Prints, and writes to OUT/step_cost.json, each run's
@@ -31,12 +32,16 @@ def main() -> None:
     parser.add_argument("out", type=Path)
     parser.add_argument("--set", dest="settings", action="append", required=True, metavar="KEY=VALUE",
                         help="a TrainConfig setting of run B (repeatable)")
+    parser.add_argument("--base", dest="base", action="append", default=[], metavar="KEY=VALUE",
+                        help="a TrainConfig setting of both runs (repeatable)")
     parser.add_argument("--variant", default="spotless")
     parser.add_argument("--preset", default="quick")
     parser.add_argument("--repeats", type=int, default=4)
     parser.add_argument("--seed", type=int, default=0)
     args = parser.parse_args()
-    configs = {"a": preset(args.preset), "b": preset(args.preset, **dict(parse_setting(s) for s in args.settings))}
+    base = dict(parse_setting(s) for s in args.base)
+    configs = {"a": preset(args.preset, **base),
+               "b": preset(args.preset, **{**base, **dict(parse_setting(s) for s in args.settings)})}
     rows = []
     for repeat in range(args.repeats):
         for arm in ("a", "b") if repeat % 2 == 0 else ("b", "a"):
@@ -46,7 +51,8 @@ def main() -> None:
             print(json.dumps(rows[-1]), flush=True)
     ms = {arm: [r["ms_per_step"] for r in sorted(rows, key=lambda r: r["repeat"]) if r["arm"] == arm]
           for arm in ("a", "b")}
-    summary = {"settings_b": args.settings, "variant": args.variant, "preset": args.preset, "runs": rows,
+    summary = {"settings_both": args.base, "settings_b": args.settings, "variant": args.variant,
+               "preset": args.preset, "runs": rows,
                "mean_ms_per_step": {arm: statistics.fmean(v) for arm, v in ms.items()},
                "pair_ratios_b_over_a": [b / a for a, b in zip(ms["a"], ms["b"])]}
     summary["ratio_of_means"] = summary["mean_ms_per_step"]["b"] / summary["mean_ms_per_step"]["a"]

@@ -34,7 +34,7 @@ def test_each_row_trains_once_and_the_table_gives_cost_and_gain(rooms, tmp_path)
     assert [r["row"] for r in saved["rows"]] == ["robot", "lens-ignored"]
     for r in saved["rows"]:  # mean |a - b| >= |mean |a| - mean |b||; these rooms have no uniform ground truth
         assert r["flicker_excess"] >= abs(r["flicker"] - r["flicker_truth"]) - 1e-12
-        assert r["flicker_excess"] > 0 and "flicker_excess_uniform" not in r
+        assert r["flicker_excess"] > 0 and "flicker_excess_uniform" not in r and "psnr_aligned_uniform" not in r
     assert (out / RESULTS_MD).read_text() in result.output
     # the lens-ignored copy reads the same images as a pinhole; the robot dataset itself is untouched
     copy = json.loads((out / "data-lens-ignored" / "transforms.json").read_text())
@@ -92,10 +92,38 @@ def test_the_table_states_each_components_cost_and_gain_against_the_full_robot_r
                 "flicker": 0.1, "flicker_truth": 0.09}
 
     table = markdown_table([row("ideal", 30.0, 19.5), {**row("robot", 35.0, 19.0), "flicker_excess": 0.052,
-                                                       "flicker_excess_uniform": 0.0261},
+                                                       "flicker_excess_uniform": 0.0261, "psnr_aligned_uniform": 20.456},
                             row("no-photometric", 33.5, 18.7)])
     lines = table.splitlines()
+    assert "| 35.0 | 19.00 / 20.46 | 0.500 |" in lines[3]  # against both ground truths
+    assert "| 30.0 | 19.50 / – | 0.500 |" in lines[2]  # a dataset without the uniform one, or an earlier row
     assert "| 0.100 (0.090) | 0.052 / 0.026 |" in lines[3]  # the relit flicker beyond each truth's
     assert "| 0.100 (0.090) | – / – |" in lines[2]  # a row saved before those were measured
     assert lines[2].endswith("| – | -0.50 (robot − ideal) |")
     assert lines[4].endswith("| +1.5 | +0.30 |")  # the photometric camera: 1.5 ms per step for 0.3 dB
+
+
+def test_a_robot_dataset_with_the_uniform_truth_is_scored_against_both(rooms, tmp_path):
+    from evaluation.runner import score_test_views
+    from spotlessgs.io.images import read_image, write_png
+
+    robot = tmp_path / "robot-uniform"
+    shutil.copytree(rooms / "robot", robot)
+    (robot / "gt_uniform").mkdir()
+    for frame in sorted((robot / "gt").glob("*.png")):  # another truth: each lamps-on one mirrored
+        write_png(robot / "gt_uniform" / frame.name, read_image(frame)[:, ::-1])
+    record = json.loads((robot / "transforms.json").read_text())
+    record["spotless"]["renderer"]["ground_truths"] = {"lamps": "gt", "uniform": "gt_uniform"}
+    (robot / "transforms.json").write_text(json.dumps(record))
+    out = tmp_path / "bench"
+    result = CliRunner().invoke(main, ["benchmark", "robot", "--ideal", str(rooms / "ideal"), "--robot", str(robot),
+                                       "--out", str(out), "--rows", "robot", "--preset", "tiny", "--iterations", "20"])
+    assert result.exit_code == 0, result.output
+    row = json.loads((out / RESULTS_JSON).read_text())["rows"][0]
+    lamps = score_test_views(robot, out / "robot" / "relit", 1)
+    uniform = score_test_views(robot, out / "robot" / "relit", 1, ground_truth="uniform")
+    assert row["psnr_aligned"] == lamps["psnr_aligned"] != uniform["psnr_aligned"]
+    assert (row["psnr_aligned_uniform"], row["ssim_aligned_uniform"]) == (uniform["psnr_aligned"],
+                                                                          uniform["ssim_aligned"])
+    assert f"| {row['psnr_aligned']:.2f} / {row['psnr_aligned_uniform']:.2f} |" in result.output
+    assert "flicker_excess_uniform" in row

@@ -425,6 +425,35 @@ def test_the_depth_spread_term_trains_and_is_saved_and_auto_leaves_simulator_ren
     assert l1_curve("auto", 1.0) == without
 
 
+@pytest.mark.parametrize("every, steps", [(1, [0, 1, 2, 3, 4, 5, 6]), (3, [0, 3, 6])])
+def test_the_depth_spread_term_trains_on_every_kth_step_only(tmp_path_factory, tmp_path, monkeypatch, every, steps):
+    """``depth_spread_every``: the depth moments are rendered, and the term trained, on steps 0, k, 2k, ... only."""
+    from conftest import synthetic_box_dataset
+    from spotlessgs.models.relightable import RelightableScene
+    from spotlessgs.training import trainer
+
+    box = synthetic_box_dataset(tmp_path_factory, f"every-{every}", seed=3)
+    step_of_render, with_moments = [], []
+    real_view = trainer.fitted_view
+
+    def fitted_view(seed, step, *args, **kwargs):  # the step whose render comes next
+        step_of_render.append(step)
+        return real_view(seed, step, *args, **kwargs)
+
+    real = RelightableScene.render_with_depth_moments
+
+    def counted(self, camera, **options):
+        with_moments.append(step_of_render[-1])
+        return real(self, camera, **options)
+
+    monkeypatch.setattr(trainer, "fitted_view", fitted_view)
+    monkeypatch.setattr(RelightableScene, "render_with_depth_moments", counted)
+    cfg = _tiny(iterations=7, image_width=40, num_threads=1, densify_from=1000, checkpoint_every=7, log_every=7,
+                validation_blocks=0, depth_spread="on", depth_spread_every=every)
+    trainer.train(box, tmp_path / "run", "darkgs", cfg, seed=0, progress=False)
+    assert step_of_render == list(range(7)) and with_moments == steps
+
+
 @pytest.mark.parametrize("meta, variant, mode, expected", [
     ({}, "spotless", "auto", 0.1),                                              # a real camera
     ({}, "darkgs", "auto", 0.1),
@@ -458,7 +487,8 @@ def test_a_run_from_before_the_depth_spread_switch_keeps_its_weight_for_every_mo
 
 @pytest.mark.parametrize("kwargs, match", [({"depth_spread": "always"}, "depth_spread must be 'auto', 'on' or 'off'"),
                                            ({"depth_spread_weight": -0.1}, "depth_spread_weight must be finite"),
-                                           ({"depth_spread_weight": float("nan")}, "depth_spread_weight must be finite")])
+                                           ({"depth_spread_weight": float("nan")}, "depth_spread_weight must be finite"),
+                                           ({"depth_spread_every": 0}, "depth_spread_every must be >= 1")])
 def test_train_config_rejects_bad_depth_spread_settings(kwargs, match):
     from spotlessgs.training.config import TrainConfig
 

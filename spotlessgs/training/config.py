@@ -145,6 +145,9 @@ class TrainConfig:
     # simulator's renders, where it gains on the bedroom but loses up to 0.34 dB on the glossy room (docs/results.md,
     # "The depth-spread term: on for real cameras"). "on": every model, 3DGS included; "off".
     depth_spread: str = "auto"
+    # The term trains on every this-many-th step only (1: every step). Its two extra rasterized channels, and the
+    # larger position gradients that make the densification grow the model sooner, are paid on those steps alone.
+    depth_spread_every: int = 1
 
     # Photometric camera (spotlessgs.models.photometric): learn a per-frame exposure and the lens's vignetting.
     # "auto": on for datasets from real cameras (no "spotless" block), off for our simulator's renders (one fixed
@@ -240,6 +243,8 @@ class TrainConfig:
             raise ValueError(f"TrainConfig: normal_axis_weight must be finite and >= 0, got {self.normal_axis_weight}")
         if self.depth_spread not in SWITCH_VALUES:
             raise ValueError(f"TrainConfig: depth_spread must be 'auto', 'on' or 'off', got {self.depth_spread!r}")
+        if self.depth_spread_every < 1:
+            raise ValueError(f"TrainConfig: depth_spread_every must be >= 1, got {self.depth_spread_every}")
         if not (math.isfinite(self.depth_spread_weight) and self.depth_spread_weight >= 0):
             raise ValueError(f"TrainConfig: depth_spread_weight must be finite and >= 0, "
                              f"got {self.depth_spread_weight}")

@@ -553,7 +553,8 @@ def _train_locked(data_dir: Path, run_dir: Path, variant: str | ModelConfig, con
             camera = corrected_camera(cameras[k], row) if refining else cameras[k]
             render_options = {"backend": config.raster_backend, "num_threads": config.num_threads,
                               "shadow_map": shadow_maps.get(scene, k, step, camera)}
-            if depth_spread_weight > 0:
+            depth_spread_step = depth_spread_weight > 0 and step % config.depth_spread_every == 0
+            if depth_spread_step:
                 out, depth_moments = scene.render_with_depth_moments(camera, **render_options)
             else:
                 out = scene.render(camera, **render_options)
@@ -569,7 +570,7 @@ def _train_locked(data_dir: Path, run_dir: Path, variant: str | ModelConfig, con
                 target = torch.where(ignored[k][..., None], recorded.detach().clamp(0.0, 1.0), target)
                 clipped = clipped | ignored[k]
             loss, parts = photometric_loss(recorded, target, clipped, config.ssim_lambda, config.loss_space)
-            if depth_spread_weight > 0:
+            if depth_spread_step:
                 loss = loss + depth_spread_weight * depth_spread_loss(depth_moments, out.alpha)
             if prior is not None and scene.appearance.light is not None:
                 loss = loss + scene.appearance.light.light_prior_loss(prior, config.light_prior_weight)
