@@ -321,21 +321,21 @@ def test_a_run_from_before_a_setting_existed_resumes_with_its_default(bedroom, t
     # a run from before the bounce light, the camera-relative shadows and the depth-spread term: it trained with none
     # of them (its shadows, had it turned them on, the lamp's map alone), whatever today's defaults
     cfg = _tiny(iterations=40, image_width=40, densify_from=1000, checkpoint_every=20, bounce_light_degree=-1,
-                shadow_camera_relative=False, depth_spread_weight=0.0, depth_spread="on")
+                shadow_camera_relative=False, depth_spread_weight=0.0, depth_spread="on", depth_spread_every=1)
     train(bedroom, tmp_path / "run", "darkgs+sh", cfg, seed=0, progress=False, stop_after=20)
     path = tmp_path / "run" / "config.json"
     saved = json.loads(path.read_text())
     for name in ("low_frequency_shading", "bounce_light_degree", "shadow_camera_relative"):
         del saved["train"][name]
         del saved["model_config"][name]
-    for name in ("depth_spread_weight", "depth_spread"):  # TrainConfig fields only
+    for name in ("depth_spread_weight", "depth_spread", "depth_spread_every"):  # TrainConfig fields only
         del saved["train"][name]
     path.write_text(json.dumps(saved))
     scene, _, config, _ = load_run(tmp_path / "run", device="cpu")
     assert scene.appearance.bounce_light is None  # absent: the value before it
     assert not scene.config.shadow_camera_relative
     # absent: weight 0, not today's 0.1, and a weight that applies to every model, as the term did before "auto"
-    assert (config.depth_spread_weight, config.depth_spread) == (0.0, "on")
+    assert (config.depth_spread_weight, config.depth_spread, config.depth_spread_every) == (0.0, "on", 1)
     assert TrainConfig().depth_spread_weight == 0.1 and TrainConfig().depth_spread == "auto"
     result = train(bedroom, tmp_path / "run", "darkgs+sh", cfg, seed=0, progress=False, resume=True)
     assert result.steps == 40
@@ -480,9 +480,12 @@ def test_a_run_from_before_the_depth_spread_switch_keeps_its_weight_for_every_mo
     model, 3DGS included: they come back as "on" with their weight."""
     from spotlessgs.training.config import TrainConfig, with_defaults
 
-    saved = {k: v for k, v in dataclasses.asdict(TrainConfig(depth_spread_weight=1.0)).items() if k != "depth_spread"}
+    saved = {k: v for k, v in dataclasses.asdict(TrainConfig(depth_spread_weight=1.0)).items()
+             if k not in ("depth_spread", "depth_spread_every")}
     config = TrainConfig(**with_defaults(TrainConfig, saved))
-    assert (config.depth_spread, config.depth_spread_weight) == ("on", 1.0)
+    assert (config.depth_spread, config.depth_spread_weight, config.depth_spread_every) == ("on", 1.0, 1)
+    # runs saved before depth_spread_every trained the term on every step, whatever today's default (4)
+    assert TrainConfig().depth_spread_every == 4
 
 
 @pytest.mark.parametrize("kwargs, match", [({"depth_spread": "always"}, "depth_spread must be 'auto', 'on' or 'off'"),
