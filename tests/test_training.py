@@ -336,7 +336,7 @@ def test_a_run_from_before_a_setting_existed_resumes_with_its_default(bedroom, t
     assert not scene.config.shadow_camera_relative
     # absent: weight 0, not today's 0.1, and a weight that applies to every model, as the term did before "auto"
     assert (config.depth_spread_weight, config.depth_spread, config.depth_spread_every) == (0.0, "on", 1)
-    assert TrainConfig().depth_spread_weight == 0.1 and TrainConfig().depth_spread == "auto"
+    assert TrainConfig().depth_spread_weight == 0.4 and TrainConfig().depth_spread == "auto"
     result = train(bedroom, tmp_path / "run", "darkgs+sh", cfg, seed=0, progress=False, resume=True)
     assert result.steps == 40
     with pytest.raises(ValueError, match="other settings"):  # a setting that differs from its default still counts
@@ -345,8 +345,8 @@ def test_a_run_from_before_a_setting_existed_resumes_with_its_default(bedroom, t
     with pytest.raises(ValueError, match=r"bounce_light_degree: run -1, now 2"):  # ... and names itself
         train(bedroom, tmp_path / "run", "darkgs+sh", cfg.replace(bounce_light_degree=2), seed=0,
               progress=False, resume=True)
-    with pytest.raises(ValueError, match=r"depth_spread_weight: run 0.0, now 0.1"):
-        train(bedroom, tmp_path / "run", "darkgs+sh", cfg.replace(depth_spread_weight=0.1), seed=0,
+    with pytest.raises(ValueError, match=r"depth_spread_weight: run 0.0, now 0.4"):
+        train(bedroom, tmp_path / "run", "darkgs+sh", cfg.replace(depth_spread_weight=0.4), seed=0,
               progress=False, resume=True)
 
 
