@@ -6,12 +6,12 @@
 Trains ``--repeats`` pairs of runs of ``--variant`` on DATA into OUT/a-rR and OUT/b-rR (OUT new or empty): A with the
 preset's settings and the ``--base`` ones, B with those and the ``--set`` changes, in the order A B, B A, A B, B A,
 ...: with an even number of repeats a machine whose speed drifts steadily during the measurement favours neither.
-(On a real camera's data
-`depth_spread=auto` already trains the term: compare `--set depth_spread=off` there.) A setting that changes
-densification changes the number of Gaussians too, so whole runs are the unit, not a block of steps on one model
-(scripts/pose_step_cost.py). Run it on an otherwise idle machine. Prints, and writes to OUT/step_cost.json, each run's
-ms per step (the trainer's training loop), the means and each pair's ratio B / A. docs/results.md ("The depth-spread
-term: on for real cameras") quotes it.
+(On a real camera's data `depth_spread=auto` already trains the term: compare `--set depth_spread=off` there.) A
+setting that changes densification changes the number of Gaussians too, so whole runs are the unit, not a block of
+steps on one model (scripts/pose_step_cost.py). Run it on an otherwise idle machine. Prints, and writes to
+OUT/step_cost.json, each run's ms per step (the trainer's training loop), the means and each pair's ratio B / A
+(with the settings of both arms, ``settings_both``, and of B, ``settings_b``). docs/results.md ("The depth-spread
+term: on for real cameras", "The depth-spread term on every 4th step") quotes it.
 """
 
 from __future__ import annotations

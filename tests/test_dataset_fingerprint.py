@@ -36,11 +36,59 @@ def test_the_fingerprint_hashes_each_training_file_by_its_relative_name_and_byte
     dataset = read_dataset(room)
     files = training_input_files(dataset)
     assert files == [room / "transforms.json", *(room / "images" / f"frame_{k:05d}.png" for k in range(5))]
-    whole = hashlib.sha256()  # the documented recipe, computed here independently of the module
-    for path in files:
-        name = path.relative_to(room).as_posix()
-        whole.update(f"{name}\0{hashlib.sha256(path.read_bytes()).hexdigest()}\n".encode())
+    record = json.loads((room / "transforms.json").read_text())  # the documented recipe, computed independently
+    for frame in record["frames"]:
+        del frame["gt_file_path"]
+    del record["spotless"]["provenance"]
+    digests = [hashlib.sha256(json.dumps(record, sort_keys=True, separators=(",", ":")).encode()).hexdigest()]
+    digests += [hashlib.sha256(path.read_bytes()).hexdigest() for path in files[1:]]
+    whole = hashlib.sha256()
+    for path, digest in zip(files, digests):
+        whole.update(f"{path.relative_to(room).as_posix()}\0{digest}\n".encode())
     assert dataset_fingerprint(dataset) == "sha256:" + whole.hexdigest()
+
+
+def test_another_ground_truth_or_json_layout_keeps_the_fingerprint(room, tmp_path):
+    """What training does not read: a second ground truth rendered into the dataset (its folder, the renderer's
+    record of it, a new provenance), or transforms.json written with another layout."""
+    original = dataset_fingerprint(read_dataset(room))
+    again = _copy(room, tmp_path / "again")
+    shutil.copytree(again / "gt", again / "gt_uniform")
+    record = json.loads((again / "transforms.json").read_text())
+    record["spotless"]["renderer"]["ground_truths"] = {"lamps": "gt", "uniform": "gt_uniform"}
+    record["spotless"]["renderer"]["ground_truth_lighting"] = {"color": [1.0, 0.9, 0.8]}
+    record["spotless"]["provenance"] = {"created_utc": "2026-11-27T00:00:00Z"}
+    (again / "transforms.json").write_text(json.dumps(record, indent=4, sort_keys=True))
+    assert dataset_fingerprint(read_dataset(again)) == original
+    record["spotless"]["renderer"]["samples"] = 1  # ... but a renderer setting of the training images counts
+    (again / "transforms.json").write_text(json.dumps(record))
+    assert dataset_fingerprint(read_dataset(again)) != original
+
+
+def test_a_colmap_folder_is_fingerprinted_by_the_model_its_reader_reads(room, tmp_path):
+    pycolmap = pytest.importorskip("pycolmap")
+    from spotlessgs.io.colmap_text import model_from_poses, write_colmap_text
+
+    dataset = read_dataset(room)
+    folder = tmp_path / "colmap"
+    shutil.copytree(room / "images", folder / "images")
+    names = [p.name for p in dataset.image_paths]
+    sparse = folder / "sparse" / "0"
+    write_colmap_text(sparse, model_from_poses(dataset.intrinsics, names, dataset.c2w_opengl))
+    text_only = dataset_fingerprint(read_dataset(folder))
+    pycolmap.Reconstruction(str(sparse)).write_binary(str(sparse))  # the binary model beside the text one
+    colmap = read_dataset(folder)
+    assert training_input_files(colmap)[:3] == [sparse / "cameras.bin", sparse / "images.bin", sparse / "points3D.bin"]
+    both = dataset_fingerprint(colmap)
+    assert both != text_only
+    with open(sparse / "images.txt", "a") as f:  # the text model, which the reader leaves alone when a binary exists
+        f.write("# edited\n")
+    assert dataset_fingerprint(read_dataset(folder)) == both
+    moved = dataset.c2w_opengl.copy()
+    moved[2, 0, 3] += 0.05
+    write_colmap_text(tmp_path / "moved", model_from_poses(dataset.intrinsics, names, moved))
+    pycolmap.Reconstruction(str(tmp_path / "moved")).write_binary(str(sparse))  # one pose of the binary model moved
+    assert dataset_fingerprint(read_dataset(folder)) not in (both, text_only)
 
 
 def test_a_moved_dataset_keeps_its_fingerprint_and_any_change_to_its_training_input_changes_it(room, tmp_path):

@@ -236,7 +236,6 @@ def test_tiny_training_does_real_work(bedroom, tmp_path):
         render_run(run, "spot", "test", tmp_path / "spot", low_frequency=False, progress=False)
 
 
-@pytest.mark.blender
 def _changed_copy(data, where):
     """A copy of the dataset ``data`` at ``where`` with one pixel of its first frame changed."""
     from spotlessgs.io.images import read_image, write_png
@@ -249,6 +248,7 @@ def _changed_copy(data, where):
     return where
 
 
+@pytest.mark.blender
 def test_resume_equals_an_uninterrupted_run(bedroom, tmp_path):
     from spotlessgs.io.dataset_fingerprint import dataset_fingerprint
     from spotlessgs.io.errors import InputError
@@ -273,7 +273,15 @@ def test_resume_equals_an_uninterrupted_run(bedroom, tmp_path):
     assert stamp == ((tmp_path / "split" / "run.json").read_bytes(),
                      checkpoint_path(tmp_path / "split").stat().st_mtime_ns)
     assert json.loads(stamp[0])["data_fingerprint"] == dataset_fingerprint(read_dataset(bedroom))
+    moved = tmp_path / "moved" / "bedroom"  # the same files elsewhere: the run resumes on them
+    shutil.copytree(bedroom, moved)
+    train(moved, tmp_path / "split", "darkgs+sh", cfg, seed=3, progress=False, resume=True)
+    assert json.loads((tmp_path / "split" / "run.json").read_text())["data_dir"] == str(moved.resolve())
+    # a run saved before the fingerprint existed is not compared, and records one when resumed
+    info = json.loads((tmp_path / "split" / "run.json").read_text())
+    (tmp_path / "split" / "run.json").write_text(json.dumps({k: v for k, v in info.items() if k != "data_fingerprint"}))
     train(bedroom, tmp_path / "split", "darkgs+sh", cfg, seed=3, progress=False, resume=True)
+    assert json.loads((tmp_path / "split" / "run.json").read_text())["data_fingerprint"] == info["data_fingerprint"]
     # resuming the finished run trains nothing and reports the time per step and last loss of the session that
     # trained it, as its last step logged them (not the time of a session without steps)
     summary = json.loads((tmp_path / "full" / "train_summary.json").read_text())

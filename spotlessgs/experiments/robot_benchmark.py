@@ -18,10 +18,11 @@ input of the same room as the reference:
   the lens buys, against what its larger working image costs per step.
 
 Each row: training ms/step (wall clock, this machine: compare rows of one run), relit PSNR / SSIM of the test views
-after one exposure gain, the relit sequence's flicker and its flicker beyond the ground truths' (the brightness steps
-that what enters the view does not explain), and the differences to ``robot``. Rows are resumable: a rerun
-skips trained rows (their run folders hold the result) and trains the rest; a row trained under other settings
-(``--set``, seed, preset, ...) is refused by name, before anything trains.
+after one exposure gain (against the lamps-on ground truth, and the uniform one where the dataset has it), the relit
+sequence's flicker and its flicker beyond the ground truths' (the brightness steps that what enters the view does not
+explain), and the differences to ``robot``. Rows are resumable: a rerun skips trained rows (their run folders hold
+the result) and trains the rest; a row trained under other settings (``--set``, seed, preset, ...) or on other files
+(the dataset's fingerprint) is refused by name, before anything trains.
 """
 
 from __future__ import annotations
@@ -119,27 +120,26 @@ def run_row(name: str, data: Path, out: Path, spec) -> dict[str, Any]:
     run = train(spec, out / name / "run", resume=(out / name / "run" / "run.json").is_file(), progress=False)
     threads = spec.train_config().num_threads
     scores = run.score_views(out / name / "relit", "all", threads)
-    temporal = _flicker(out / name / "relit", data)
+    has_uniform = "uniform" in available_ground_truths(read_dataset(data))
+    temporal = _flicker(out / name / "relit", data, has_uniform)
     row = {"row": name, "switched_off": ROWS[name][2], "data": str(data), "ms_per_step": run.summary["ms_per_step"],
            "gaussians": run.summary["num_gaussians"], "psnr_aligned": scores["psnr_aligned"],
            "ssim_aligned": scores["ssim_aligned"], "psnr": scores["psnr"], **temporal}
-    if "uniform" in available_ground_truths(read_dataset(data)):  # the same relit views against the even light
+    if has_uniform:  # the same relit views against the even light
         uniform = score_test_views(data, out / name / "relit", threads, ground_truth="uniform")
         row.update(psnr_aligned_uniform=uniform["psnr_aligned"], ssim_aligned_uniform=uniform["ssim_aligned"])
     write_json(row_file, row)
     return row
 
 
-def _flicker(relit: Path, data: Path) -> dict[str, float]:
+def _flicker(relit: Path, data: Path, has_uniform: bool) -> dict[str, float]:
     """The relit sequence's and the ground truth's flicker (evaluation.temporal.sequence_flicker), and the relit
     sequence's flicker beyond each ground truth's (evaluation.temporal.excess_flicker: ``flicker_excess`` against the
-    lamps-on one, ``flicker_excess_uniform`` against the uniform one when the dataset has it)."""
+    lamps-on one, ``flicker_excess_uniform`` against the uniform one when the dataset has it: ``has_uniform``)."""
     import torch
 
     from evaluation.dataset import read_dataset
     from evaluation.temporal import excess_flicker, sequence_flicker
-    from spotlessgs.io.dataset import available_ground_truths
-    from spotlessgs.io.dataset import read_dataset as read_dataset_description
     from spotlessgs.io.images import read_image
 
     def frames(paths):
@@ -151,7 +151,7 @@ def _flicker(relit: Path, data: Path) -> dict[str, float]:
     truth = [f.gt_path for f in views.frames]
     scores = {"flicker": sequence_flicker(frames(relit_paths)), "flicker_truth": sequence_flicker(frames(truth)),
               "flicker_excess": excess_flicker(frames(relit_paths), frames(truth))}
-    if "uniform" in available_ground_truths(read_dataset_description(data)):
+    if has_uniform:
         uniform = [f.gt_path for f in read_dataset(data, "uniform").frames]
         scores["flicker_excess_uniform"] = excess_flicker(frames(relit_paths), frames(uniform))
     return scores

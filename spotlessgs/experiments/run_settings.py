@@ -41,9 +41,11 @@ def settings_differences(run_dir: Path, spec: RunSpec) -> list[str]:
 def dataset_difference(run_dir: Path, data: Path) -> list[str]:
     """``["dataset: ..."]`` when the run in ``run_dir`` was trained on other files than the dataset ``data`` holds
     now (:mod:`spotlessgs.io.dataset_fingerprint`), else []; [] too for a run saved before fingerprints (no
-    ``data_fingerprint`` in its run.json), which has nothing to compare."""
+    ``data_fingerprint`` in its run.json), which has nothing to compare, and where ``data`` is not there (a
+    benchmark's own copy of a dataset, removed: the benchmark makes it again)."""
     recorded = read_run_info(run_dir).get("data_fingerprint") if (run_dir / "run.json").is_file() else None
-    if recorded is None or not other_dataset(recorded, dataset_fingerprint(read_dataset(data))):
+    if recorded is None or not Path(data).exists() or not other_dataset(recorded,
+                                                                       dataset_fingerprint(read_dataset(data))):
         return []
     return [f"dataset: trained on other files than {data} holds"]
 

@@ -1,15 +1,20 @@
-"""A dataset's fingerprint: one hash of every file training reads from it.
+"""A dataset's fingerprint: one hash of everything training reads from it.
 
 A run records it (``run.json``'s ``data_fingerprint``) so that later a resume, or a benchmark about to reuse a
 finished run, can tell the run's own dataset from another one, wherever either lies: the hash covers each file's
-path relative to the dataset folder and its bytes, so a dataset moved or copied as a whole keeps its fingerprint, and
-a changed, added or removed frame, pose or point cloud changes it. The ground truths are not training input and are
-left out (a dataset rendered again with another ground truth trains the same).
+path relative to the dataset folder and its content, so a dataset moved or copied as a whole keeps its fingerprint,
+and a changed, added or removed frame, pose or point cloud changes it.
+
+What training does not read is left out: the ground truths, and of ``transforms.json`` the frames' ground-truth and
+depth paths and our block's ground-truth settings and provenance (:data:`NOT_TRAINING_INPUT`). A dataset rendered
+again with another ground truth, or copied by a tool that rewrites the JSON's layout, keeps its fingerprint;
+``transforms.json`` is hashed as its content (canonical JSON), the other files as their bytes.
 """
 
 from __future__ import annotations
 
 import hashlib
+import json
 import os
 from pathlib import Path
 
@@ -18,8 +23,18 @@ from spotlessgs.io.transforms import DatasetDescription
 
 #: What a fingerprint starts with (the hash that makes it), so that another hash can follow without confusion.
 FINGERPRINT_PREFIX = "sha256:"
-#: A COLMAP model's files (text or binary), those of them that exist are hashed.
-COLMAP_MODEL_FILES = ("cameras.txt", "images.txt", "points3D.txt", "cameras.bin", "images.bin", "points3D.bin")
+#: The entries of a ``transforms.json`` that training does not read: of each frame, and of our ``spotless`` block and
+#: its ``renderer`` record.
+NOT_TRAINING_INPUT = {"frame": ("gt_file_path", "exr_file_path", "depth_file_path"),
+                      "spotless": ("provenance",), "renderer": ("ground_truths", "ground_truth_lighting")}
+#: A COLMAP model's files, binary or text (read as :func:`spotlessgs.io.colmap_text.read_colmap_model` reads them).
+COLMAP_MODEL_FILES = ("cameras", "images", "points3D")
+
+
+def _colmap_model_files(folder: Path) -> list[Path]:
+    """The files of the COLMAP model in ``folder`` that its reader reads: the binary model when there is one."""
+    suffix = ".bin" if (folder / "cameras.bin").is_file() else ".txt"
+    return [folder / f"{name}{suffix}" for name in COLMAP_MODEL_FILES if (folder / f"{name}{suffix}").is_file()]
 
 
 def training_input_files(dataset: DatasetDescription) -> list[Path]:
@@ -27,19 +42,49 @@ def training_input_files(dataset: DatasetDescription) -> list[Path]:
     or the COLMAP model's files), each frame's image and its exposure sidecar (``<image>.json``, where there is one:
     :mod:`spotlessgs.io.exposure`), and its initial point cloud (where there is one)."""
     source = Path(dataset.source)
-    described = ([source / name for name in COLMAP_MODEL_FILES if (source / name).is_file()] if source.is_dir()
-                 else [source])
     frames: list[Path] = []
     for image in dataset.image_paths:
         sidecar = Path(image).with_suffix(".json")
         frames += [Path(image), sidecar] if sidecar.is_file() else [Path(image)]
     points = [Path(dataset.ply_path)] if dataset.ply_path is not None else []
+    described = _colmap_model_files(source) if source.is_dir() else [source]
     return list(dict.fromkeys(described + frames + points))
 
 
+def _training_content(record: object) -> object:
+    """A ``transforms.json`` record without :data:`NOT_TRAINING_INPUT`."""
+    if not isinstance(record, dict):
+        return record
+    kept = dict(record)
+    if isinstance(kept.get("frames"), list):
+        kept["frames"] = [{k: v for k, v in frame.items() if k not in NOT_TRAINING_INPUT["frame"]}
+                          if isinstance(frame, dict) else frame for frame in kept["frames"]]
+    if isinstance(kept.get("spotless"), dict):
+        ours = {k: v for k, v in kept["spotless"].items() if k not in NOT_TRAINING_INPUT["spotless"]}
+        if isinstance(ours.get("renderer"), dict):
+            ours["renderer"] = {k: v for k, v in ours["renderer"].items() if k not in NOT_TRAINING_INPUT["renderer"]}
+        kept["spotless"] = ours
+    return kept
+
+
+def _file_digest(path: Path, description: Path) -> str:
+    """SHA-256 (hex) of what training reads of ``path``: ``description`` (the dataset's ``transforms.json``) as its
+    training content in canonical JSON, any other file as its bytes."""
+    if path == description and path.suffix == ".json":
+        try:
+            record = json.loads(path.read_text(encoding="utf-8"))
+        except (UnicodeDecodeError, json.JSONDecodeError) as exc:
+            raise InputError(f"{path}: not a readable dataset description ({exc})") from None
+        canonical = json.dumps(_training_content(record), sort_keys=True, separators=(",", ":"))
+        return hashlib.sha256(canonical.encode()).hexdigest()
+    with open(path, "rb") as f:
+        return hashlib.file_digest(f, "sha256").hexdigest()
+
+
 def dataset_fingerprint(dataset: DatasetDescription) -> str:
-    """``sha256:<hex>`` over each of :func:`training_input_files` (its path relative to ``dataset.root``, POSIX
-    separators, and the SHA-256 of its bytes), in that order.
+    """``sha256:<hex>`` over each of :func:`training_input_files`, in that order: its path relative to
+    ``dataset.root`` (POSIX separators) and the SHA-256 of its content (``transforms.json`` without what training
+    does not read, as canonical JSON; any other file, its bytes).
 
     Raises:
         InputError: a file cannot be read (names it).
@@ -48,8 +93,7 @@ def dataset_fingerprint(dataset: DatasetDescription) -> str:
     whole = hashlib.sha256()
     for path in training_input_files(dataset):
         try:
-            with open(path, "rb") as f:
-                digest = hashlib.file_digest(f, "sha256").hexdigest()
+            digest = _file_digest(path, Path(dataset.source))
         except OSError as exc:
             raise InputError(f"{path}: cannot read the dataset file ({exc.strerror or exc})") from None
         name = Path(os.path.relpath(path, root)).as_posix()

@@ -19,7 +19,7 @@ from typing import Any, Sequence
 import numpy as np
 import torch
 
-from spotlessgs.io.dataset import load_initial_points
+from spotlessgs.io.dataset import load_initial_points, read_dataset
 from spotlessgs.io.dataset_fingerprint import dataset_fingerprint, other_dataset
 from spotlessgs.io.atomic import remove_partial_files, write_json
 from spotlessgs.io.errors import InputError, write_error
@@ -444,17 +444,20 @@ def _train_locked(data_dir: Path, run_dir: Path, variant: str | ModelConfig, con
             raise ValueError(f"{run_dir}: --resume with other settings than the run was started with "
                              f"({'; '.join(differ)})")
 
+    # what the run trains on, compared on a resume before the images load (a run saved before the fingerprint
+    # existed has none to compare, and gets one)
+    run_info["data_fingerprint"] = dataset_fingerprint(read_dataset(data_dir, check_files=True))
+    if resume and has_checkpoint:
+        recorded = read_run_info(run_dir).get("data_fingerprint") if (run_dir / "run.json").is_file() else None
+        if other_dataset(recorded, run_info["data_fingerprint"]):
+            raise InputError(f"{run_dir}: --resume on another dataset: the files of {data_dir} differ from those the "
+                             f"run was trained on; resume it with its own dataset (--data) or use a new --out")
     views = load_training_views(data_dir, config.image_width, config.linear_input, config.saturation_threshold)
     if not views.train:
         raise ValueError(f"{data_dir}: the split has no training views")
-    # which files the run trains on; compared on a resume (a run saved before the fingerprint has none to compare)
-    run_info["data_fingerprint"] = dataset_fingerprint(views.dataset)
-    if resume and has_checkpoint:
-        if other_dataset(read_run_info(run_dir).get("data_fingerprint"), run_info["data_fingerprint"]):
-            raise InputError(f"{run_dir}: --resume on another dataset: the files of {data_dir} differ from those the "
-                             f"run was trained on; resume it with its own dataset (--data) or use a new --out")
-        write_json(run_dir / "run.json", run_info)  # where the dataset is now
     _stop_before_training(stop, run_dir)  # Ctrl-C while the images loaded: stop now, before anything is written
+    if resume and has_checkpoint:
+        write_json(run_dir / "run.json", run_info)  # where the dataset is now
     split = split_training_views(views.train, config.validation_every)
     judge_from = config.densify_from  # the budget judges growth from the preset's start, also after a sparse start
     config = sparse_start_schedule(config, views)  # derived from the dataset: the same on a resume
@@ -660,7 +663,8 @@ def _train_locked(data_dir: Path, run_dir: Path, variant: str | ModelConfig, con
             "test_psnr_reconstruction": test_psnr, "device": str(device),
             "validation_views": split.validation, "validation_psnr": val_psnr, "validation_psnr_dark": val_dark,
             "photometric": photometric is not None, "refine_poses": poses is not None,
-            "depth_spread_weight": depth_spread_weight,  # what the term trained with, `depth_spread` resolved
+            "depth_spread_weight": depth_spread_weight,  # what the term trained with, `depth_spread` resolved,
+            "depth_spread_every": config.depth_spread_every,  # on every this-many-th step
             "test_views_aligned": aligned is not None and bool(views.test),
         })
         if isinstance(strategy, BudgetStrategy):
