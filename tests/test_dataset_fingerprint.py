@@ -11,7 +11,7 @@ import shutil
 import numpy as np
 import pytest
 
-from evaluation.synthetic import render_room_sequence, write_dataset_folder
+from conftest import synthetic_box_dataset
 from spotlessgs.experiments.run_settings import check_finished_row, settings_differences
 from spotlessgs.io.dataset import read_dataset
 from spotlessgs.io.dataset_fingerprint import dataset_fingerprint, other_dataset, training_input_files
@@ -22,9 +22,7 @@ from spotlessgs.run import RunSpec
 
 @pytest.fixture(scope="module")
 def room(tmp_path_factory):
-    root = tmp_path_factory.mktemp("fingerprint") / "room"
-    write_dataset_folder(render_room_sequence(num_frames=5, width=20, height=16, seed=4), root, with_depth=False)
-    return root
+    return synthetic_box_dataset(tmp_path_factory, "fingerprint", seed=4)
 
 
 def _copy(room, where):
@@ -35,7 +33,7 @@ def _copy(room, where):
 def test_the_fingerprint_hashes_each_training_file_by_its_relative_name_and_bytes(room):
     dataset = read_dataset(room)
     files = training_input_files(dataset)
-    assert files == [room / "transforms.json", *(room / "images" / f"frame_{k:05d}.png" for k in range(5))]
+    assert files == [room / "transforms.json", *(room / "images" / f"frame_{k:05d}.png" for k in range(14))]
     record = json.loads((room / "transforms.json").read_text())  # the documented recipe, computed independently
     for frame in record["frames"]:
         del frame["gt_file_path"]
@@ -96,7 +94,7 @@ def test_a_moved_dataset_keeps_its_fingerprint_and_any_change_to_its_training_in
     assert dataset_fingerprint(read_dataset(_copy(room, tmp_path / "moved" / "elsewhere"))) == original
     # the ground truth is not training input: another one trains the same
     truth = _copy(room, tmp_path / "truth")
-    write_png(truth / "gt" / "frame_00002.png", np.zeros((16, 20, 3), np.float32))
+    write_png(truth / "gt" / "frame_00002.png", np.zeros((30, 40, 3), np.float32))
     assert dataset_fingerprint(read_dataset(truth)) == original
     changed = {}
     pixel = _copy(room, tmp_path / "pixel")  # one pixel of one frame
