@@ -16,7 +16,7 @@ from spotlessgs.io.dataset import read_dataset
 from spotlessgs.io.dataset_fingerprint import dataset_fingerprint, other_dataset
 from spotlessgs.io.json_files import read_json
 from spotlessgs.run import AUTO, RunSpec
-from spotlessgs.training.checkpoint import read_run_info
+from spotlessgs.training.checkpoint import recorded_data_fingerprint
 from spotlessgs.training.trainer import differing_settings, differing_train_settings
 
 
@@ -43,7 +43,7 @@ def dataset_difference(run_dir: Path, data: Path) -> list[str]:
     now (:mod:`spotlessgs.io.dataset_fingerprint`), else []; [] too for a run saved before fingerprints (no
     ``data_fingerprint`` in its run.json), which has nothing to compare, and where ``data`` is not there (a
     benchmark's own copy of a dataset, removed: the benchmark makes it again)."""
-    recorded = read_run_info(run_dir).get("data_fingerprint") if (run_dir / "run.json").is_file() else None
+    recorded = recorded_data_fingerprint(run_dir)
     if recorded is None or not Path(data).exists() or not other_dataset(recorded,
                                                                        dataset_fingerprint(read_dataset(data))):
         return []

@@ -444,11 +444,16 @@ def read_colmap_binary(folder: str | os.PathLike) -> ColmapModel:
     return ColmapModel(cameras, images, ColmapPoints(ids, xyz, rgb, errors, tuple(tracks)))
 
 
+def model_files(folder: str | os.PathLike) -> tuple[Path, Path, Path]:
+    """The files of the COLMAP model in ``folder`` that :func:`read_colmap_model` reads, cameras, images and points:
+    the binary model (``.bin``) when ``cameras.bin`` exists, else the text one (``.txt``); they need not exist."""
+    suffix = ".bin" if (Path(folder) / "cameras.bin").is_file() else ".txt"
+    return tuple(Path(folder) / f"{name}{suffix}" for name in ("cameras", "images", "points3D"))
+
+
 def read_colmap_model(folder: str | os.PathLike) -> ColmapModel:
     """Read a COLMAP model folder, binary (``cameras.bin``) if present, else text (``cameras.txt``)."""
-    folder = Path(folder)
-    if (folder / "cameras.bin").is_file():
-        return read_colmap_binary(folder)
-    if (folder / "cameras.txt").is_file():
-        return read_colmap_text(folder)
-    raise FileNotFoundError(f"{folder}: no COLMAP model (neither cameras.bin nor cameras.txt)")
+    cameras = model_files(folder)[0]
+    if not cameras.is_file():
+        raise FileNotFoundError(f"{folder}: no COLMAP model (neither cameras.bin nor cameras.txt)")
+    return read_colmap_binary(folder) if cameras.suffix == ".bin" else read_colmap_text(folder)

@@ -17,7 +17,7 @@ from typing import Any
 import numpy as np
 
 from spotlessgs.io.cameras import opencv_to_opengl_c2w
-from spotlessgs.io.colmap_text import read_colmap_model
+from spotlessgs.io.colmap_text import model_files, read_colmap_model
 from spotlessgs.io.errors import InputError
 from spotlessgs.io.images import is_image_name
 from spotlessgs.io.json_files import read_json
@@ -31,12 +31,6 @@ def _find_sparse_dir(folder: Path) -> Path:
         if (candidate / "cameras.bin").is_file() or (candidate / "cameras.txt").is_file():
             return candidate
     raise FileNotFoundError(f"{folder}: no COLMAP model in sparse/0 or sparse (cameras.bin or cameras.txt)")
-
-
-def _camera_file(sparse: Path) -> Path:
-    """The file of a COLMAP model that holds its cameras (text or binary)."""
-    text = sparse / "cameras.txt"
-    return text if text.is_file() else sparse / "cameras.bin"
 
 
 def read_colmap_dataset(folder: str | os.PathLike, check_files: bool = False) -> DatasetDescription:
@@ -53,9 +47,9 @@ def read_colmap_dataset(folder: str | os.PathLike, check_files: bool = False) ->
     try:
         intrinsics = {cid: model.cameras[cid].to_intrinsics() for cid in {im.camera_id for im in images}}
     except ValueError as exc:  # a camera model we cannot use: name the file that defines it
-        raise DatasetError(f"{_camera_file(sparse)}: {exc}") from None
+        raise DatasetError(f"{model_files(sparse)[0]}: {exc}") from None
     for cid, camera in sorted(intrinsics.items()):
-        check_invertible(camera, f"{_camera_file(sparse)}: COLMAP camera {cid}")
+        check_invertible(camera, f"{model_files(sparse)[0]}: COLMAP camera {cid}")
     c2w_opencv = np.stack([im.c2w_opencv() for im in images])
     image_paths = tuple(folder / "images" / im.name for im in images)
     meta: dict = {"source_format": "colmap", "sparse_dir": str(sparse)}

@@ -18,7 +18,9 @@ import json
 import os
 from pathlib import Path
 
+from spotlessgs.io.colmap_text import model_files
 from spotlessgs.io.errors import InputError
+from spotlessgs.io.exposure import exposure_sidecar
 from spotlessgs.io.transforms import DatasetDescription
 
 #: What a fingerprint starts with (the hash that makes it), so that another hash can follow without confusion.
@@ -27,27 +29,19 @@ FINGERPRINT_PREFIX = "sha256:"
 #: its ``renderer`` record.
 NOT_TRAINING_INPUT = {"frame": ("gt_file_path", "exr_file_path", "depth_file_path"),
                       "spotless": ("provenance",), "renderer": ("ground_truths", "ground_truth_lighting")}
-#: A COLMAP model's files, binary or text (read as :func:`spotlessgs.io.colmap_text.read_colmap_model` reads them).
-COLMAP_MODEL_FILES = ("cameras", "images", "points3D")
-
-
-def _colmap_model_files(folder: Path) -> list[Path]:
-    """The files of the COLMAP model in ``folder`` that its reader reads: the binary model when there is one."""
-    suffix = ".bin" if (folder / "cameras.bin").is_file() else ".txt"
-    return [folder / f"{name}{suffix}" for name in COLMAP_MODEL_FILES if (folder / f"{name}{suffix}").is_file()]
 
 
 def training_input_files(dataset: DatasetDescription) -> list[Path]:
     """The files training reads from ``dataset``, each once, in a fixed order: its description (``transforms.json``,
-    or the COLMAP model's files), each frame's image and its exposure sidecar (``<image>.json``, where there is one:
+    or the COLMAP model's files its reader reads), each frame's image and its exposure sidecar (``<image>.json``, where there is one:
     :mod:`spotlessgs.io.exposure`), and its initial point cloud (where there is one)."""
     source = Path(dataset.source)
     frames: list[Path] = []
     for image in dataset.image_paths:
-        sidecar = Path(image).with_suffix(".json")
+        sidecar = exposure_sidecar(image)
         frames += [Path(image), sidecar] if sidecar.is_file() else [Path(image)]
     points = [Path(dataset.ply_path)] if dataset.ply_path is not None else []
-    described = _colmap_model_files(source) if source.is_dir() else [source]
+    described = [p for p in model_files(source) if p.is_file()] if source.is_dir() else [source]
     return list(dict.fromkeys(described + frames + points))
 
 

@@ -30,8 +30,14 @@ def _positive(value: object, path: Path, key: str) -> float:
     return float(value)
 
 
+def exposure_sidecar(image: Path) -> Path:
+    """The exposure record beside the frame ``image`` (``images/frame_00012.json`` for ``images/frame_00012.png``),
+    whether or not it exists."""
+    return Path(image).with_suffix(".json")
+
+
 def _sidecar_exposure(path: Path) -> float | None:
-    sidecar = path.with_suffix(".json")
+    sidecar = exposure_sidecar(path)
     if not sidecar.is_file():
         return None
     try:

@@ -91,6 +91,12 @@ def read_run_info(run_dir: Path, required: Sequence[str] = ()) -> dict[str, Any]
 RUN_SCHEMA_VERSION = 1
 
 
+def recorded_data_fingerprint(run_dir: Path) -> str | None:
+    """The fingerprint of the files the run in ``run_dir`` trained on (run.json's ``data_fingerprint``:
+    :mod:`spotlessgs.io.dataset_fingerprint`); None for a run saved before fingerprints or without a run.json."""
+    return read_run_info(run_dir).get("data_fingerprint") if (Path(run_dir) / "run.json").is_file() else None
+
+
 def check_schema_version(path: Path, record: dict[str, Any]) -> None:
     """InputError naming ``path`` when ``record`` was written by a newer version of the run folder's files."""
     version = record.get("schema_version", 0)

@@ -38,7 +38,7 @@ from spotlessgs.models.shading import MODEL_VARIANTS, ModelConfig
 from spotlessgs.rasterizer.cpp_kernel import numerics_record
 from spotlessgs.training.checkpoint import (
     RUN_SCHEMA_VERSION, check_schema_version, checkpoint_path, data_dir_fields, existing_checkpoint, load_checkpoint,
-    read_run_info, resolve_data_dir, save_checkpoint, truncate_metrics,
+    read_run_info, recorded_data_fingerprint, resolve_data_dir, save_checkpoint, truncate_metrics,
 )
 from spotlessgs.training.config import TrainConfig, with_defaults
 from spotlessgs.training.data import TrainingViews, initial_point_cloud, load_training_views
@@ -432,7 +432,7 @@ def _train_locked(data_dir: Path, run_dir: Path, variant: str | ModelConfig, con
         if not isinstance(old["run"], dict):
             raise InputError(f"{run_dir / 'config.json'}: damaged run settings: 'run' is not a JSON object")
         # the dataset may have moved (--data DIR), an older version wrote the file: not another setting; the
-        # dataset's files are compared once loaded (data_fingerprint)
+        # dataset's files are compared below (data_fingerprint)
         moved = ("data_dir", "data_dir_relative", "schema_version", "data_fingerprint")
         # settings added since the run began take their defaults (what the run trained with), the model's too
         old_run = dict(old["run"])
@@ -448,8 +448,7 @@ def _train_locked(data_dir: Path, run_dir: Path, variant: str | ModelConfig, con
     # existed has none to compare, and gets one)
     run_info["data_fingerprint"] = dataset_fingerprint(read_dataset(data_dir, check_files=True))
     if resume and has_checkpoint:
-        recorded = read_run_info(run_dir).get("data_fingerprint") if (run_dir / "run.json").is_file() else None
-        if other_dataset(recorded, run_info["data_fingerprint"]):
+        if other_dataset(recorded_data_fingerprint(run_dir), run_info["data_fingerprint"]):
             raise InputError(f"{run_dir}: --resume on another dataset: the files of {data_dir} differ from those the "
                              f"run was trained on; resume it with its own dataset (--data) or use a new --out")
     views = load_training_views(data_dir, config.image_width, config.linear_input, config.saturation_threshold)
