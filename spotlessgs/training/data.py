@@ -155,7 +155,7 @@ def _per_view(per_camera: dict[Intrinsics, torch.Tensor], cameras: tuple[Intrins
 
 
 def load_training_views(
-    data_dir: str | Path, image_width: int | None = None, linear_input: bool = False,
+    data: str | Path | DatasetDescription, image_width: int | None = None, linear_input: bool = False,
     saturation_threshold: float = 250.0 / 255.0,
 ) -> TrainingViews:
     """Read a dataset folder and prepare its views for training.
@@ -166,13 +166,14 @@ def load_training_views(
     image; each is drawn at its top-left, and the rest is unseen.
 
     Args:
-        data_dir: our dataset folder, a nerfstudio folder or a COLMAP folder.
+        data: our dataset folder, a nerfstudio folder or a COLMAP folder, or its description as
+            ``read_dataset(folder, check_files=True)`` read it (not read a second time).
         image_width: training width in pixels of the widest camera (every camera is scaled by the same factor,
             heights keep the aspect ratio); None = native size.
         linear_input: the files are linear already (default: sRGB, linearised here).
         saturation_threshold: value (in the file's encoding, [0, 1]) at or above which a pixel counts as clipped.
     """
-    dataset = read_dataset(data_dir, check_files=True)
+    dataset = data if isinstance(data, DatasetDescription) else read_dataset(data, check_files=True)
     linear_input = linear_input or bool(dataset.meta.get("linear_images"))  # e.g. DarkGS's raw/ frames
     natives = dataset.distinct_cameras()
     factor = _training_scale(natives, image_width)

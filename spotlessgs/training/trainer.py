@@ -446,12 +446,13 @@ def _train_locked(data_dir: Path, run_dir: Path, variant: str | ModelConfig, con
 
     # what the run trains on, compared on a resume before the images load (a run saved before the fingerprint
     # existed has none to compare, and gets one)
-    run_info["data_fingerprint"] = dataset_fingerprint(read_dataset(data_dir, check_files=True))
+    dataset = read_dataset(data_dir, check_files=True)
+    run_info["data_fingerprint"] = dataset_fingerprint(dataset)
     if resume and has_checkpoint:
         if other_dataset(recorded_data_fingerprint(run_dir), run_info["data_fingerprint"]):
             raise InputError(f"{run_dir}: --resume on another dataset: the files of {data_dir} differ from those the "
                              f"run was trained on; resume it with its own dataset (--data) or use a new --out")
-    views = load_training_views(data_dir, config.image_width, config.linear_input, config.saturation_threshold)
+    views = load_training_views(dataset, config.image_width, config.linear_input, config.saturation_threshold)
     if not views.train:
         raise ValueError(f"{data_dir}: the split has no training views")
     _stop_before_training(stop, run_dir)  # Ctrl-C while the images loaded: stop now, before anything is written
