@@ -763,3 +763,45 @@ def test_sfm_points_get_normals_facing_the_cameras():
     inwards = estimate_normals(sphere, np.zeros((1, 3)))
     assert np.median(np.einsum("ni,ni->n", inwards, -sphere)) > 0.99
     assert estimate_normals(plane[:2], np.zeros((1, 3))).shape == (2, 3)  # too few points: zero normals
+
+
+@pytest.mark.blender
+def test_lamp_self_consistency_script_renders_the_run_with_the_lamp_at_the_truth(bedroom, tmp_path):
+    """scripts/lamp_self_consistency.py: the copy's frames are the run's renders with the lamp moved to the light
+    truth (to 8 bits), not the renders with its learned lamp; the source dataset is untouched; a second call into the
+    same folder fails without touching it."""
+    import subprocess
+    import sys
+
+    from PIL import Image
+
+    from spotlessgs.io.colorspace import linear_to_srgb, to_uint8
+    from spotlessgs.models.geometry import so3_log
+    from spotlessgs.training.trainer import load_run, train
+
+    run, copy = tmp_path / "run", tmp_path / "consistent"
+    # the lamp starts half a metre behind the camera, so the run's own lamp is far from the truth
+    train(bedroom, run, "darkgs", _tiny(iterations=10, image_width=80, densify_from=1000), seed=0, progress=False,
+          light_prior=(0.06, -0.04, -0.5))
+    before = {p.name: p.read_bytes() for p in sorted((bedroom / "images").iterdir())}
+    script = [sys.executable, str(ROOT / "scripts" / "lamp_self_consistency.py"), str(run), str(copy)]
+    subprocess.run(script, check=True, capture_output=True)
+    assert {p.name: p.read_bytes() for p in sorted((bedroom / "images").iterdir())} == before
+    assert sorted(p.name for p in (copy / "images").iterdir()) == sorted(before)
+    record = json.loads((copy / "self_consistency.json").read_text())
+    scene, views, _, _ = load_run(run, device="cpu")
+    np.testing.assert_allclose(record["lamp"]["position_in_camera_m"], views.light.position_in_camera, atol=1e-6)
+    index = views.train[0]
+    written = np.asarray(Image.open(copy / "images" / views.names[index]).convert("RGB")).astype(int)
+    with torch.no_grad():
+        learned = to_uint8(linear_to_srgb(scene.render(views.cameras[index]).image.clamp_min(0).numpy())).astype(int)
+        light = scene.appearance.light
+        light.translation.copy_(torch.tensor(np.array(views.light.position_in_camera), dtype=torch.float32))
+        light.rotvec.copy_(torch.tensor(so3_log(views.light.rotation_in_camera), dtype=torch.float32))
+        at_truth = to_uint8(linear_to_srgb(scene.render(views.cameras[index]).image.clamp_min(0).numpy())).astype(int)
+    assert np.abs(written - at_truth).max() <= 1
+    assert np.abs(written - learned).mean() > 1.0  # 3.5 levels; moved lamp: all within 1
+    stamp = (copy / "self_consistency.json").read_bytes()
+    again = subprocess.run(script, capture_output=True, text=True)
+    assert again.returncode != 0 and "exists" in again.stderr
+    assert (copy / "self_consistency.json").read_bytes() == stamp
