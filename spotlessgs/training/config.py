@@ -71,6 +71,9 @@ class TrainConfig:
     # instead of 10.9-13.0 (with shadows 3.4-3.8 instead of 4.7-5.1), relit +0.01-0.07 / +0.13-0.44 dB
     # (docs/results.md, "The angular profile's learning rate").
     lr_light: float = 3e-3
+    # The same for a calibrated model (lamp pose known and frozen, angular profile fitted to the known cone): nothing
+    # for a faster profile to win there, and at 3e-3 the calibrated DarkGS lost 0.09-0.13 / 0.10-0.36 dB.
+    lr_light_calibrated: float = 1e-3
     # Low-frequency light (SH coefficients / constant ambient) and the bounce light; None = lr_light.
     lr_lf_light: float | None = 1e-3
     # Light pose relative to the camera (so3 rotation and translation). With spotlight shadows 3e-4 placed the lamp
