@@ -365,27 +365,6 @@ def test_falloff_initial_values_and_freezing():
     assert id(next(light.rid.parameters())) in optimised
 
 
-def test_the_angular_profile_learns_at_lr_light_and_a_calibrated_one_at_lr_light_calibrated():
-    """The RID and fall-off's learning rate: ``lr_light`` for a model that learns its lamp's pose, and
-    ``lr_light_calibrated`` for one whose pose is known (the SH light keeps ``lr_lf_light`` in both)."""
-    import math
-
-    from spotlessgs.models.relightable import RelightableScene
-    from spotlessgs.training.config import TrainConfig
-    from spotlessgs.training.trainer import build_optimizers, model_config
-
-    train = TrainConfig(lr_light=0.004, lr_light_calibrated=0.0007, lr_lf_light=0.0002)
-    for name, expected in (("darkgs+sh", 0.004), ("darkgs-calibrated", 0.0007)):
-        light_init = {"light_translation": [0.0, 0.0, 0.0], "cone": (math.radians(30), 0.3)} \
-            if name.endswith("calibrated") else {}
-        scene = RelightableScene.create(model_config(name, train), _scene(), seed=0, **light_init)
-        light, lf = scene.appearance.light, scene.appearance.lf_light
-        rates = {id(p): group["lr"] for opt in build_optimizers(scene, train, extent=1.0).values()
-                 for group in opt.param_groups for p in group["params"]}
-        assert rates[id(next(light.rid.parameters()))] == expected and rates[id(light.log_tau)] == expected
-        assert rates[id(next(lf.parameters()))] == 0.0002
-
-
 def test_unclamped_learned_brdf_relights_with_the_tabulated_directional_albedo():
     """brdf_upper_clamp=False: the relit colour is the Disney model's directional albedo × (L0 + L_lf), in both
     low-frequency shadings; the clamped default keeps the quadrature of the clamped model."""

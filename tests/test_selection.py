@@ -246,7 +246,7 @@ def test_dark_level_is_the_dark_end_of_each_view_over_its_bright_end():
 def test_proxies_average_their_scores_and_speed_up_the_low_frequency_light():
     full = preset("quick")
     proxy = proxy_config(full, SelectionConfig())
-    assert proxy.validation_average == 4 and proxy.lr_lf_light == pytest.approx(10 * full.lr_lf_light)
+    assert proxy.validation_average == 4 and proxy.lr_lf_light == pytest.approx(10 * full.lr_light)
     assert proxy.lr_brdf == full.lr_brdf and proxy.lr_light == full.lr_light
     assert proxy_config(full, SelectionConfig(proxy_light_lr_scale=2.0)).lr_lf_light == pytest.approx(2e-3)
 

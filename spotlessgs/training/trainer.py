@@ -182,8 +182,7 @@ def build_optimizers(scene: RelightableScene, config: TrainConfig, extent: float
         if pose:
             groups.append({"params": pose, "lr": config.lr_light_pose})
         groups.append({"params": [p for p in (app.light.log_gamma, app.light.log_tau) if p.requires_grad]
-                       + list(app.light.rid.parameters()),
-                       "lr": config.lr_light_calibrated if scene.config.calibrated else config.lr_light})
+                       + list(app.light.rid.parameters()), "lr": config.lr_light})
     for lf in (app.lf_light, app.bounce_light):
         if lf is not None:
             groups.append({"params": list(lf.parameters()),
