@@ -61,6 +61,13 @@ def main() -> None:
     scene, views, _config, info = load_run(args.run, device="cpu")
     if views.light is None:
         raise SystemExit(f"{views.dataset.source}: no light truth in transforms.json")
+    for index, (native, image_path) in enumerate(zip(views.dataset.cameras, views.dataset.image_paths)):
+        trained = views.cameras[index]
+        if (trained.width, trained.height) != (native.width, native.height):
+            raise SystemExit(f"{args.run}: trained at {trained.width}x{trained.height}, the dataset's frames are "
+                             f"{native.width}x{native.height}: train at the dataset's own size")
+        if Path(image_path).suffix.lower() != ".png":
+            raise SystemExit(f"{image_path}: a PNG frame is expected (the copy keeps each frame's name)")
     set_lamp_to_truth(scene, views.light, args.physical_falloff)
     source = Path(views.dataset.root)
     partial = args.out.with_name(args.out.name + ".partial")
@@ -70,14 +77,7 @@ def main() -> None:
     with torch.no_grad():
         for index, image_path in enumerate(views.dataset.image_paths):
             image = scene.render(views.cameras[index]).image.clamp_min(0).numpy()
-            native = views.images[index].shape[:2]
-            if image.shape[:2] != native:
-                raise SystemExit(f"{args.run}: trained at {image.shape[1]}x{image.shape[0]}, the dataset's frames are "
-                                 f"{native[1]}x{native[0]}: train at the dataset's own size")
-            target = partial / Path(image_path).relative_to(source)
-            if target.suffix.lower() != ".png":
-                raise SystemExit(f"{image_path}: a PNG frame is expected (the copy keeps each frame's name)")
-            write_png(target, np.clip(linear_to_srgb(image), 0.0, 1.0))
+            write_png(partial / Path(image_path).relative_to(source), np.clip(linear_to_srgb(image), 0.0, 1.0))
     light = scene.appearance.light
     write_json(partial / "self_consistency.json", {
         "source_run": str(args.run.resolve()), "source_dataset": str(source.resolve()),

@@ -805,3 +805,9 @@ def test_lamp_self_consistency_script_renders_the_run_with_the_lamp_at_the_truth
     again = subprocess.run(script, capture_output=True, text=True)
     assert again.returncode != 0 and "exists" in again.stderr
     assert (copy / "self_consistency.json").read_bytes() == stamp
+    # a run trained below the dataset's size is refused before anything is copied
+    small = tmp_path / "small"
+    train(bedroom, small, "darkgs", _tiny(iterations=2, image_width=40, densify_from=1000), seed=0, progress=False)
+    refused = subprocess.run(script[:2] + [str(small), str(tmp_path / "other")], capture_output=True, text=True)
+    assert refused.returncode != 0 and "trained at 40x30, the dataset's frames are 80x60" in refused.stderr
+    assert not (tmp_path / "other").exists() and not (tmp_path / "other.partial").exists()

@@ -33,8 +33,8 @@ NOT_TRAINING_INPUT = {"frame": ("gt_file_path", "exr_file_path", "depth_file_pat
 
 def training_input_files(dataset: DatasetDescription) -> list[Path]:
     """The files training reads from ``dataset``, each once, in a fixed order: its description (``transforms.json``,
-    or the COLMAP model's files its reader reads), each frame's image and its exposure sidecar (``<image>.json``, where there is one:
-    :mod:`spotlessgs.io.exposure`), and its initial point cloud (where there is one)."""
+    or the COLMAP model's files its reader reads), each frame's image and its exposure sidecar (``<image>.json``,
+    where there is one: :mod:`spotlessgs.io.exposure`), and its initial point cloud (where there is one)."""
     source = Path(dataset.source)
     frames: list[Path] = []
     for image in dataset.image_paths:
