@@ -12,6 +12,7 @@ and the spotlight shines along +z of the light frame.
 Spotlight radiance reaching a point: L_spot(x) = Ψ(x_l) · Φ(θ(x_l)), with
     θ = atan2(sqrt(x_l.x² + x_l.y² + ε²), x_l.z)                     angle off the light axis, ε = 1e-6 m
     Φ(θ) = softplus(MLP([θ, cos θ, cos 2θ, cos 4θ, cos 8θ]))           RID, MLP 5→20→20→20→1, softplus activations
+           or a non-increasing piecewise-linear profile on 48 knots (rid_model "monotone", models.angular_profile)
     Ψ(x_l) = (τ + |x_l|²)^(-γ),  τ = exp(log τ), γ = exp(log γ)         fall-off (init γ = 1, τ = 0.3)
 Unlike the research code's tan θ input (singular at x_l.z = 0, sign-blind behind the light), θ is defined and smooth
 (finite value and gradient) everywhere: beside the light θ = π/2, behind it θ → π, at the origin θ = π/2.
@@ -28,6 +29,7 @@ import torch.nn.functional as F
 from torch import nn
 
 from spotlessgs.io.seeding import torch_generator
+from spotlessgs.models.angular_profile import MonotoneProfile
 from spotlessgs.models.geometry import check_c2w, safe_normalize, so3_exp, so3_log, world_to_camera
 from spotlessgs.models.nets import seeded_linear
 from spotlessgs.models.sh import check_sh_degree, eval_sh, num_sh_bases
@@ -38,6 +40,8 @@ THETA_EPS = 1e-6
 PRIOR_EPS = 1e-3
 # RID network: frequencies of the cosine features of θ (input is [θ, cos(kθ) for k in RID_FREQUENCIES]).
 RID_FREQUENCIES = (1.0, 2.0, 4.0, 8.0)
+# Forms of the RID: the paper's MLP, or a non-increasing piecewise-linear profile (models.angular_profile).
+RID_MODELS = ("mlp", "monotone")
 
 
 def cone_profile(theta: torch.Tensor, half_angle: float, blend: float) -> torch.Tensor:
@@ -67,9 +71,11 @@ class SpotLight(nn.Module):
         translation: t (3,), light origin in camera coordinates, metres; default 0 (co-located with the camera).
         gamma: initial fall-off exponent γ > 0.
         tau: initial fall-off offset τ > 0 (m²).
-        hidden: RID hidden width.
-        seed: seed of the RID initialisation (stage "spotlight_rid").
-    Parameters: `rotvec` (3,), `translation` (3,), `log_gamma` (), `log_tau` (), `rid` (nn.Sequential).
+        hidden: RID hidden width (the MLP's).
+        seed: seed of the RID initialisation (stage "spotlight_rid"; the monotone profile's start is fixed).
+        rid_model: "mlp" (the paper's RID) or "monotone" (MonotoneProfile).
+    Parameters: `rotvec` (3,), `translation` (3,), `log_gamma` (), `log_tau` (), `rid` (nn.Sequential, or a
+    MonotoneProfile).
     """
 
     def __init__(
@@ -80,10 +86,13 @@ class SpotLight(nn.Module):
         tau: float = 0.3,
         hidden: int = 20,
         seed: int = 0,
+        rid_model: str = "mlp",
     ) -> None:
         super().__init__()
         if gamma <= 0 or tau <= 0:
             raise ValueError(f"SpotLight: gamma and tau must be > 0, got gamma={gamma}, tau={tau}")
+        if rid_model not in RID_MODELS:
+            raise ValueError(f"SpotLight: rid_model must be one of {RID_MODELS}, got {rid_model!r}")
         self.rotvec = nn.Parameter(torch.tensor(np.array(_rotvec_from(rotation)), dtype=torch.float32))
         if translation is None:
             t = torch.zeros(3)
@@ -95,6 +104,9 @@ class SpotLight(nn.Module):
         self.translation = nn.Parameter(t.clone())
         self.log_gamma = nn.Parameter(torch.tensor(math.log(gamma)))
         self.log_tau = nn.Parameter(torch.tensor(math.log(tau)))
+        if rid_model == "monotone":
+            self.rid: nn.Module = MonotoneProfile()
+            return
         gen = torch_generator(seed, "spotlight_rid")
         n_in = 1 + len(RID_FREQUENCIES)
         self.rid = nn.Sequential(
@@ -155,6 +167,8 @@ class SpotLight(nn.Module):
 
     def rid_of_angle(self, theta: torch.Tensor) -> torch.Tensor:
         """RID Φ(θ) for angles (N, 1) → (N, 1), > 0."""
+        if isinstance(self.rid, MonotoneProfile):
+            return self.rid(theta)
         feats = [theta] + [torch.cos(k * theta) for k in RID_FREQUENCIES]
         return self.rid(torch.cat(feats, dim=-1))
 

@@ -39,7 +39,7 @@ from torch import nn
 from spotlessgs.models.brdf import LambertianBRDF, LearnedBRDF, disney_directional_albedo
 from spotlessgs.models.gaussians import GaussianParams
 from spotlessgs.models.geometry import check_c2w, orthonormal_basis, safe_normalize
-from spotlessgs.models.light import ConstantAmbient, LowFrequencyLight, SpotLight
+from spotlessgs.models.light import RID_MODELS, ConstantAmbient, LowFrequencyLight, SpotLight
 from spotlessgs.models.sh import check_sh_degree, eval_sh
 
 # Default constant relighting radiance L0 (linear RGB): with it a white Lambertian surface relights to 1.0 (+ L_lf).
@@ -86,6 +86,9 @@ class ModelConfig:
     falloff_tau: float = 0.3
     falloff_gamma: float = 1.0
     learn_falloff: bool = True
+    # The spotlight's angular profile (RID): "mlp" (the paper's MLP of cosine features of θ) or "monotone" (a
+    # non-increasing piecewise-linear profile on 48 knots, models.angular_profile: sharp enough for a spot lamp's edge).
+    rid_model: str = "mlp"
     # The learned BRDF's f̃ clamped at 1 (the research code's; LearnedBRDF.upper_clamp). False: unclamped, and its
     # directional albedo R is the Disney model's, tabulated with an importance-sampled quadrature
     # (brdf.disney_directional_albedo), in relighting and in the irradiance shading alike.
@@ -138,6 +141,8 @@ class ModelConfig:
         if not (math.isfinite(self.shadow_map_scale) and self.shadow_map_scale > 0):
             raise ValueError(f"ModelConfig {self.name!r}: shadow_map_scale must be finite and > 0, got "
                              f"{self.shadow_map_scale}")
+        if self.rid_model not in RID_MODELS:
+            raise ValueError(f"ModelConfig {self.name!r}: rid_model must be one of {RID_MODELS}, got {self.rid_model!r}")
         if self.low_frequency_shading not in LOW_FREQUENCY_SHADINGS:
             raise ValueError(f"ModelConfig {self.name!r}: low_frequency_shading must be 'spot_cosine' or "
                              f"'irradiance', got {self.low_frequency_shading!r}")
@@ -411,7 +416,7 @@ def build_appearance_models(
     if cfg.light_model == "none":
         return AppearanceModels(None, None, None)
     light = SpotLight(rotation=light_rotation, translation=light_translation, gamma=cfg.falloff_gamma,
-                      tau=cfg.falloff_tau, seed=seed)
+                      tau=cfg.falloff_tau, seed=seed, rid_model=cfg.rid_model)
     light.set_falloff_trainable(cfg.learn_falloff)
     if cfg.calibrated:
         if cone is None or light_translation is None:

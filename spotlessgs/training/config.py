@@ -77,6 +77,10 @@ class TrainConfig:
     # Light pose relative to the camera (so3 rotation and translation). With spotlight shadows 3e-4 placed the lamp
     # closer (docs/results.md, "Spotlight shadows"); alone it is no consistent gain.
     lr_light_pose: float = 1e-3
+    # The monotone angular profile's log-values (rid_model "monotone"): ten times lr_light, so that its knots can
+    # drop the 20 nepers of a lamp's edge within the first few hundred steps (at lr_light the edge is still forming at
+    # the end and the lamp moves 20 cm forward to make up for it; docs/results.md).
+    lr_rid_profile: float = 1e-2
     # Learned BRDF MLP.
     lr_brdf: float = 1e-4
 
@@ -108,6 +112,9 @@ class TrainConfig:
     falloff_tau: float = 0.3
     falloff_gamma: float = 1.0
     learn_falloff: bool = True
+    # The spotlight's angular profile: "mlp" (the paper's) or "monotone" (a non-increasing piecewise-linear profile,
+    # ModelConfig.rid_model), which learns at lr_rid_profile.
+    rid_model: str = "mlp"
     # The learned BRDF's f̃ clamped at 1 (the research code's) or not (ModelConfig.brdf_upper_clamp).
     brdf_upper_clamp: bool = True
     # The learned BRDF's diffuse lobe with Burley's retro-reflection factor (the paper's) or Lambertian

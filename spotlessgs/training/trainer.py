@@ -30,6 +30,7 @@ from spotlessgs.io.signals import StopRequest, deferred_interrupts
 from spotlessgs.io.provenance import provenance
 from spotlessgs.io.seeding import numpy_rng, torch_generator
 from spotlessgs.metrics import psnr_from_mse
+from spotlessgs.models.angular_profile import MonotoneProfile
 from spotlessgs.models.gaussians import GaussianParams
 from spotlessgs.models.photometric import PhotometricCamera
 from spotlessgs.models.pose import PoseCorrection, corrected_camera
@@ -181,8 +182,13 @@ def build_optimizers(scene: RelightableScene, config: TrainConfig, extent: float
         pose = [p for p in (app.light.rotvec, app.light.translation) if p.requires_grad]
         if pose:
             groups.append({"params": pose, "lr": config.lr_light_pose})
-        groups.append({"params": [p for p in (app.light.log_gamma, app.light.log_tau) if p.requires_grad]
-                       + list(app.light.rid.parameters()), "lr": config.lr_light})
+        falloff = [p for p in (app.light.log_gamma, app.light.log_tau) if p.requires_grad]
+        if isinstance(app.light.rid, MonotoneProfile):
+            if falloff:
+                groups.append({"params": falloff, "lr": config.lr_light})
+            groups.append({"params": list(app.light.rid.parameters()), "lr": config.lr_rid_profile})
+        else:
+            groups.append({"params": falloff + list(app.light.rid.parameters()), "lr": config.lr_light})
     for lf in (app.lf_light, app.bounce_light):
         if lf is not None:
             groups.append({"params": list(lf.parameters()),
