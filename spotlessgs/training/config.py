@@ -78,8 +78,8 @@ class TrainConfig:
     # closer (docs/results.md, "Spotlight shadows"); alone it is no consistent gain.
     lr_light_pose: float = 1e-3
     # The monotone angular profile's log-values (rid_model "monotone"): ten times lr_light, so that its knots can
-    # drop the 20 nepers of a lamp's edge within the first few hundred steps (at lr_light the edge is still forming at
-    # the end and the lamp moves 20 cm forward to make up for it; docs/results.md).
+    # drop the 4-5 nepers of a lamp's edge within the first few hundred steps (a prototype at lr_light, 24 knots, was
+    # still forming the edge at the end, the lamp 19-21 cm in front of the camera; docs/results.md).
     lr_rid_profile: float = 1e-2
     # Learned BRDF MLP.
     lr_brdf: float = 1e-4
