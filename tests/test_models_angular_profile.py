@@ -101,13 +101,11 @@ def test_a_run_with_the_monotone_profile_reloads_it(tmp_path, tmp_path_factory, 
     from spotlessgs.run import RunSpec, train
     from spotlessgs.training.checkpoint import load_checkpoint
     from spotlessgs.training.trainer import load_run
+    from test_run_api import SMALL
 
     box = synthetic_box_dataset(tmp_path_factory, "profile", seed=4)
-    overrides = (("iterations", 10), ("image_width", 32), ("num_threads", 1), ("densify_from", 1000),
-                 ("log_every", 10), ("checkpoint_every", 10), ("init_points", 200), ("max_gaussians", 300),
-                 ("brdf_hidden", 8), ("rid_model", "monotone"))
-    run = train(RunSpec(data=box, model="spotless", preset="tiny", overrides=overrides), tmp_path / "run",
-                progress=False)
+    run = train(RunSpec(data=box, model="spotless", preset="tiny", overrides=(*SMALL, ("rid_model", "monotone"))),
+                tmp_path / "run", progress=False)
     scene, _views, config, _info = load_run(run.dir, device="cpu")
     assert config.rid_model == "monotone" and isinstance(scene.appearance.light.rid, MonotoneProfile)
     saved = load_checkpoint(run.dir)["appearance"]
