@@ -74,8 +74,12 @@ class SpotLight(nn.Module):
         hidden: RID hidden width (the MLP's).
         seed: seed of the RID initialisation (stage "spotlight_rid"; the monotone profile's start is fixed).
         rid_model: "mlp" (the paper's RID) or "monotone" (MonotoneProfile).
+        radiance_scale: a fixed factor s > 0 on the radiance, s Ψ Φ: the unit the learned radiance is counted in
+            (1: the research code's). The albedo is capped at 1, so the unit decides where the albedo/light
+            scale, which the images cannot tell, starts (training.light_unit).
     Parameters: `rotvec` (3,), `translation` (3,), `log_gamma` (), `log_tau` (), `rid` (nn.Sequential, or a
-    MonotoneProfile).
+    MonotoneProfile). Buffer: `radiance_scale` () (saved with the state; a state saved before it has none and
+    loads as 1).
     """
 
     def __init__(
@@ -87,10 +91,14 @@ class SpotLight(nn.Module):
         hidden: int = 20,
         seed: int = 0,
         rid_model: str = "mlp",
+        radiance_scale: float = 1.0,
     ) -> None:
         super().__init__()
         if gamma <= 0 or tau <= 0:
             raise ValueError(f"SpotLight: gamma and tau must be > 0, got gamma={gamma}, tau={tau}")
+        if not (math.isfinite(radiance_scale) and radiance_scale > 0):
+            raise ValueError(f"SpotLight: radiance_scale must be finite and > 0, got {radiance_scale}")
+        self.register_buffer("radiance_scale", torch.tensor(float(radiance_scale)))
         if rid_model not in RID_MODELS:
             raise ValueError(f"SpotLight: rid_model must be one of {RID_MODELS}, got {rid_model!r}")
         self.rotvec = nn.Parameter(torch.tensor(np.array(_rotvec_from(rotation)), dtype=torch.float32))
@@ -130,6 +138,12 @@ class SpotLight(nn.Module):
         """Freeze (False) or unfreeze (True) the fall-off parameters `log_gamma` and `log_tau`."""
         self.log_gamma.requires_grad_(trainable)
         self.log_tau.requires_grad_(trainable)
+
+    def _load_from_state_dict(self, state_dict, prefix, *args, **kwargs) -> None:
+        """A state saved before `radiance_scale` existed loads with the unit it trained in, 1 (as BatchNorm's
+        `num_batches_tracked` is filled in for older states)."""
+        state_dict.setdefault(prefix + "radiance_scale", torch.tensor(1.0))
+        super()._load_from_state_dict(state_dict, prefix, *args, **kwargs)
 
     def origin_world(self, c2w: torch.Tensor) -> torch.Tensor:
         """Light origin o = C + R_cw t in world coordinates, (3,)."""
@@ -184,11 +198,11 @@ class SpotLight(nn.Module):
             x_world: (N, 3) points, world frame.
             c2w: (4, 4) camera-to-world (OpenCV axes) of the camera carrying the light.
         Returns:
-            radiance (N, 1) = Ψ Φ ≥ 0, and l̂ (N, 3) unit vectors point → light origin (world frame); at the origin
+            radiance (N, 1) = s Ψ Φ ≥ 0 (s: `radiance_scale`), and l̂ (N, 3) unit vectors point → light origin (world frame); at the origin
             itself l̂ falls back to minus the light axis (as for a point just in front of the lamp).
         """
         x_l = self.to_light_frame(x_world, c2w)
-        radiance = self.falloff(x_l) * self.rid_of_angle(self.angle_off_axis(x_l))
+        radiance = self.radiance_scale * self.falloff(x_l) * self.rid_of_angle(self.angle_off_axis(x_l))
         to_light = self.origin_world(c2w) - x_world
         l_hat = safe_normalize(to_light, fallback=-self.axis_world(c2w))
         return radiance, l_hat

@@ -399,6 +399,7 @@ def build_appearance_models(
     light_translation=None,
     cone: tuple[float, float] | None = None,
     ambient_init: float = 0.05,
+    spot_radiance_scale: float = 1.0,
 ) -> AppearanceModels:
     """Create the light, low-frequency light and BRDF of a variant.
 
@@ -409,6 +410,7 @@ def build_appearance_models(
         light_translation: initial light origin in camera coordinates (3,), metres; default 0.
         cone: (half_angle rad, blend) of the known spot cone; required when calibrated.
         ambient_init: initial DarkGS ambient A.
+        spot_radiance_scale: the spotlight's fixed radiance unit (SpotLight's ``radiance_scale``).
     Calibrated variants start from the given pose and freeze it, and fit the RID to the cone (unit peak); the RID,
     τ and γ stay trainable so that the unknown lamp power can still be learned.
     """
@@ -416,7 +418,7 @@ def build_appearance_models(
     if cfg.light_model == "none":
         return AppearanceModels(None, None, None)
     light = SpotLight(rotation=light_rotation, translation=light_translation, gamma=cfg.falloff_gamma,
-                      tau=cfg.falloff_tau, seed=seed, rid_model=cfg.rid_model)
+                      tau=cfg.falloff_tau, seed=seed, rid_model=cfg.rid_model, radiance_scale=spot_radiance_scale)
     light.set_falloff_trainable(cfg.learn_falloff)
     if cfg.calibrated:
         if cone is None or light_translation is None:

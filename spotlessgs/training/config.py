@@ -15,6 +15,9 @@ from typing import Any
 #: Spaces the photometric loss compares images in (TrainConfig.loss_space; spotlessgs.training.losses).
 LOSS_SPACES = ("linear", "srgb")
 
+#: Units of the spotlight's radiance (TrainConfig.spot_radiance_unit; spotlessgs.training.light_unit).
+SPOT_RADIANCE_UNITS = ("fixed", "median_depth")
+
 #: Values of the TrainConfig switches whose "auto" the trainer resolves from the data (photometric, depth_spread).
 SWITCH_VALUES = ("auto", "on", "off")
 
@@ -118,6 +121,12 @@ class TrainConfig:
     # saturated bedroom about 0.8 dB worse against the uniform ground truth (docs/results.md, "A piecewise-linear
     # angular profile").
     rid_model: str = "mlp"
+    # The unit of the spotlight's radiance (training.light_unit): "fixed" (the research code's) or "median_depth" (a
+    # factor (τ0 + z²)^γ0 on the spotlight, z the scene's median depth in the training views: the light starts as
+    # bright as the images ask, and the albedo below its cap). Not the default yet: it relit the saturated bedroom
+    # 1.1-1.3 dB better with the monotone profile (docs/results.md, "The albedo's cap and the light's unit"), and
+    # has no quick reproduction.
+    spot_radiance_unit: str = "fixed"
     # The learned BRDF's f̃ clamped at 1 (the research code's) or not (ModelConfig.brdf_upper_clamp).
     brdf_upper_clamp: bool = True
     # The learned BRDF's diffuse lobe with Burley's retro-reflection factor (the paper's) or Lambertian
@@ -267,6 +276,9 @@ class TrainConfig:
         if not (math.isfinite(self.depth_spread_weight) and self.depth_spread_weight >= 0):
             raise ValueError(f"TrainConfig: depth_spread_weight must be finite and >= 0, "
                              f"got {self.depth_spread_weight}")
+        if self.spot_radiance_unit not in SPOT_RADIANCE_UNITS:
+            raise ValueError(f"TrainConfig: spot_radiance_unit must be one of {SPOT_RADIANCE_UNITS}, "
+                             f"got {self.spot_radiance_unit!r}")
         if self.loss_space not in LOSS_SPACES:
             raise ValueError(f"TrainConfig: loss_space must be 'linear' or 'srgb', got {self.loss_space!r}")
         if self.pose_texture_weight < 0 or self.pose_penalty < 0 or self.lr_pose <= 0:

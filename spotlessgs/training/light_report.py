@@ -40,6 +40,7 @@ def light_estimate(scene) -> dict[str, Any] | None:
         "position_in_camera_m": light.translation.double().cpu().numpy().tolist(),
         "falloff_gamma": float(light.gamma),
         "falloff_tau_m2": float(light.tau),
+        "radiance_scale": float(light.radiance_scale),
         "pose_trainable": bool(light.translation.requires_grad),
     }
     if isinstance(app.lf_light, ConstantAmbient):

@@ -44,6 +44,7 @@ from spotlessgs.training.checkpoint import (
 from spotlessgs.training.config import TrainConfig, with_defaults
 from spotlessgs.training.data import TrainingViews, initial_point_cloud, load_training_views
 from spotlessgs.training.light_report import write_light_report
+from spotlessgs.training.light_unit import spot_radiance_scale
 from spotlessgs.training.losses import depth_spread_loss, normal_shape_loss, photometric_loss, pose_refinement_terms
 from spotlessgs.training.pose_alignment import AlignedView, align_views
 from spotlessgs.training.pose_file import write_refined_poses
@@ -160,6 +161,10 @@ def build_scene(
         }
     elif light_prior is not None:
         light_init = {"light_translation": np.asarray(light_prior, dtype=np.float64)}
+    if cfg.light_model == "spotlight":
+        light_init["spot_radiance_scale"] = spot_radiance_scale(
+            config.spot_radiance_unit, torch.as_tensor(xyz, dtype=torch.float32), views.cameras, views.train,
+            cfg.falloff_tau, cfg.falloff_gamma)
     return RelightableScene.create(cfg, gaussians, seed=seed, **light_init)
 
 
