@@ -104,3 +104,28 @@ def test_a_run_trained_in_the_median_depth_unit_records_reloads_and_relights_in_
     assert float(scene.appearance.light.radiance_scale) == pytest.approx(expected, rel=1e-6)
     assert json.loads((run.dir / "light.json").read_text())["estimate"]["radiance_scale"] == pytest.approx(expected)
     assert run.relight("test", tmp_path / "relit", progress=False, device="cpu")["count"] > 0
+
+
+def test_the_albedo_scale_script_finds_the_factor_and_what_the_cap_flattens():
+    """scripts/albedo_scale.py's statistics on a learned albedo that is the truth × 1.25, capped at 1: k = 1.25, and
+    the pixels whose true albedo exceeds 0.8 are the ones flattened and at the cap; pixels without a true albedo
+    (below 0.02) do not count."""
+    import importlib.util
+    from pathlib import Path
+
+    import numpy as np
+
+    path = Path(__file__).resolve().parents[1] / "scripts" / "albedo_scale.py"
+    spec = importlib.util.spec_from_file_location("albedo_scale", path)
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    rng = np.random.default_rng(0)
+    true = rng.uniform(0.05, 0.95, size=(4000, 3))
+    true[:500] = 0.0  # no true albedo: an emitter, a gap
+    learned = np.minimum(1.25 * true, 1.0)
+    stats = module.albedo_scale_stats(learned, true)
+    lit = true[500:]
+    assert stats["k"] == pytest.approx(1.25)
+    assert stats["flattened"] == pytest.approx(float((lit.max(1) > 0.8).mean()))
+    assert stats["at_cap"] == pytest.approx(float((lit.max(1) > 0.76).mean()))
+    assert stats["spread"] == pytest.approx(0.0, abs=1e-12)
