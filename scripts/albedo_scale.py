@@ -66,6 +66,9 @@ def main() -> None:
         scene, views, _config, _info = load_run(run, device="cpu")
         if scene.appearance.light is None:
             raise SystemExit(f"{run}: a 3DGS run has no albedo")
+        if not all(camera.is_pinhole for camera in views.dataset.distinct_cameras()):
+            raise SystemExit(f"{run}: its dataset's lens is distorted; the EXR passes are in the distorted image, "
+                             "not in the working camera this script renders")
         learned, true = [], []
         for k in views.test if args.views == "test" else views.train:
             exr = views.dataset.exr_paths[k]
