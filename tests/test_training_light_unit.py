@@ -93,7 +93,8 @@ def test_a_run_trained_in_the_median_depth_unit_records_reloads_and_relights_in_
     from test_run_api import SMALL
 
     box = synthetic_box_dataset(tmp_path_factory, "unit", seed=4)
-    spec = RunSpec(data=box, model="spotless", preset="tiny", overrides=(*SMALL, ("spot_radiance_unit", "median_depth")))
+    spec = RunSpec(data=box, model="spotless", preset="tiny",
+                   overrides=(*SMALL, ("spot_radiance_unit", "median_depth")))
     run = train(spec, tmp_path / "run", progress=False)
     scene, views, config, _info = load_run(run.dir, device="cpu")
     start = build_scene(views, "spotless", config, seed=0)

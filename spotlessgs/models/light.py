@@ -198,8 +198,9 @@ class SpotLight(nn.Module):
             x_world: (N, 3) points, world frame.
             c2w: (4, 4) camera-to-world (OpenCV axes) of the camera carrying the light.
         Returns:
-            radiance (N, 1) = s Ψ Φ ≥ 0 (s: `radiance_scale`), and l̂ (N, 3) unit vectors point → light origin (world frame); at the origin
-            itself l̂ falls back to minus the light axis (as for a point just in front of the lamp).
+            radiance (N, 1) = s Ψ Φ ≥ 0 (s: `radiance_scale`), and l̂ (N, 3) unit vectors point → light origin
+            (world frame); at the origin itself l̂ falls back to minus the light axis (as for a point just in front of
+            the lamp).
         """
         x_l = self.to_light_frame(x_world, c2w)
         radiance = self.radiance_scale * self.falloff(x_l) * self.rid_of_angle(self.angle_off_axis(x_l))

@@ -124,9 +124,9 @@ class TrainConfig:
     # The unit of the spotlight's radiance (training.light_unit): "fixed" (the research code's) or "median_depth" (a
     # factor (τ0 + z²)^γ0 on the spotlight, z the scene's median depth in the training views: the light starts as
     # bright as the images ask, and the albedo below its cap). With rid_model=monotone it relit the saturated bedroom
-    # 1.2 dB better (24.70 dB, two seeds) and the quick reproduction's rows up to 0.87 dB better against the uniform ground truth,
-    # but the robot copy's up to 0.32 dB worse against the lamps-on one: not the default (docs/results.md, "The
-    # albedo's cap and the light's unit").
+    # 1.2 dB better (24.70 dB, two seeds) and the quick reproduction's rows up to 0.87 dB better against the uniform
+    # ground truth, but the robot copy's up to 0.32 dB worse against the lamps-on one: not the default
+    # (docs/results.md, "The albedo's cap and the light's unit").
     spot_radiance_unit: str = "fixed"
     # The learned BRDF's f̃ clamped at 1 (the research code's) or not (ModelConfig.brdf_upper_clamp).
     brdf_upper_clamp: bool = True
