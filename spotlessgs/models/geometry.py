@@ -107,6 +107,13 @@ def points_in_view(points: torch.Tensor, view: torch.Tensor) -> torch.Tensor:
     return points @ view[:3, :3].T + view[:3, 3]
 
 
+def pinhole_pixels(points_cam: torch.Tensor, K: torch.Tensor, near: float) -> tuple[torch.Tensor, torch.Tensor]:
+    """Pixel coordinates (u, v), (N,) each, of camera-frame points (N, 3) under the intrinsics K (3, 3), with the
+    depth clamped at ``near`` (m) so that points behind the camera stay finite (the caller masks them)."""
+    z = points_cam[:, 2].clamp(min=near)
+    return K[0, 0] * points_cam[:, 0] / z + K[0, 2], K[1, 1] * points_cam[:, 1] / z + K[1, 2]
+
+
 def world_to_camera(points: torch.Tensor, c2w: torch.Tensor) -> torch.Tensor:
     """Points (N, 3) in world → camera coordinates (N, 3): x_cam = R_cwᵀ (x - C)."""
     return (points - c2w[:3, 3]) @ c2w[:3, :3]

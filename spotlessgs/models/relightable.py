@@ -14,7 +14,7 @@ from torch import nn
 
 from spotlessgs.io.camera_batch import Cameras
 from spotlessgs.models.gaussians import GaussianParams
-from spotlessgs.models.geometry import points_in_view
+from spotlessgs.models.geometry import pinhole_pixels, points_in_view
 from spotlessgs.models import shadow
 from spotlessgs.models.shading import AppearanceModels, ModelConfig, build_appearance_models, resolve_variant, shade
 from spotlessgs.rasterizer import RasterOutput, rasterize
@@ -33,10 +33,8 @@ def frustum_mask(
     with torch.no_grad():
         cam = points_in_view(means, viewmat)
         z = cam[:, 2]
-        zc = z.clamp(min=near)
-        u = K[0, 0] * cam[:, 0] / zc + K[0, 2]
-        v = K[1, 1] * cam[:, 1] / zc + K[1, 2]
-        r = 3.0 * scales.max(dim=1).values * torch.maximum(K[0, 0], K[1, 1]) / zc + 1.0
+        u, v = pinhole_pixels(cam, K, near)
+        r = 3.0 * scales.max(dim=1).values * torch.maximum(K[0, 0], K[1, 1]) / z.clamp(min=near) + 1.0
         return (z > near) & (u + r > 0) & (u - r < width) & (v + r > 0) & (v - r < height)
 
 

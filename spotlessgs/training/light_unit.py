@@ -23,7 +23,7 @@ from collections.abc import Sequence
 import torch
 
 from spotlessgs.io.camera_batch import Cameras
-from spotlessgs.models.geometry import points_in_view
+from spotlessgs.models.geometry import pinhole_pixels, points_in_view
 from spotlessgs.training.config import SPOT_RADIANCE_UNITS
 
 #: Points nearer than this (m) to a camera's image plane do not count as seen.
@@ -42,10 +42,8 @@ def median_view_depth(points: torch.Tensor, cameras: Cameras, indices: Sequence[
         camera = cameras[k]
         x = points_in_view(points.to(camera.viewmat.dtype), camera.viewmat)
         z = x[:, 2]
-        front = z > MIN_DEPTH_M
-        u = camera.K[0, 0] * x[:, 0] / z.clamp_min(MIN_DEPTH_M) + camera.K[0, 2]
-        v = camera.K[1, 1] * x[:, 1] / z.clamp_min(MIN_DEPTH_M) + camera.K[1, 2]
-        seen = front & (u >= 0) & (u < camera.width) & (v >= 0) & (v < camera.height)
+        u, v = pinhole_pixels(x, camera.K, MIN_DEPTH_M)
+        seen = (z > MIN_DEPTH_M) & (u >= 0) & (u < camera.width) & (v >= 0) & (v < camera.height)
         if seen.any():
             medians.append(z[seen].median())
     if not medians:
