@@ -71,3 +71,33 @@ def test_an_error_unrelated_to_the_lamps_leaves_the_score_as_it_is():
     assert r["slopes"][1] == pytest.approx(-0.2, abs=1e-3)
     assert r["slopes"][0] == pytest.approx(0.0, abs=1e-3)
     assert r["psnr_lamps_removed"] == pytest.approx(r["psnr_lamps"], abs=0.01)
+
+
+def test_world_height_of_a_level_camera_and_an_error_that_grows_with_height():
+    """A level camera 1.5 m up, looking along +y at a wall 2 m away: each pixel row's height is 1.5 - 2 (v - cy) / fy
+    (the image's y axis points down). A relighting off by exp(0.2 height) on walls: slope 0.2 per metre on height,
+    none on F, and the height bands' mean error rises with height."""
+    from types import SimpleNamespace
+
+    from spotlessgs.io.cameras import Intrinsics
+
+    module = load_script()
+    camera = Intrinsics(fx=50.0, fy=50.0, cx=16.0, cy=12.0, width=32, height=24)
+    c2w = np.eye(4)
+    c2w[:3, :3] = np.array([[1.0, 0.0, 0.0], [0.0, 0.0, 1.0], [0.0, -1.0, 0.0]])  # columns: x right, y down, z ahead
+    c2w[:3, 3] = [0.0, 0.0, 1.5]
+    dataset = SimpleNamespace(cameras=[camera], c2w_opencv=np.stack([c2w]))
+    depth = np.full((24, 32), 2.0)
+    rows = np.arange(24)[:, None] + 0.5
+    assert module.world_height(dataset, 0, depth) == pytest.approx(np.broadcast_to(1.5 - 2.0 * (rows - 12) / 50, (24, 32)))
+
+    albedo, field, depth, side, emitter = scene(np.random.default_rng(2))
+    height = np.broadcast_to(np.linspace(0.0, 2.4, 24)[None, :, None], depth.shape)
+    side[:] = True
+    pred = linear_to_srgb(albedo * np.exp(0.2 * height)[..., None])
+    r = module.lamps_like_error(pred, linear_to_srgb(albedo * field[..., None]), linear_to_srgb(albedo), depth, side,
+                                emitter, height)
+    assert r["wall_slopes"][1] == pytest.approx(0.2, abs=1e-3)
+    assert r["wall_slopes"][0] == pytest.approx(0.0, abs=0.01)
+    band_errors = [e for _, e, _ in r["bands"]]
+    assert band_errors == sorted(band_errors) and len(band_errors) >= 4
