@@ -37,7 +37,7 @@ from spotlessgs.io.colorspace import linear_to_srgb, srgb_to_linear
 from spotlessgs.io.dataset import ground_truth_paths, read_dataset
 from spotlessgs.io.exr import read_frame_exr
 from spotlessgs.io.images import read_image
-from spotlessgs.io.lens import undistort
+from spotlessgs.io.lens import camera_points
 
 #: Uniform ground truth (linear, mean over channels) below this: left out (black gaps, near-black surfaces).
 MIN_UNIFORM = 0.02
@@ -64,12 +64,8 @@ def psnr(pred: np.ndarray, gt: np.ndarray) -> float:
 def world_height(dataset, index: int, depth: np.ndarray) -> np.ndarray:
     """(H, W) world z of each pixel's surface, from the frame's planar depth (H, W) through its camera, lens
     included (pixel centres at +0.5)."""
-    camera = dataset.cameras[index]
-    rows, cols = np.mgrid[: depth.shape[0], : depth.shape[1]]
-    xy = undistort(camera, np.stack([cols.ravel() + 0.5, rows.ravel() + 0.5], 1)).reshape(depth.shape + (2,))
-    in_camera = np.concatenate([xy * depth[..., None], depth[..., None]], -1)
     c2w = dataset.c2w_opencv[index]
-    return in_camera @ c2w[2, :3] + c2w[2, 3]
+    return camera_points(dataset.cameras[index], depth) @ c2w[2, :3] + c2w[2, 3]
 
 
 def lamps_like_error(pred: np.ndarray, lamps: np.ndarray, uniform: np.ndarray, depth: np.ndarray, side: np.ndarray,
@@ -140,7 +136,7 @@ def main() -> None:
             raise SystemExit(f"{dataset.exr_paths[index]}: needs the depth, normal and emission passes")
         uniform.append(read_image(uniform_paths[index]))
         lamps.append(read_image(lamps_paths[index]))
-        depth.append(frame.depth if frame.depth.ndim == 2 else frame.depth[..., 0])
+        depth.append(frame.depth)
         height.append(world_height(dataset, index, depth[-1]))
         side.append(np.abs(frame.normal[..., 2]) < MAX_VERTICAL_NORMAL)
         emitter.append(frame.emitters())

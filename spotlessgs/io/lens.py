@@ -119,6 +119,16 @@ def _pixel_centres(width: int, height: int) -> np.ndarray:
     return np.stack([u, v], -1).reshape(-1, 2)
 
 
+def camera_points(intr: Intrinsics, depth: np.ndarray) -> np.ndarray:
+    """(H, W, 3) camera-frame points (OpenCV axes, metres) of a planar depth map (H, W) (depth along the optical
+    axis, as the simulator's EXRs hold it), each pixel centre's ray through the lens of ``intr``."""
+    depth = np.asarray(depth, dtype=np.float64)
+    if depth.shape != (intr.height, intr.width):
+        raise ValueError(f"camera_points: depth {depth.shape} does not match the {intr.width}x{intr.height} camera")
+    xy = undistort(intr, _pixel_centres(intr.width, intr.height)).reshape(intr.height, intr.width, 2)
+    return np.concatenate([xy * depth[..., None], depth[..., None]], -1)
+
+
 def _sampling_maps(rays: np.ndarray, source: Intrinsics, height: int, width: int,
                    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Where the normalised ``rays`` (H * W, 2) of an H × W image land in an image of camera ``source``: map_x,

@@ -1,0 +1,136 @@
+"""How a run's low-frequency light compares with the true indirect light, by height in a rendered room.
+
+    python3 scripts/indirect_light_by_height.py RUN [RUN ...] [--every 3]
+
+For every ``--every``-th training view of the run's dataset (a simulator render: EXRs with depth, normals, the
+diffuse-colour pass and the linear spotlit image; its true lamp in transforms.json; a pinhole camera), on walls and
+objects (normals within 25° of horizontal, world z up):
+- the true **direct** light of the lamp: diffuse colour × cone profile (``models.light.cone_profile``) × cosine of
+  incidence / distance², times one gain, the median ratio of the spotlit image to it on the 20 % most directly lit
+  pixels (the lamp's shadows are ignored); the **indirect** light is the spotlit image less that, at least 0;
+- the run's render split into its spotlight and low-frequency parts (``RelightableScene.render(...,
+  split_lights=True)``), and its albedo composited like an image.
+
+Per height band of HEIGHT_BAND metres: the indirect share of the spotlit image and the low-frequency share of the
+run's render; the true indirect and the model's low-frequency irradiance (each divided by its albedo, the true or the
+learned one), the true and the model's spotlight irradiance, each relative to its mean over the pixels; and the mean
+log of learned / true albedo less its median. docs/results.md ("What the lamps-on ground truth rewards") quotes it.
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from spotlessgs.io.exr import read_frame_exr
+from spotlessgs.io.lens import camera_points
+from spotlessgs.models.light import cone_profile
+from spotlessgs.rasterizer import rasterize
+from spotlessgs.training.trainer import load_run
+
+#: Height bands (metres).
+HEIGHT_BAND = 0.4
+#: |normal z| below this: a wall's or an object's side.
+MAX_VERTICAL_NORMAL = math.sin(math.radians(25.0))
+#: The direct light's gain is fitted on the pixels above this quantile of the (unscaled) direct light.
+GAIN_QUANTILE = 0.8
+#: Bands with fewer pixels than this are left out.
+MIN_BAND_PIXELS = 200
+
+
+def true_direct(points: np.ndarray, normals: np.ndarray, diffuse: np.ndarray, light) -> np.ndarray:
+    """(H, W) the lamp's direct light up to a gain: diffuse × profile(θ) × max(cos, 0) / d².
+
+    Args:
+        points: (H, W, 3) camera-frame points (OpenCV axes, metres); normals: (H, W, 3) unit normals, camera frame;
+        diffuse: (H, W) diffuse colour; light: the dataset's ``LightTruth`` (position and rotation in the camera,
+            cone angle and blend).
+    """
+    to_point = points - np.asarray(light.position_in_camera, dtype=np.float64)
+    distance = np.linalg.norm(to_point, axis=-1)
+    in_light = to_point @ np.asarray(light.rotation_in_camera, dtype=np.float64)  # light frame: R^T d
+    theta = np.arctan2(np.hypot(in_light[..., 0], in_light[..., 1]), in_light[..., 2])
+    profile = cone_profile(torch.from_numpy(theta), math.radians(light.cone_angle_deg / 2), light.blend).numpy()
+    cosine = np.clip(-(normals * to_point).sum(-1) / np.maximum(distance, 1e-9), 0.0, None)
+    return diffuse * profile * cosine / np.maximum(distance, 1e-9) ** 2
+
+
+def band_table(height: np.ndarray, observed: np.ndarray, direct: np.ndarray, true_albedo: np.ndarray,
+               model_spot: np.ndarray, model_low: np.ndarray, learned_albedo: np.ndarray) -> list[dict]:
+    """Per height band, from per-pixel values (P,) each (see the module docstring): ``low``, ``share_true``,
+    ``share_model``, ``indirect_true``, ``low_model``, ``spot_true``, ``spot_model``, ``albedo_log_ratio``."""
+    strong = direct > np.quantile(direct, GAIN_QUANTILE)
+    gain = float(np.median(observed[strong] / direct[strong]))
+    indirect = np.clip(observed - gain * direct, 0.0, None)
+    learned = np.maximum(learned_albedo, 1e-4)
+    irradiance = {"indirect_true": indirect / true_albedo, "low_model": model_low / learned,
+                  "spot_true": gain * direct / true_albedo, "spot_model": model_spot / learned}
+    irradiance = {k: v / v.mean() for k, v in irradiance.items()}
+    log_ratio = np.log(learned / true_albedo)
+    log_ratio -= np.median(log_ratio)
+    band = np.floor(height / HEIGHT_BAND).astype(int)
+    rows = []
+    for b in np.unique(band):
+        chosen = band == b
+        if chosen.sum() < MIN_BAND_PIXELS:
+            continue
+        row = {"low": HEIGHT_BAND * b, "share_true": float(indirect[chosen].sum() / observed[chosen].sum()),
+               "share_model": float(model_low[chosen].sum() / (model_spot[chosen] + model_low[chosen]).sum()),
+               "albedo_log_ratio": float(log_ratio[chosen].mean())}
+        row.update({k: float(v[chosen].mean()) for k, v in irradiance.items()})
+        rows.append(row)
+    return rows
+
+
+@torch.no_grad()
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("runs", nargs="+", type=Path)
+    parser.add_argument("--every", type=int, default=3, help="every N-th training view (default 3)")
+    args = parser.parse_args()
+    torch.set_num_threads(2)
+    for run in args.runs:
+        scene, views, _config, _info = load_run(run, device="cpu")
+        dataset = views.dataset
+        if scene.appearance.light is None or dataset.light is None:
+            raise SystemExit(f"{run}: needs a model with a spotlight and a dataset with its true lamp")
+        if not all(camera.is_pinhole for camera in dataset.distinct_cameras()):
+            raise SystemExit(f"{run}: its dataset's lens is distorted; the EXR passes are in the distorted image, "
+                             "not in the working camera this script renders")
+        columns = {k: [] for k in ("height", "observed", "direct", "true_albedo", "spot", "low", "albedo")}
+        g = scene.gaussians
+        for k in list(views.train)[:: args.every]:
+            exr = dataset.exr_paths[k]
+            frame = None if exr is None else read_frame_exr(exr)
+            if frame is None or frame.albedo is None or frame.normal is None or frame.depth is None:
+                raise SystemExit(f"{run}: frame {views.names[k]} has no EXR with depth, normals and diffuse colour")
+            c2w = dataset.c2w_opencv[k]
+            points = camera_points(dataset.cameras[k], frame.depth)
+            diffuse = frame.albedo.mean(-1)
+            direct = true_direct(points, frame.normal @ c2w[:3, :3], diffuse, dataset.light)
+            observed = frame.uneven.mean(-1)
+            walls = ((np.abs(frame.normal[..., 2]) < MAX_VERTICAL_NORMAL) & np.isfinite(frame.depth)
+                     & (diffuse > 0.02) & (observed > 1e-5))
+            camera = views.cameras[k]
+            split = scene.render(camera, split_lights=True).image.numpy()
+            albedo = rasterize(g.means, g.quats, g.scales, g.opacities, g.albedo, camera.viewmat, camera.K,
+                               camera.width, camera.height).image.numpy()
+            for name, value in (("height", points @ c2w[2, :3] + c2w[2, 3]), ("observed", observed),
+                                ("direct", direct), ("true_albedo", diffuse), ("spot", split[..., :3].mean(-1)),
+                                ("low", split[..., 3:].mean(-1)), ("albedo", albedo.mean(-1))):
+                columns[name].append(value[walls])
+        c = {k: np.concatenate(v) for k, v in columns.items()}
+        rows = band_table(c["height"], c["observed"], c["direct"], c["true_albedo"], c["spot"], c["low"], c["albedo"])
+        print(f"{run}: height (m) | indirect share true / model | indirect irradiance true / model's low-frequency "
+              "| spotlight irradiance true / model | log(learned / true albedo)")
+        for r in rows:
+            print(f"  {r['low']:.1f}: {r['share_true']:.3f} / {r['share_model']:.3f} | {r['indirect_true']:.2f} / "
+                  f"{r['low_model']:.2f} | {r['spot_true']:.2f} / {r['spot_model']:.2f} | {r['albedo_log_ratio']:+.3f}")
+
+
+if __name__ == "__main__":
+    main()
