@@ -1,0 +1,173 @@
+"""The analysis scripts under scripts/ that docs/results.md quotes: relit_error_vs_lamps.py (how much of a relighting's
+error looks like the room lamps' light field) and indirect_light_by_height.py (a run's low-frequency light against
+the true indirect light by height), and io.lens.camera_points, which both back-project with."""
+
+from __future__ import annotations
+
+import importlib.util
+import math
+from pathlib import Path
+from types import SimpleNamespace
+
+import numpy as np
+import pytest
+import torch
+
+from evaluation.alignment import apply_gain, exposure_gain
+from spotlessgs.io.cameras import Intrinsics
+from spotlessgs.io.colorspace import linear_to_srgb
+from spotlessgs.io.lens import camera_points, distort
+
+SCRIPTS = Path(__file__).resolve().parents[1] / "scripts"
+
+
+def load_script(name: str):
+    """The module of scripts/NAME.py."""
+    spec = importlib.util.spec_from_file_location(name, SCRIPTS / f"{name}.py")
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+def scene(rng: np.random.Generator, shape=(3, 24, 32)):
+    """Linear albedo (N, H, W, 3), the lamps' field F (N, H, W), depth, walls and emitters."""
+    albedo = rng.uniform(0.1, 0.6, size=shape + (3,))
+    field = np.exp(rng.uniform(-0.8, 0.4, size=shape))
+    depth = rng.uniform(1.0, 4.0, size=shape)
+    side = rng.uniform(size=shape) < 0.7
+    emitter = np.zeros(shape, bool)
+    emitter[:, :2] = True
+    return albedo, field, depth, side, emitter
+
+
+def aligned_psnr(pred_srgb: np.ndarray, gt_srgb: np.ndarray) -> float:
+    p, g = torch.from_numpy(pred_srgb), torch.from_numpy(gt_srgb)
+    return float(-10 * torch.log10(((apply_gain(p, exposure_gain(p, g)) - g) ** 2).mean()))
+
+
+def test_an_error_that_is_the_lamps_field_to_a_power_is_found_and_removed():
+    """A relighting that is the albedo × F^0.3: slope 0.3 on log F, none on depth or albedo, correlation 1; with that
+    part removed it is the albedo itself, so its lamps-on PSNR becomes the uniform ground truth's own against the
+    lamps-on one; the brightest third of F is relit brightest."""
+    module = load_script("relit_error_vs_lamps")
+    albedo, field, depth, side, emitter = scene(np.random.default_rng(0))
+    emitter[:] = False  # every pixel counts, so that the part removed leaves exactly the albedo × a constant
+    uniform = linear_to_srgb(albedo)
+    lamps = linear_to_srgb(albedo * field[..., None])
+    pred = linear_to_srgb(albedo * field[..., None] ** 0.3)
+    r = module.lamps_like_error(pred, lamps, uniform, depth, side, emitter)
+    assert r["slopes"][0] == pytest.approx(0.3, abs=1e-3)
+    assert r["slopes"][1] == pytest.approx(0.0, abs=1e-3) and r["slopes"][2] == pytest.approx(0.0, abs=1e-3)
+    assert r["corr"] == pytest.approx(1.0, abs=1e-4)
+    assert r["psnr_lamps_removed"] == pytest.approx(aligned_psnr(uniform, lamps), abs=0.05)
+    assert r["psnr_lamps_removed"] < r["psnr_lamps"]
+    assert r["psnr_uniform"] == pytest.approx(aligned_psnr(pred, uniform), abs=1e-9)
+    darkest, _, brightest = r["thirds"]
+    assert darkest[0] < 0 < brightest[0]
+
+
+def test_an_error_unrelated_to_the_lamps_leaves_the_score_as_it_is():
+    """A relighting off by a depth term only: its slope goes to depth, none to F, and removing nothing changes
+    nothing."""
+    module = load_script("relit_error_vs_lamps")
+    albedo, field, depth, side, emitter = scene(np.random.default_rng(1))
+    uniform = linear_to_srgb(albedo)
+    lamps = linear_to_srgb(albedo * field[..., None])
+    pred = linear_to_srgb(albedo * depth[..., None] ** -0.2)
+    r = module.lamps_like_error(pred, lamps, uniform, depth, side, emitter)
+    assert r["slopes"][1] == pytest.approx(-0.2, abs=1e-3)
+    assert r["slopes"][0] == pytest.approx(0.0, abs=1e-3)
+    assert r["psnr_lamps_removed"] == pytest.approx(r["psnr_lamps"], abs=0.01)
+
+
+def test_world_height_of_a_level_camera_and_an_error_that_grows_with_height():
+    """A level camera 1.5 m up, looking along +y at a wall 2 m away: each pixel row's height is 1.5 - 2 (v - cy) / fy
+    (the image's y axis points down). A relighting off by exp(0.2 height) on walls: slope 0.2 per metre on height,
+    none on F, and the height bands' mean error rises with height."""
+    module = load_script("relit_error_vs_lamps")
+    camera = Intrinsics(fx=50.0, fy=50.0, cx=16.0, cy=12.0, width=32, height=24)
+    c2w = np.eye(4)
+    c2w[:3, :3] = np.array([[1.0, 0.0, 0.0], [0.0, 0.0, 1.0], [0.0, -1.0, 0.0]])  # columns: x right, y down, z ahead
+    c2w[:3, 3] = [0.0, 0.0, 1.5]
+    dataset = SimpleNamespace(cameras=[camera], c2w_opencv=np.stack([c2w]))
+    depth = np.full((24, 32), 2.0)
+    rows = np.arange(24)[:, None] + 0.5
+    assert module.world_height(dataset, 0, depth) == pytest.approx(np.broadcast_to(1.5 - 2.0 * (rows - 12) / 50, (24, 32)))
+
+    albedo, field, depth, side, emitter = scene(np.random.default_rng(2))
+    height = np.broadcast_to(np.linspace(0.0, 2.4, 24)[None, :, None], depth.shape)
+    side[:] = True
+    pred = linear_to_srgb(albedo * np.exp(0.2 * height)[..., None])
+    r = module.lamps_like_error(pred, linear_to_srgb(albedo * field[..., None]), linear_to_srgb(albedo), depth, side,
+                                emitter, height)
+    assert r["wall_slopes"][1] == pytest.approx(0.2, abs=1e-3)
+    assert r["wall_slopes"][0] == pytest.approx(0.0, abs=0.01)
+    band_errors = [e for _, e, _ in r["bands"]]
+    assert band_errors == sorted(band_errors) and len(band_errors) >= 4
+
+
+def test_camera_points_of_a_pinhole_and_through_a_lens():
+    """A pinhole's pixel (u, v) at planar depth d lies at ((u + 0.5 - cx) d / fx, (v + 0.5 - cy) d / fy, d); through
+    a distorted lens the points project back (io.lens.distort) to their pixel centres, at their depths."""
+    depth = np.linspace(1.0, 3.0, 6 * 8).reshape(6, 8)
+    pinhole = Intrinsics(fx=10.0, fy=12.0, cx=4.0, cy=3.0, width=8, height=6)
+    points = camera_points(pinhole, depth)
+    assert points[2, 5] == pytest.approx([(5.5 - 4.0) * depth[2, 5] / 10.0, (2.5 - 3.0) * depth[2, 5] / 12.0,
+                                          depth[2, 5]])
+    lens = Intrinsics(fx=10.0, fy=10.0, cx=4.0, cy=3.0, width=8, height=6, lens="opencv",
+                      distortion=(-0.2, 0.03, 0.0, 0.0))
+    points = camera_points(lens, depth).reshape(-1, 3)
+    rows, cols = np.mgrid[:6, :8]
+    assert points[:, 2] == pytest.approx(depth.ravel())
+    assert distort(lens, points[:, :2] / points[:, 2:]) == pytest.approx(
+        np.stack([cols.ravel() + 0.5, rows.ravel() + 0.5], 1), abs=1e-4)
+    assert not np.allclose(camera_points(lens, depth), camera_points(Intrinsics(10.0, 10.0, 4.0, 3.0, 8, 6), depth))
+    with pytest.raises(ValueError, match="does not match"):
+        camera_points(pinhole, depth[:, :4])
+
+
+def test_true_direct_light_of_a_lamp_facing_a_wall():
+    """A lamp at the camera looking along +z at a wall 2 m ahead: on the axis diffuse / 4; a point at 20° off the
+    axis gets the cone's profile × cos 20° / (2 / cos 20°)², the cosine of incidence being cos 20° too; outside the
+    cone nothing; a wall facing away nothing."""
+    module = load_script("indirect_light_by_height")
+    light = SimpleNamespace(position_in_camera=np.zeros(3), rotation_in_camera=np.eye(3), cone_angle_deg=65.0,
+                            blend=0.35)
+    angles = np.radians([0.0, 20.0, 30.0, 40.0])
+    points = np.stack([2.0 * np.tan(angles), np.zeros(4), np.full(4, 2.0)], -1)[None]
+    normals = np.tile([0.0, 0.0, -1.0], (1, 4, 1))
+    direct = module.true_direct(points, normals, np.full((1, 4), 0.5), light)[0]
+    cos_c = math.cos(math.radians(32.5))
+
+    def cone(theta):
+        s = min(max((math.cos(theta) - cos_c) / (0.35 * (1 - cos_c)), 0.0), 1.0)
+        return s * s * (3 - 2 * s)
+
+    expected = [0.5 * cone(a) * math.cos(a) / (2.0 / math.cos(a)) ** 2 for a in angles]
+    assert direct == pytest.approx(expected)
+    assert direct[0] == pytest.approx(0.5 / 4) and direct[3] == 0.0 and 0 < direct[2] < direct[1]
+    assert module.true_direct(points, -normals, np.full((1, 4), 0.5), light).max() == 0.0
+
+
+def test_bands_find_an_indirect_light_that_rises_and_a_model_that_is_flat():
+    """Indirect light rising with height, a flat model light, direct light known exactly: the gain is recovered, the
+    true indirect irradiance rises and the model's stays at 1, and an albedo darkened by the model's excess where
+    the true indirect light is low shows in the lowest band."""
+    module = load_script("indirect_light_by_height")
+    rng = np.random.default_rng(0)
+    n = 20000
+    height = rng.uniform(0.0, 2.8, n)
+    albedo = rng.uniform(0.2, 0.8, n)
+    direct = albedo * np.exp(rng.uniform(math.log(0.01), math.log(2.0), n))  # the lamp's light, unscaled
+    indirect_irradiance = 0.003 * (0.5 + height / 2.8)  # rises 3x over the room, small where the lamp is bright
+    observed = 3.0 * direct + albedo * indirect_irradiance
+    model_low_irradiance = np.full(n, indirect_irradiance.mean())
+    learned = observed / (3.0 * direct / albedo + model_low_irradiance)  # what the images then ask of the albedo
+    rows = module.band_table(height, observed, direct, albedo, learned * 3.0 * direct / albedo,
+                             learned * model_low_irradiance, learned)
+    assert [r["low"] for r in rows] == pytest.approx([0.0, 0.4, 0.8, 1.2, 1.6, 2.0, 2.4])
+    assert [r["indirect_true"] for r in rows] == sorted(r["indirect_true"] for r in rows)
+    assert rows[-1]["indirect_true"] / rows[0]["indirect_true"] > 2.0
+    assert all(r["low_model"] == pytest.approx(1.0, rel=0.05) for r in rows)
+    assert rows[0]["albedo_log_ratio"] < 0 < rows[-1]["albedo_log_ratio"]
+    assert rows[0]["share_model"] > rows[0]["share_true"] and rows[-1]["share_model"] < rows[-1]["share_true"]
