@@ -1,4 +1,5 @@
-"""Pairing the images of two folders by file name, with checks that name the offending files."""
+"""Pairing the images of two folders by file name, and reading a folder's named images, with checks that name the
+offending files."""
 
 from __future__ import annotations
 
@@ -7,7 +8,9 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Sequence
 
-from spotlessgs.io.images import list_image_files
+import numpy as np
+
+from spotlessgs.io.images import list_image_files, read_image
 
 
 @dataclass(frozen=True)
@@ -67,6 +70,20 @@ def match_folders(
             if absent:
                 raise ValueError(f"{folder}: missing requested images: {_short(absent)}")
     return [ImagePair(n, Path(pred_dir) / n, Path(gt_dir) / n) for n in selected]
+
+
+def read_named_images(folder: str | os.PathLike, names: Sequence[str]) -> np.ndarray:
+    """(N, H, W, 3) float32 sRGB in [0, 1]: the images ``names`` of ``folder``, in that order (e.g. a run's relit
+    test views, named like the dataset's images).
+
+    Raises:
+        FileNotFoundError: an image is missing (the path is named); ValueError: an image cannot be decoded, or the
+            images differ in size (the folder is named).
+    """
+    images = [read_image(Path(folder) / name) for name in names]
+    if len({image.shape for image in images}) > 1:
+        raise ValueError(f"{folder}: the images {_short(list(names))} differ in size")
+    return np.stack(images)
 
 
 def _short(names: Sequence[str], limit: int = 5) -> str:

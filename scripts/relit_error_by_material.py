@@ -17,12 +17,12 @@ from __future__ import annotations
 
 import argparse
 import math
-from pathlib import Path
 
 import numpy as np
 import torch
 
 from evaluation.alignment import apply_gain, exposure_gain
+from evaluation.folders import read_named_images
 from spotlessgs.io.dataset import ground_truth_paths, read_dataset
 from spotlessgs.io.exr import read_frame_exr
 from spotlessgs.io.images import read_image
@@ -57,8 +57,8 @@ def main() -> None:
           f"{gt_all.numpy()[~metal_all].mean():.3f})")
     for folder in args.relit:
         try:
-            pred = np.stack([read_image(Path(folder) / dataset.image_paths[i].name) for i in views])
-        except FileNotFoundError as error:  # one line naming the missing file
+            pred = read_named_images(folder, [dataset.image_paths[i].name for i in views])
+        except (FileNotFoundError, ValueError) as error:  # one line naming the missing or unreadable file
             raise SystemExit(str(error)) from None
         pred = torch.from_numpy(pred).double()
         aligned = apply_gain(pred, exposure_gain(pred, gt_all)).numpy()

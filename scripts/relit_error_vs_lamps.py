@@ -27,12 +27,12 @@ from __future__ import annotations
 
 import argparse
 import math
-from pathlib import Path
 
 import numpy as np
 import torch
 
 from evaluation.alignment import apply_gain, exposure_gain
+from evaluation.folders import read_named_images
 from spotlessgs.io.colorspace import linear_to_srgb, srgb_to_linear
 from spotlessgs.io.dataset import ground_truth_paths, read_dataset
 from spotlessgs.io.exr import read_frame_exr
@@ -144,8 +144,8 @@ def main() -> None:
     print(f"{args.data}: {len(views)} test views")
     for folder in args.relit:
         try:
-            pred = np.stack([read_image(Path(folder) / dataset.image_paths[i].name) for i in views])
-        except FileNotFoundError as error:  # one line naming the missing file
+            pred = read_named_images(folder, [dataset.image_paths[i].name for i in views])
+        except (FileNotFoundError, ValueError) as error:  # one line naming the missing or unreadable file
             raise SystemExit(str(error)) from None
         r = lamps_like_error(pred, lamps, uniform, depth, side, emitter, height)
         thirds = "; ".join(f"{label} third of F: e {e:+.3f}, MSE lamps-on {1e3 * lamp:.2f} uniform {1e3 * uni:.2f}"

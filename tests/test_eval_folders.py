@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 from PIL import Image
 
-from evaluation.folders import ImagePair, image_names, match_folders
+from evaluation.folders import ImagePair, image_names, match_folders, read_named_images
 from spotlessgs.io.images import is_image_name, read_image
 
 
@@ -126,3 +126,22 @@ def test_folder_errors(tmp_path):
     (tmp_path / "empty").mkdir()
     with pytest.raises(ValueError, match="empty: no image files"):
         image_names(tmp_path / "empty")
+
+
+def test_read_named_images_stacks_them_in_the_order_asked_and_names_what_is_wrong(tmp_path):
+    """The named images of a folder, in the order given (not the folder's), as one (N, H, W, 3) stack of the shared
+    reader's values; a missing name is a FileNotFoundError naming it, images of different sizes a ValueError naming
+    the folder."""
+    rng = np.random.default_rng(0)
+    pixels = {name: rng.integers(0, 256, (4, 5, 3), dtype=np.uint8) for name in ("a.png", "b.png")}
+    for name, a in pixels.items():
+        Image.fromarray(a).save(tmp_path / name)
+    stack = read_named_images(tmp_path, ["b.png", "a.png"])
+    assert stack.shape == (2, 4, 5, 3)
+    assert np.array_equal(stack[0], pixels["b.png"] / np.float32(255)) and np.array_equal(stack[1], read_image(
+        tmp_path / "a.png"))
+    with pytest.raises(FileNotFoundError, match="c.png"):
+        read_named_images(tmp_path, ["a.png", "c.png"])
+    Image.fromarray(np.zeros((3, 5, 3), np.uint8)).save(tmp_path / "small.png")
+    with pytest.raises(ValueError, match=str(tmp_path)):
+        read_named_images(tmp_path, ["a.png", "small.png"])
