@@ -171,3 +171,12 @@ def test_bands_find_an_indirect_light_that_rises_and_a_model_that_is_flat():
     assert all(r["low_model"] == pytest.approx(1.0, rel=0.05) for r in rows)
     assert rows[0]["albedo_log_ratio"] < 0 < rows[-1]["albedo_log_ratio"]
     assert rows[0]["share_model"] > rows[0]["share_true"] and rows[-1]["share_model"] < rows[-1]["share_true"]
+    # the optional columns: a one-bounce irradiance comes out relative to its mean, the normals' z as it is
+    with_columns = module.band_table(height, observed, direct, albedo, learned * 3.0 * direct / albedo,
+                                     learned * model_low_irradiance, learned, bounce_true=5.0 * indirect_irradiance,
+                                     normal_z=0.1 * (1.4 - height))
+    relative = indirect_irradiance / indirect_irradiance.mean()
+    assert [r["bounce_true"] for r in with_columns] == pytest.approx(
+        [relative[(height >= r["low"]) & (height < r["low"] + 0.4)].mean() for r in rows], rel=1e-9)
+    assert [r["normal_z"] for r in with_columns] == pytest.approx([0.1 * (1.4 - (r["low"] + 0.2)) for r in rows],
+                                                                  abs=0.01)

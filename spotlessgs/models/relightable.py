@@ -16,7 +16,9 @@ from spotlessgs.io.camera_batch import Cameras
 from spotlessgs.models.gaussians import GaussianParams
 from spotlessgs.models.geometry import pinhole_pixels, points_in_view
 from spotlessgs.models import shadow
-from spotlessgs.models.shading import AppearanceModels, ModelConfig, build_appearance_models, resolve_variant, shade
+from spotlessgs.models.lamp_bounce import one_bounce_irradiance, MIN_ALPHA
+from spotlessgs.models.shading import (AppearanceModels, ModelConfig, build_appearance_models, orient_normals,
+                                       resolve_variant, shade, view_directions)
 from spotlessgs.rasterizer import RasterOutput, rasterize
 
 
@@ -114,14 +116,43 @@ class RelightableScene(nn.Module):
             if shadow_map is None:
                 shadow_map = self.shadow_map(camera, backend, num_threads)
             visibility = shadow.spot_visibility(g, self.appearance.light, shadow_map, self.config.shadow_camera_relative)
-        feats = self.colours(camera.c2w, mask=mask, relight_l0=relight_l0, split_lights=split_lights,
+        bouncing = self.appearance.lamp_bounce is not None and relight_l0 is None
+        feats = self.colours(camera.c2w, mask=mask, relight_l0=relight_l0, split_lights=split_lights or bouncing,
                              spot_visibility=visibility)
+        if bouncing:  # the receivers' albedo and the surfaces' camera-frame normals, for the bounce light
+            feats = torch.cat([feats, g.albedo, self.camera_normals(camera.c2w).detach()], dim=1)
         if depth_moments:
             depth = points_in_view(g.means, camera.viewmat)[:, 2:3]  # (N, 1) camera-frame z
             feats = torch.cat([feats, depth, depth * depth], dim=1)
-        return rasterize(g.means, g.quats, scales, g.opacities, feats, camera.viewmat, K, width, height,
-                         background=background, backend=backend, num_threads=num_threads,
-                         rigid_camera_grad=True)  # a view matrix with a gradient is a pose correction's
+        out = rasterize(g.means, g.quats, scales, g.opacities, feats, camera.viewmat, K, width, height,
+                        background=None if bouncing else background, backend=backend, num_threads=num_threads,
+                        rigid_camera_grad=True)  # a view matrix with a gradient is a pose correction's
+        return self._add_lamp_bounce(out, K, split_lights, background) if bouncing else out
+
+    def camera_normals(self, c2w: torch.Tensor) -> torch.Tensor:
+        """(N, 3) the Gaussians' unit normals in the camera frame (OpenCV), turned to face the camera as shading
+        turns them (ModelConfig.two_sided_normals)."""
+        g = self.gaussians
+        normals = g.normals(c2w[:3, 3])
+        if self.config.two_sided_normals:
+            normals = orient_normals(normals, view_directions(g.means, c2w[:3, 3]))
+        return normals @ c2w[:3, :3].to(normals)
+
+    def _add_lamp_bounce(self, out: RasterOutput, K: torch.Tensor, split_lights: bool,
+                         background: torch.Tensor | None) -> RasterOutput:
+        """``out`` rendered with channels [spotlight part (3), low-frequency part (3), albedo (3), normals (3),
+        extra...] → [spotlight + low-frequency + bounce light (3), extra...], or with ``split_lights``
+        [spotlight part, low-frequency part + bounce light, extra...]; ``background`` added as rasterize adds it."""
+        image = out.image
+        spot, low, albedo, normals = image[..., :3], image[..., 3:6], image[..., 6:9], image[..., 9:12]
+        surface = out.alpha.detach() >= MIN_ALPHA
+        irradiance = one_bounce_irradiance(spot.detach(), out.depth.detach(),
+                                           torch.nn.functional.normalize(normals.detach(), dim=-1), surface, K)
+        low = low + self.appearance.lamp_bounce.colour(albedo, irradiance)
+        lit = torch.cat([spot, low], -1) if split_lights else spot + low
+        if background is not None:
+            lit = lit + (1.0 - out.alpha)[..., None] * background
+        return dataclasses.replace(out, image=torch.cat([lit, image[..., 12:]], -1))
 
     @property
     def has_spot_shadows(self) -> bool:

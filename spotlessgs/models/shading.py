@@ -38,6 +38,7 @@ from torch import nn
 
 from spotlessgs.models.brdf import LambertianBRDF, LearnedBRDF, disney_directional_albedo
 from spotlessgs.models.gaussians import GaussianParams
+from spotlessgs.models.lamp_bounce import LampBounce
 from spotlessgs.models.geometry import check_c2w, orthonormal_basis, safe_normalize
 from spotlessgs.models.light import RID_MODELS, ConstantAmbient, LowFrequencyLight, SpotLight
 from spotlessgs.models.sh import check_sh_degree, eval_sh
@@ -103,6 +104,11 @@ class ModelConfig:
     # in training and left out of relighting; -1: none (the paper's). Only the variants with an SH light have one
     # (ambient "sh"): it is part of that light; DarkGS's constant ambient and 3DGS ignore the setting.
     bounce_light_degree: int = -1
+    # The lamp's bounce light computed from the model's geometry (models.lamp_bounce): every pixel of the spotlit
+    # render lights the rest of the view (one bounce, screen space, no visibility), added to the render in training
+    # through a learned gain and left out of relighting. Unlike the SH bounce light it follows where the lamp's light
+    # lands, so it rises towards a ceiling the lit floor faces. Variants with a spotlight only.
+    lamp_bounce: bool = False
     # Spotlight shadows: the spotlight's term of each Gaussian is scaled by how much of the lamp it sees, from a
     # shadow map rendered at the learned light pose (models.shadow); relighting has none (uniform light casts none).
     spot_shadows: bool = False
@@ -385,9 +391,11 @@ class AppearanceModels:
     brdf: LambertianBRDF | LearnedBRDF | None
     # The lamp's bounce light, an SH of the camera-frame normal (None unless ModelConfig.bounce_degree ≥ 0).
     bounce_light: LowFrequencyLight | None = None
+    # The lamp's bounce light from the model's geometry (None unless ModelConfig.lamp_bounce).
+    lamp_bounce: LampBounce | None = None
 
     def module_dict(self) -> nn.ModuleDict:
-        """The present modules by name ("light", "lf_light", "brdf", "bounce_light"), e.g. for `.to(device)` and
+        """The present modules by name ("light", "lf_light", "brdf", "bounce_light", "lamp_bounce"), e.g. for `.to(device)` and
         optimizer groups."""
         return nn.ModuleDict({k: m for k, m in vars(self).items() if m is not None})
 
@@ -430,4 +438,4 @@ def build_appearance_models(
                                                                      upper_clamp=cfg.brdf_upper_clamp,
                                                                      burley=cfg.brdf_burley_diffuse)
     bounce = LowFrequencyLight(cfg.bounce_degree) if cfg.bounce_degree >= 0 else None
-    return AppearanceModels(light, lf_light, brdf, bounce)
+    return AppearanceModels(light, lf_light, brdf, bounce, LampBounce() if cfg.lamp_bounce else None)

@@ -137,6 +137,9 @@ class TrainConfig:
     # relighting (ModelConfig.bounce_light_degree; -1: none, the paper's). Degree 2 relit the bedroom best (uniform
     # ground truth: 23.79 / 24.41 / 24.22 dB for degrees 1 / 2 / 3, 23.18 without; docs/results.md).
     bounce_light_degree: int = 2
+    # The lamp's bounce light computed from the model's own geometry (ModelConfig.lamp_bounce; models.lamp_bounce):
+    # one bounce of the spotlit render in screen space, learned through one gain, left out of relighting.
+    lamp_bounce: bool = False
     # Spotlight shadows from a shadow map rendered at the learned light pose (ModelConfig.spot_shadows; models.shadow):
     # the lamp's shadows go into the light, not the albedo, and their gradient places the lamp. Off: the paper's (no
     # shadow term). Not the default: on in the quick reproduction, they placed every variant's lamp closer but several

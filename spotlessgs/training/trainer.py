@@ -194,7 +194,7 @@ def build_optimizers(scene: RelightableScene, config: TrainConfig, extent: float
             groups.append({"params": list(app.light.rid.parameters()), "lr": config.lr_rid_profile})
         else:
             groups.append({"params": falloff + list(app.light.rid.parameters()), "lr": config.lr_light})
-    for lf in (app.lf_light, app.bounce_light):
+    for lf in (app.lf_light, app.bounce_light, app.lamp_bounce):
         if lf is not None:
             groups.append({"params": list(lf.parameters()),
                            "lr": config.lr_light if config.lr_lf_light is None else config.lr_lf_light})
