@@ -5,7 +5,7 @@
 For every ``--every``-th training view of the run's dataset (a simulator render: EXRs with depth, normals, the
 diffuse-colour pass and the linear spotlit image; its true lamp in transforms.json; a pinhole camera), on walls and
 objects (normals within 25° of horizontal, world z up):
-- the true **direct** light of the lamp: diffuse colour × cone profile (``models.light.cone_profile``) × cosine of
+- the true **direct** light of the lamp: diffuse colour × cone profile (``evaluation.lamp_light.true_direct_light``) × cosine of
   incidence / distance², times one gain, the median ratio of the spotlit image to it on the 20 % most directly lit
   pixels (the lamp's shadows are ignored); the **indirect** light is the spotlit image less that, at least 0;
 - the run's render split into its spotlight and low-frequency parts (``RelightableScene.render(...,
@@ -31,10 +31,10 @@ from pathlib import Path
 import numpy as np
 import torch
 
+from evaluation.lamp_light import true_direct_light
 from spotlessgs.io.exr import read_frame_exr
 from spotlessgs.io.lens import camera_points
 from spotlessgs.models.lamp_bounce import one_bounce_irradiance
-from spotlessgs.models.light import cone_profile
 from spotlessgs.rasterizer import rasterize
 from spotlessgs.training.trainer import load_run
 
@@ -46,23 +46,6 @@ MAX_VERTICAL_NORMAL = math.sin(math.radians(25.0))
 GAIN_QUANTILE = 0.8
 #: Bands with fewer pixels than this are left out.
 MIN_BAND_PIXELS = 200
-
-
-def true_direct(points: np.ndarray, normals: np.ndarray, diffuse: np.ndarray, light) -> np.ndarray:
-    """(H, W) the lamp's direct light up to a gain: diffuse × profile(θ) × max(cos, 0) / d².
-
-    Args:
-        points: (H, W, 3) camera-frame points (OpenCV axes, metres); normals: (H, W, 3) unit normals, camera frame;
-        diffuse: (H, W) diffuse colour; light: the dataset's ``LightTruth`` (position and rotation in the camera,
-            cone angle and blend).
-    """
-    to_point = points - np.asarray(light.position_in_camera, dtype=np.float64)
-    distance = np.linalg.norm(to_point, axis=-1)
-    in_light = to_point @ np.asarray(light.rotation_in_camera, dtype=np.float64)  # light frame: R^T d
-    theta = np.arctan2(np.hypot(in_light[..., 0], in_light[..., 1]), in_light[..., 2])
-    profile = cone_profile(torch.from_numpy(theta), math.radians(light.cone_angle_deg / 2), light.blend).numpy()
-    cosine = np.clip(-(normals * to_point).sum(-1) / np.maximum(distance, 1e-9), 0.0, None)
-    return diffuse * profile * cosine / np.maximum(distance, 1e-9) ** 2
 
 
 def true_one_bounce(points: np.ndarray, normals: np.ndarray, radiance: np.ndarray, K: torch.Tensor) -> np.ndarray:
@@ -137,7 +120,7 @@ def main() -> None:
             c2w = dataset.c2w_opencv[k]
             points = camera_points(dataset.cameras[k], frame.depth)
             diffuse = frame.albedo.mean(-1)
-            direct = true_direct(points, frame.normal @ c2w[:3, :3], diffuse, dataset.light)
+            direct = true_direct_light(points, frame.normal @ c2w[:3, :3], diffuse, dataset.light)
             observed = frame.uneven.mean(-1)
             walls = ((np.abs(frame.normal[..., 2]) < MAX_VERTICAL_NORMAL) & np.isfinite(frame.depth)
                      & (diffuse > 0.02) & (observed > 1e-5))

@@ -1,6 +1,7 @@
 """The analysis scripts under scripts/ that docs/results.md quotes: relit_error_vs_lamps.py (how much of a relighting's
-error looks like the room lamps' light field) and indirect_light_by_height.py (a run's low-frequency light against
-the true indirect light by height), and io.lens.camera_points, which both back-project with."""
+error looks like the room lamps' light field), indirect_light_by_height.py (a run's low-frequency light against
+the true indirect light by height), normal_pull_by_height.py (which way the loss turns wall normals), and
+io.lens.camera_points, which the first two back-project with."""
 
 from __future__ import annotations
 
@@ -14,6 +15,7 @@ import pytest
 import torch
 
 from evaluation.alignment import apply_gain, exposure_gain
+from evaluation.lamp_light import true_direct_light
 from spotlessgs.io.cameras import Intrinsics
 from spotlessgs.io.colorspace import linear_to_srgb
 from spotlessgs.io.lens import camera_points, distort
@@ -130,13 +132,12 @@ def test_true_direct_light_of_a_lamp_facing_a_wall():
     """A lamp at the camera looking along +z at a wall 2 m ahead: on the axis diffuse / 4; a point at 20° off the
     axis gets the cone's profile × cos 20° / (2 / cos 20°)², the cosine of incidence being cos 20° too; outside the
     cone nothing; a wall facing away nothing."""
-    module = load_script("indirect_light_by_height")
     light = SimpleNamespace(position_in_camera=np.zeros(3), rotation_in_camera=np.eye(3), cone_angle_deg=65.0,
                             blend=0.35)
     angles = np.radians([0.0, 20.0, 30.0, 40.0])
     points = np.stack([2.0 * np.tan(angles), np.zeros(4), np.full(4, 2.0)], -1)[None]
     normals = np.tile([0.0, 0.0, -1.0], (1, 4, 1))
-    direct = module.true_direct(points, normals, np.full((1, 4), 0.5), light)[0]
+    direct = true_direct_light(points, normals, np.full((1, 4), 0.5), light)[0]
     cos_c = math.cos(math.radians(32.5))
 
     def cone(theta):
@@ -146,7 +147,7 @@ def test_true_direct_light_of_a_lamp_facing_a_wall():
     expected = [0.5 * cone(a) * math.cos(a) / (2.0 / math.cos(a)) ** 2 for a in angles]
     assert direct == pytest.approx(expected)
     assert direct[0] == pytest.approx(0.5 / 4) and direct[3] == 0.0 and 0 < direct[2] < direct[1]
-    assert module.true_direct(points, -normals, np.full((1, 4), 0.5), light).max() == 0.0
+    assert true_direct_light(points, -normals, np.full((1, 4), 0.5), light).max() == 0.0
 
 
 def test_bands_find_an_indirect_light_that_rises_and_a_model_that_is_flat():
@@ -180,3 +181,37 @@ def test_bands_find_an_indirect_light_that_rises_and_a_model_that_is_flat():
         [relative[(height >= r["low"]) & (height < r["low"] + 0.4)].mean() for r in rows], rel=1e-9)
     assert [r["normal_z"] for r in with_columns] == pytest.approx([0.1 * (1.4 - (r["low"] + 0.2)) for r in rows],
                                                                   abs=0.01)
+
+
+def test_normal_pull_sums_the_tangent_descent_per_band_on_walls_only():
+    """Horizontal normals whose loss gradient points down low in the room and up high (plus a component along the
+    normal, which cannot turn it): the descent's z is positive low and negative high; floor normals are left out."""
+    module = load_script("normal_pull_by_height")
+    rng = np.random.default_rng(1)
+    n = 3000
+    angle = rng.uniform(0.0, 2.0 * math.pi, n)
+    normals = np.stack([np.cos(angle), np.sin(angle), np.zeros(n)], -1)
+    heights = rng.uniform(0.0, 2.8, n)
+    pull = 1.4 - heights  # the descent wants the normal up below 1.4 m and down above
+    gradient = -pull[:, None] * np.array([0.0, 0.0, 1.0]) + 5.0 * normals  # along the normal: projected away
+    floor = rng.uniform(0.0, 2.8, 500)
+    rows = module.descent_z_by_band(np.concatenate([gradient, np.tile([0.0, 0.0, -9.0], (500, 1))]),
+                                    np.concatenate([normals, np.tile([0.0, 0.0, 1.0], (500, 1))]),
+                                    np.concatenate([heights, floor]))
+    assert [low for low, _ in rows] == pytest.approx([0.0, 0.4, 0.8, 1.2, 1.6, 2.0, 2.4])
+    for low, total in rows:
+        chosen = (heights >= low) & (heights < low + 0.4)
+        assert total == pytest.approx(pull[chosen].sum(), rel=1e-9)
+    assert rows[0][1] > 0 > rows[-1][1]
+
+
+def test_reflectance_by_cosine_is_one_for_a_lambertian_room_and_rises_for_a_retro_reflective_one():
+    module = load_script("reflectance_vs_incidence")
+    rng = np.random.default_rng(2)
+    cosine = rng.uniform(0.2, 1.0, 20000)
+    lambertian = module.ratio_by_cosine(cosine, 0.37 * np.exp(rng.normal(0.0, 0.01, 20000)))
+    assert [low for low, _, _ in lambertian] == pytest.approx(np.arange(0.2, 1.0, 0.1))
+    assert all(ratio == pytest.approx(1.0, abs=0.01) for _, ratio, _ in lambertian)
+    brighter_at_grazing = module.ratio_by_cosine(cosine, 0.37 / np.sqrt(cosine))  # falls as sqrt(cos), not cos
+    assert brighter_at_grazing[0][1] == pytest.approx(1.0 / math.sqrt(0.25), rel=0.05)
+    assert [r for _, r, _ in brighter_at_grazing] == sorted((r for _, r, _ in brighter_at_grazing), reverse=True)

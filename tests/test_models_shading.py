@@ -467,3 +467,28 @@ def test_bounce_light_moves_with_the_camera_and_is_left_out_of_relighting():
     for name in ("3dgs", "darkgs", "darkgs+brdf"):
         cfg = dataclasses.replace(MODEL_VARIANTS[name], bounce_light_degree=2)
         assert cfg.bounce_degree == -1 and build_appearance_models(cfg).bounce_light is None
+
+
+def test_the_low_frequency_light_can_be_kept_from_turning_the_normals():
+    """low_frequency_turns_normals=False: the same colours, but the SH light (and the SH bounce light) pass no
+    gradient to the normals; relit by a Lambertian BRDF the normals then get none at all (the albedo still does)."""
+    base = dataclasses.replace(MODEL_VARIANTS["darkgs+sh"], bounce_light_degree=2)
+    for turns in (True, False):
+        g = _scene()
+        cfg = dataclasses.replace(base, low_frequency_turns_normals=turns)
+        m = build_appearance_models(cfg, seed=0)
+        with torch.no_grad():
+            m.lf_light.coeffs.normal_(0.0, 0.3, generator=torch.Generator().manual_seed(3))
+            m.lf_light.coeffs[0] = 0.8
+            m.bounce_light.coeffs.normal_(0.0, 0.3, generator=torch.Generator().manual_seed(4))
+        lit = shade(cfg, g, m.light, m.lf_light, m.brdf, CAM, bounce_light=m.bounce_light)
+        relit = shade(cfg, g, m.light, m.lf_light, m.brdf, CAM, relight_l0=[0.2, 0.2, 0.2])
+        if turns:
+            reference = (lit.detach(), relit.detach())
+        else:
+            torch.testing.assert_close(lit, reference[0])
+            torch.testing.assert_close(relit, reference[1])
+        relit.sum().backward()
+        normal_grad = g.params["normals_raw"].grad
+        assert (normal_grad is not None and float(normal_grad.abs().sum()) > 0) == turns
+        assert float(g.params["albedo_raw"].grad.abs().sum()) > 0

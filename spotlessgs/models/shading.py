@@ -109,6 +109,10 @@ class ModelConfig:
     # through a learned gain and left out of relighting. Unlike the SH bounce light it follows where the lamp's light
     # lands, so it rises towards a ceiling the lit floor faces. Variants with a spotlight only.
     lamp_bounce: bool = False
+    # Whether the low-frequency light (the SH light, the SH bounce light) passes its gradient on to the normals. False:
+    # it is evaluated at the normals without a gradient to them, so that only the spotlight's shading turns them (the
+    # SH light's gradient turns wall normals towards the camera's height; docs/results.md).
+    low_frequency_turns_normals: bool = True
     # Spotlight shadows: the spotlight's term of each Gaussian is scaled by how much of the lamp it sees, from a
     # shadow map rendered at the learned light pose (models.shadow); relighting has none (uniform light casts none).
     spot_shadows: bool = False
@@ -339,12 +343,13 @@ def shade(
     if cfg.two_sided_normals:
         normals = orient_normals(normals, view_dirs)
     albedo, rough, metal = gaussians.albedo, gaussians.roughness, gaussians.metalness
-    low_frequency = lf_light.radiance(normals)
+    low_frequency = lf_light.radiance(normals if cfg.low_frequency_turns_normals else normals.detach())
     if relight_l0 is not None:
         l0 = relight_radiance(relight_l0, albedo)
         return model_reflectance(cfg, albedo, rough, metal, normals, brdf) * (l0 + low_frequency)
     if bounce_light is not None:
-        low_frequency = low_frequency + bounce_light.radiance(normals @ c2w[:3, :3].to(normals))
+        bounce_normals = normals if cfg.low_frequency_turns_normals else normals.detach()
+        low_frequency = low_frequency + bounce_light.radiance(bounce_normals @ c2w[:3, :3].to(normals))
     spot, light_dirs = light.incident(gaussians.means, c2w)
     if spot_visibility is not None:
         if spot_visibility.shape != spot.shape:

@@ -140,6 +140,8 @@ class TrainConfig:
     # The lamp's bounce light computed from the model's own geometry (ModelConfig.lamp_bounce; models.lamp_bounce):
     # one bounce of the spotlit render in screen space, learned through one gain, left out of relighting.
     lamp_bounce: bool = False
+    # The low-frequency light's gradient reaches the normals (ModelConfig.low_frequency_turns_normals; True: the paper's).
+    low_frequency_turns_normals: bool = True
     # Spotlight shadows from a shadow map rendered at the learned light pose (ModelConfig.spot_shadows; models.shadow):
     # the lamp's shadows go into the light, not the albedo, and their gradient places the lamp. Off: the paper's (no
     # shadow term). Not the default: on in the quick reproduction, they placed every variant's lamp closer but several
