@@ -19,8 +19,8 @@ Cost: emitters are pooled into cells of ``SENDER_CELL`` pixels a side and receiv
 clamped cosine to degree 2 in Legendre polynomials, as a degree-2 SH would hold it: within a few per cent of the
 irradiance, Ramamoorthi and Hanrahan 2001), interpolated to every pixel and evaluated at its normal; every sum over
 the receiver-emitter pairs is a matrix product. Near an edge between two surfaces the pooled emitters sit further
-than the true ones, and the light there comes out low. Everything here is computed without a gradient: the model learns from it through the
-receivers' albedo and one gain (:class:`LampBounce`).
+than the true ones, and the light there comes out low. Everything here is computed without a gradient: the model
+learns from it through the receivers' albedo and one gain (:class:`LampBounce`).
 """
 
 from __future__ import annotations
@@ -118,25 +118,6 @@ def _pixel_rays(height: int, width: int, K: torch.Tensor, dtype: torch.dtype) ->
     return torch.stack(torch.broadcast_tensors(((u - K[0, 2]) / K[0, 0]).to(dtype)[None, :],
                                                ((v - K[1, 2]) / K[1, 1]).to(dtype)[:, None],
                                                torch.ones((height, width), dtype=dtype, device=K.device)), dim=-1)
-
-
-def depth_normals(depth: torch.Tensor, K: torch.Tensor) -> torch.Tensor:
-    """(H, W, 3) unit normals of a depth map (H, W) (camera-frame z, pinhole ``K``), facing the camera: the cross
-    product of the back-projected points' differences to the next pixel across and down, each taken on the side
-    (before or after) whose depth differs less, so that a depth edge does not tilt the surfaces on either side."""
-    with torch.no_grad():
-        points = _pixel_rays(*depth.shape, K, depth.dtype) * depth[..., None]
-
-        def tangent(dim: int) -> torch.Tensor:
-            forward = torch.diff(points, dim=dim)
-            padded_after = torch.cat([forward, forward.narrow(dim, forward.shape[dim] - 1, 1)], dim)
-            padded_before = torch.cat([forward.narrow(dim, 0, 1), forward], dim)
-            after_is_smaller = padded_after[..., 2].abs() <= padded_before[..., 2].abs()
-            return torch.where(after_is_smaller[..., None], padded_after, padded_before)
-
-        normals = F.normalize(torch.linalg.cross(tangent(1), tangent(0)), dim=-1)
-        toward_camera = (normals * points).sum(-1, keepdim=True) > 0
-        return torch.where(toward_camera, -normals, normals)
 
 
 def one_bounce_irradiance(
