@@ -1,6 +1,7 @@
-"""Where a relighting's error lies on a rendered room: on its metals or on the rest, against the uniform ground truth.
+"""Where a relighting's error lies on a rendered room: on its metals or on the rest (or on its floor, ceiling and
+walls), against the uniform ground truth.
 
-    python3 scripts/relit_error_by_material.py DATA RUN/relit_test [RUN2/relit_test ...]
+    python3 scripts/relit_error_by_material.py DATA RUN/relit_test [RUN2/relit_test ...] [--by metal|surface]
 
 DATA is a dataset of ``spotless-sim render --gt uniform``; each folder holds relit test views named like its images
 (``spotless benchmark models`` writes them to ``RUN/relit_test``; ``spotless relight RUN --views test``). The
@@ -11,6 +12,10 @@ has no diffuse colour. Prints the metals' share of the pixels and the uniform gr
 rest (sRGB), then per folder the PSNR of the squared error pooled over the views, the metals' share of that error, the
 PSNR were the metals exact, and the mean aligned prediction on the metals and on the rest. The figures of
 docs/results.md ("The glossy room's metals") came from this command.
+
+``--by surface`` splits the pixels by the EXR's world normal instead: floor (z > SURFACE_Z), ceiling (z < -SURFACE_Z)
+and the rest (walls and the sides of objects), and prints per folder each part's share of the pixels and of the
+squared error and its mean squared error (docs/results.md, "A bounce light from the model's geometry").
 """
 
 from __future__ import annotations
@@ -30,26 +35,49 @@ from spotlessgs.io.images import read_image
 #: Diffuse colour below this (the mean over channels, linear) and uniform ground truth above METAL_MIN_GT (sRGB): metal.
 METAL_MAX_DIFFUSE = 0.03
 METAL_MIN_GT = 0.15
+#: |world normal z| above this: a floor (facing up) or a ceiling (facing down).
+SURFACE_Z = 0.8
+SURFACES = ("floor", "ceiling", "walls and sides")
+
+
+def surface_labels(normals: np.ndarray) -> np.ndarray:
+    """(H, W) int: 0 floor, 1 ceiling, 2 the rest, from world normals (H, W, 3) (world z up)."""
+    labels = np.full(normals.shape[:2], 2)
+    labels[normals[..., 2] > SURFACE_Z] = 0
+    labels[normals[..., 2] < -SURFACE_Z] = 1
+    return labels
+
+
+def surface_shares(error: np.ndarray, labels: np.ndarray) -> list[tuple[str, float, float, float]]:
+    """[(surface, share of the pixels, share of the squared error, mean squared error)] for per-pixel squared errors
+    ``error`` and :func:`surface_labels` ``labels`` of the same shape."""
+    return [(name, float((labels == i).mean()), float(error[labels == i].sum() / error.sum()),
+             float(error[labels == i].mean()) if (labels == i).any() else float("nan"))
+            for i, name in enumerate(SURFACES)]
 
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("data", help="a dataset rendered with --gt uniform")
     parser.add_argument("relit", nargs="+", help="folders of relit test views")
+    parser.add_argument("--by", choices=("metal", "surface"), default="metal",
+                        help="split the pixels into metals and the rest (default) or by surface orientation")
     args = parser.parse_args()
     dataset = read_dataset(args.data)
     uniform = ground_truth_paths(dataset, "uniform")
     views = list(dataset.split.test)
-    gts, metal = [], []
+    gts, metal, surfaces = [], [], []
     for index in views:
         if uniform[index] is None or dataset.exr_paths[index] is None:
             raise SystemExit(f"{dataset.source}: frame {index} lacks its uniform ground truth or its EXR")
         gt = read_image(uniform[index])
         gts.append(gt)
-        diffuse = read_frame_exr(dataset.exr_paths[index]).albedo
-        if diffuse is None:
-            raise SystemExit(f"{dataset.exr_paths[index]}: no diffuse colour pass (rendered before 2026-11-24)")
-        metal.append((diffuse.mean(-1) < METAL_MAX_DIFFUSE) & (gt.mean(-1) > METAL_MIN_GT))
+        frame = read_frame_exr(dataset.exr_paths[index])
+        if frame.albedo is None or frame.normal is None:
+            raise SystemExit(f"{dataset.exr_paths[index]}: no diffuse colour or normal pass (rendered before "
+                             "2026-11-24)")
+        metal.append((frame.albedo.mean(-1) < METAL_MAX_DIFFUSE) & (gt.mean(-1) > METAL_MIN_GT))
+        surfaces.append(surface_labels(frame.normal))
     gt_all = torch.from_numpy(np.stack(gts)).double()
     metal_all = np.stack(metal)
     print(f"{args.data}: {len(views)} test views, metal {100 * metal_all.mean():.1f} % of the pixels "
@@ -63,6 +91,11 @@ def main() -> None:
         pred = torch.from_numpy(pred).double()
         aligned = apply_gain(pred, exposure_gain(pred, gt_all)).numpy()
         error = ((aligned - gt_all.numpy()) ** 2).mean(-1)
+        if args.by == "surface":
+            print(f"{folder}: PSNR of the pooled aligned error {-10 * math.log10(error.mean()):.2f} dB; "
+                  + "; ".join(f"{name} {100 * pixels:.0f} % of the pixels, {100 * share:.0f} % of the error, "
+                              f"MSE {mse:.4f}" for name, pixels, share, mse in surface_shares(error, np.stack(surfaces))))
+            continue
         print(f"{folder}: PSNR of the pooled aligned error {-10 * math.log10(error.mean()):.2f} dB; metal holds "
               f"{100 * error[metal_all].sum() / error.sum():.0f} % of the squared error (with exact metals "
               f"{-10 * math.log10(error[~metal_all].sum() / error.size):.2f} dB); relit metal "

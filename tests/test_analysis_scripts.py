@@ -215,3 +215,19 @@ def test_reflectance_by_cosine_is_one_for_a_lambertian_room_and_rises_for_a_retr
     brighter_at_grazing = module.ratio_by_cosine(cosine, 0.37 / np.sqrt(cosine))  # falls as sqrt(cos), not cos
     assert brighter_at_grazing[0][1] == pytest.approx(1.0 / math.sqrt(0.25), rel=0.05)
     assert [r for _, r, _ in brighter_at_grazing] == sorted((r for _, r, _ in brighter_at_grazing), reverse=True)
+
+
+def test_surface_labels_and_each_surfaces_share_of_the_error():
+    module = load_script("relit_error_by_material")
+    normals = np.zeros((2, 4, 3))
+    normals[0, :2] = [0.0, 0.0, 1.0]  # floor
+    normals[0, 2:] = [0.0, 0.3, -0.95]  # ceiling, a little tilted
+    normals[1] = [1.0, 0.0, 0.0]  # a wall
+    labels = module.surface_labels(normals / np.linalg.norm(normals, axis=-1, keepdims=True))
+    assert labels.tolist() == [[0, 0, 1, 1], [2, 2, 2, 2]]
+    error = np.array([[1.0, 3.0, 0.0, 0.0], [1.0, 1.0, 1.0, 1.0]])
+    shares = module.surface_shares(error, labels)
+    assert [name for name, *_ in shares] == ["floor", "ceiling", "walls and sides"]
+    assert [pixels for _, pixels, _, _ in shares] == pytest.approx([0.25, 0.25, 0.5])
+    assert [share for _, _, share, _ in shares] == pytest.approx([0.5, 0.0, 0.5])
+    assert [mse for *_, mse in shares] == pytest.approx([2.0, 0.0, 1.0])
