@@ -811,3 +811,27 @@ def test_lamp_self_consistency_script_renders_the_run_with_the_lamp_at_the_truth
     refused = subprocess.run(script[:2] + [str(small), str(tmp_path / "other")], capture_output=True, text=True)
     assert refused.returncode != 0 and "trained at 40x30, the dataset's frames are 80x60" in refused.stderr
     assert not (tmp_path / "other").exists() and not (tmp_path / "other.partial").exists()
+
+
+def test_normal_gravity_prior_pulls_to_the_nearer_of_horizontal_and_vertical():
+    """normal_gravity_loss: zero for walls and floors, (1 − |c|)² or c² for tilted ones, gradients turning a tilted wall
+    back to horizontal and a tilted ceiling back to vertical; camera_up of level cameras is their −y axis."""
+    from spotlessgs.training.losses import camera_up, normal_gravity_loss
+
+    up = torch.tensor([0.0, 0.0, 1.0])
+    tilt = math.radians(10.0)
+    normals = torch.tensor([[1.0, 0.0, 0.0], [0.0, 0.0, -1.0], [math.cos(tilt), 0.0, math.sin(tilt)],
+                            [math.sin(tilt), 0.0, -math.cos(tilt)]], requires_grad=True)
+    visible = torch.tensor([True, True, False, False])
+    assert float(normal_gravity_loss(normals, up, visible)) == pytest.approx(0.0, abs=1e-12)
+    loss = normal_gravity_loss(normals, up, torch.tensor([False, False, True, True]))
+    expected = (math.sin(tilt) ** 2 + (1.0 - math.cos(tilt)) ** 2) / 2
+    assert float(loss) == pytest.approx(expected, rel=1e-5)
+    loss.backward()
+    assert float(normals.grad[2, 2]) > 0  # descent lowers the tilted wall's z towards 0
+    assert float(normals.grad[3, 2]) > 0  # ... and the tilted ceiling's z towards -1
+    assert float(normal_gravity_loss(normals, up, torch.zeros(4, dtype=torch.bool))) == 0.0
+    # level cameras looking along +x and +y (OpenCV: y down) → up is world +z
+    look_x = torch.tensor([[0.0, 0.0, 1.0, 0.0], [-1.0, 0.0, 0.0, 0.0], [0.0, -1.0, 0.0, 1.5], [0.0, 0.0, 0.0, 1.0]])
+    look_y = torch.tensor([[1.0, 0.0, 0.0, 0.0], [0.0, 0.0, 1.0, 0.0], [0.0, -1.0, 0.0, 1.5], [0.0, 0.0, 0.0, 1.0]])
+    torch.testing.assert_close(camera_up(torch.stack([look_x, look_y])), up)

@@ -163,6 +163,10 @@ class TrainConfig:
     # Weight of the normal-shape term mean(1 - |n̂·â|) over the visible Gaussians, â each one's shortest axis
     # (losses.normal_shape_loss): ties the free shading normals to the splats' shape (0: off, the paper's).
     normal_axis_weight: float = 0.0
+    # Weight of a prior that turns each shading normal towards the nearer of horizontal and vertical, the up direction
+    # taken from the training cameras (losses.normal_gravity_loss: walls, floors and ceilings of a room seen by a level
+    # camera). 0: off.
+    normal_gravity_weight: float = 0.0
     # Weight of the depth-spread term (losses.depth_spread_loss): the spread of the Gaussians' depths along each
     # pixel's ray, relative to their mean, over the pixels the render covers. It draws each surface's slab of Gaussians
     # together (0: off, the paper's loss). The weight of the steps it trains on (depth_spread_every): 0.4 on every 4th

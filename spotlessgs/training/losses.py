@@ -28,6 +28,22 @@ def normal_shape_loss(normals: torch.Tensor, axes: torch.Tensor, visible: torch.
     return (1.0 - (normals[visible] * axes[visible]).sum(-1).abs()).mean()
 
 
+def normal_gravity_loss(normals: torch.Tensor, up: torch.Tensor, visible: torch.Tensor) -> torch.Tensor:
+    """mean(min(c², (1 - |c|)²)), c = n̂·û, over the ``visible`` (N,) bool Gaussians: 0 when every shading normal n̂
+    (N, 3) is horizontal (a wall's) or vertical (a floor's or a ceiling's) with respect to the unit up direction û (3,),
+    each pulled towards the nearer of the two; 0 with none visible."""
+    if not bool(visible.any()):
+        return normals.sum() * 0.0
+    c = normals[visible] @ up.to(normals)
+    return torch.minimum(c * c, (1.0 - c.abs()) ** 2).mean()
+
+
+def camera_up(c2w: torch.Tensor) -> torch.Tensor:
+    """(3,) the unit world direction that the cameras' image "up" (−y, OpenCV axes) points along on average, of
+    camera-to-world poses (N, 4, 4): the gravity axis of a robot's or a person's level camera."""
+    return torch.nn.functional.normalize(-c2w[:, :3, 1].mean(0), dim=0)
+
+
 #: Pixels whose accumulated opacity reaches this count for the depth-spread term (a surface, not its fringe).
 DEPTH_SPREAD_MIN_ALPHA = 0.5
 

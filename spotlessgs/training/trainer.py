@@ -45,7 +45,8 @@ from spotlessgs.training.config import TrainConfig, with_defaults
 from spotlessgs.training.data import TrainingViews, initial_point_cloud, load_training_views
 from spotlessgs.training.light_report import write_light_report
 from spotlessgs.training.light_unit import spot_radiance_scale
-from spotlessgs.training.losses import depth_spread_loss, normal_shape_loss, photometric_loss, pose_refinement_terms
+from spotlessgs.training.losses import (camera_up, depth_spread_loss, normal_gravity_loss, normal_shape_loss,
+                                        photometric_loss, pose_refinement_terms)
 from spotlessgs.training.pose_alignment import AlignedView, align_views
 from spotlessgs.training.pose_file import write_refined_poses
 from spotlessgs.training.strategy import DensifyConfig, DensifyStrategy
@@ -555,6 +556,7 @@ def _train_locked(data_dir: Path, run_dir: Path, variant: str | ModelConfig, con
         bar.close()
         raise (write_error(metrics_path, exc) or exc) from exc
     depth_spread_weight = depth_spread_weight_for(config, views, scene.config)
+    up = camera_up(torch.stack([cameras[k].c2w for k in views.train]))  # the normal prior's gravity axis
     t0 = time.perf_counter()
     loss_value = float("nan")
     try:
@@ -588,6 +590,9 @@ def _train_locked(data_dir: Path, run_dir: Path, variant: str | ModelConfig, con
                 loss = loss + depth_spread_weight * depth_spread_loss(depth_moments, out.alpha)
             if prior is not None and scene.appearance.light is not None:
                 loss = loss + scene.appearance.light.light_prior_loss(prior, config.light_prior_weight)
+            if config.normal_gravity_weight > 0:
+                loss = loss + config.normal_gravity_weight * normal_gravity_loss(
+                    scene.gaussians.normals(camera.c2w[:3, 3]), up, out.visible)
             if config.normal_axis_weight > 0:
                 g = scene.gaussians
                 loss = loss + config.normal_axis_weight * normal_shape_loss(g.normals(camera.c2w[:3, 3]),
