@@ -16,7 +16,7 @@ from spotlessgs.io.camera_batch import Cameras
 from spotlessgs.models.gaussians import GaussianParams
 from spotlessgs.models.geometry import pinhole_pixels, points_in_view
 from spotlessgs.models import shadow
-from spotlessgs.models.lamp_bounce import one_bounce_irradiance, MIN_ALPHA
+from spotlessgs.models.lamp_bounce import MIN_ALPHA, one_bounce_irradiance
 from spotlessgs.models.shading import (AppearanceModels, ModelConfig, build_appearance_models, orient_normals,
                                        resolve_variant, shade, view_directions)
 from spotlessgs.rasterizer import RasterOutput, rasterize

@@ -38,8 +38,8 @@ from torch import nn
 
 from spotlessgs.models.brdf import LambertianBRDF, LearnedBRDF, disney_directional_albedo
 from spotlessgs.models.gaussians import GaussianParams
-from spotlessgs.models.lamp_bounce import LampBounce
 from spotlessgs.models.geometry import check_c2w, orthonormal_basis, safe_normalize
+from spotlessgs.models.lamp_bounce import LampBounce
 from spotlessgs.models.light import RID_MODELS, ConstantAmbient, LowFrequencyLight, SpotLight
 from spotlessgs.models.sh import check_sh_degree, eval_sh
 
@@ -400,8 +400,8 @@ class AppearanceModels:
     lamp_bounce: LampBounce | None = None
 
     def module_dict(self) -> nn.ModuleDict:
-        """The present modules by name ("light", "lf_light", "brdf", "bounce_light", "lamp_bounce"), e.g. for `.to(device)` and
-        optimizer groups."""
+        """The present modules by name ("light", "lf_light", "brdf", "bounce_light", "lamp_bounce"), e.g. for
+        `.to(device)` and optimizer groups."""
         return nn.ModuleDict({k: m for k, m in vars(self).items() if m is not None})
 
 
