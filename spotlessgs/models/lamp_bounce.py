@@ -148,8 +148,8 @@ def one_bounce_irradiance(
         # a cell emits from the flux-weighted mean of its pixels, facing their flux-weighted mean normal (a cell
         # across an edge emits from the side that glows)
         emitted = (radiance.sum(-1) * area).clamp_min(0.0)
-        _, sender_points = _cell_means(emitted, points, SENDER_CELL)
-        _, sender_normals = _cell_means(emitted, normals, SENDER_CELL)
+        _, sender_geometry = _cell_means(emitted, torch.cat([points, normals], -1), SENDER_CELL)
+        sender_points, sender_normals = sender_geometry[..., :3], sender_geometry[..., 3:]
         sender_area = _pool(area[..., None], SENDER_CELL)[..., 0]
         emitting = (sender_area > 0) & (flux.sum(-1) > 0)
         sender_points, sender_normals = sender_points[emitting], F.normalize(sender_normals[emitting], dim=-1)

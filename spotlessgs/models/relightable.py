@@ -17,8 +17,8 @@ from spotlessgs.models.gaussians import GaussianParams
 from spotlessgs.models.geometry import pinhole_pixels, points_in_view
 from spotlessgs.models import shadow
 from spotlessgs.models.lamp_bounce import MIN_ALPHA, one_bounce_irradiance
-from spotlessgs.models.shading import (AppearanceModels, ModelConfig, build_appearance_models, orient_normals,
-                                       resolve_variant, shade, view_directions)
+from spotlessgs.models.shading import (AppearanceModels, ModelConfig, build_appearance_models, resolve_variant, shade,
+                                       shading_normals, view_directions)
 from spotlessgs.rasterizer import RasterOutput, rasterize
 
 
@@ -132,10 +132,8 @@ class RelightableScene(nn.Module):
     def camera_normals(self, c2w: torch.Tensor) -> torch.Tensor:
         """(N, 3) the Gaussians' unit normals in the camera frame (OpenCV), turned to face the camera as shading
         turns them (ModelConfig.two_sided_normals)."""
-        g = self.gaussians
-        normals = g.normals(c2w[:3, 3])
-        if self.config.two_sided_normals:
-            normals = orient_normals(normals, view_directions(g.means, c2w[:3, 3]))
+        g, center = self.gaussians, c2w[:3, 3]
+        normals = shading_normals(self.config, g, view_directions(g.means, center), center)
         return normals @ c2w[:3, :3].to(normals)
 
     def _add_lamp_bounce(self, out: RasterOutput, K: torch.Tensor, split_lights: bool,

@@ -196,6 +196,15 @@ def orient_normals(normals: torch.Tensor, view_dirs: torch.Tensor) -> torch.Tens
     return torch.where(facing < 0, -normals, normals)
 
 
+def shading_normals(cfg: ModelConfig, gaussians: GaussianParams, view_dirs: torch.Tensor,
+                    camera_center: torch.Tensor) -> torch.Tensor:
+    """(N, 3) the unit world normals a variant shades with, seen from ``camera_center`` (3,): the Gaussians' normals,
+    turned into the camera's hemisphere (``view_dirs`` (N, 3), :func:`view_directions`) when
+    ``cfg.two_sided_normals``."""
+    normals = gaussians.normals(camera_center)
+    return orient_normals(normals, view_dirs) if cfg.two_sided_normals else normals
+
+
 def lambert_cosine(normals: torch.Tensor, light_dirs: torch.Tensor) -> torch.Tensor:
     """max(0, n̂·l̂) for unit vectors (N, 3) → (N, 1)."""
     return (normals * light_dirs).sum(-1, keepdim=True).clamp_min(0.0)
@@ -339,9 +348,7 @@ def shade(
     _check_modules(cfg, light, lf_light, brdf, bounce_light, relit=relight_l0 is not None)
     center = c2w[:3, 3]
     view_dirs = view_directions(gaussians.means, center)
-    normals = gaussians.normals(center)
-    if cfg.two_sided_normals:
-        normals = orient_normals(normals, view_dirs)
+    normals = shading_normals(cfg, gaussians, view_dirs, center)
     albedo, rough, metal = gaussians.albedo, gaussians.roughness, gaussians.metalness
     low_frequency = lf_light.radiance(normals if cfg.low_frequency_turns_normals else normals.detach())
     if relight_l0 is not None:

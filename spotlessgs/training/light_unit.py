@@ -5,10 +5,10 @@ An image fixes only the product of albedo and light: albedo × k and light / k r
 at 1 (a sigmoid), the light is not. The spotlight starts with its profile at 0.68 and the fall-off (τ + d²)^(-γ),
 1/12.5 at 3.5 m, so on our rooms it starts about ten times too dim for the images and the albedo runs up against its
 cap. The light then grows only until the brightest surfaces reach albedo 1 and stop asking for more (a clipped pixel
-never asks: its loss is one-sided). Everything brighter than that in the scale the light stops at is flattened to 1. On the
-saturated bedroom (docs/results.md, "The albedo's cap and the light's unit") the learned albedo stood 1.33-1.38 times
-the true one, which puts a fifth of the pixels above the cap, and a sharp angular profile stopped higher than the
-MLP's (1.38 against 1.33), which cost it 0.7-1.3 dB against the uniform ground truth.
+never asks: its loss is one-sided). Everything brighter than that in the scale the light stops at is flattened to 1.
+On the saturated bedroom (docs/results.md, "The albedo's cap and the light's unit") the learned albedo stood
+1.33-1.38 times the true one, which puts a fifth of the pixels above the cap, and a sharp angular profile stopped
+higher than the MLP's (1.38 against 1.33), which cost it 0.7-1.3 dB against the uniform ground truth.
 
 "median_depth" counts the radiance in a unit that starts the light as bright as the images ask: a factor
 s = (τ0 + z²)^γ0 on the spotlight, z the median depth of the scene's points in the training views, so that the

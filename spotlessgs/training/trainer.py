@@ -556,7 +556,7 @@ def _train_locked(data_dir: Path, run_dir: Path, variant: str | ModelConfig, con
         bar.close()
         raise (write_error(metrics_path, exc) or exc) from exc
     depth_spread_weight = depth_spread_weight_for(config, views, scene.config)
-    up = (camera_up(torch.stack([cameras[k].c2w for k in views.train]))  # the normal prior's gravity axis
+    up = (camera_up(cameras.c2w[list(views.train)])  # the normal prior's gravity axis
           if config.normal_gravity_weight > 0 else None)
     t0 = time.perf_counter()
     loss_value = float("nan")
