@@ -182,3 +182,51 @@ def test_the_scene_adds_the_bounce_in_training_and_not_in_relighting(variant):
 def test_only_variants_with_a_lamp_get_one():
     assert build_appearance_models(dataclasses.replace(MODEL_VARIANTS["3dgs"], lamp_bounce=True)).lamp_bounce is None
     assert build_appearance_models(MODEL_VARIANTS["spotless"]).lamp_bounce is None  # off by default
+
+
+def test_a_given_irradiance_is_the_one_the_render_uses():
+    camera = Cameras(torch.eye(4), Intrinsics(40.0, 40.0, WIDTH / 2, HEIGHT / 2, WIDTH, HEIGHT))
+    g = _wall_scene()
+    scene = RelightableScene.create(dataclasses.replace(MODEL_VARIANTS["spotless"], lamp_bounce=True), g, seed=0)
+    without = RelightableScene(MODEL_VARIANTS["spotless"], g, dataclasses.replace(scene.appearance, lamp_bounce=None))
+    irradiance = scene.lamp_bounce_irradiance(camera)
+    assert irradiance.shape == (HEIGHT, WIDTH, 3) and not irradiance.requires_grad and float(irradiance.max()) > 0
+    # the irradiance it would compute itself, the same render; none, the render without the bounce
+    torch.testing.assert_close(scene.render(camera, lamp_irradiance=irradiance).image, scene.render(camera).image,
+                               rtol=0, atol=0)
+    plain = without.render(camera).image
+    torch.testing.assert_close(scene.render(camera, lamp_irradiance=torch.zeros_like(irradiance)).image, plain)
+    # an older one (here: twice as bright) gives the bounce light of its own irradiance
+    doubled = scene.render(camera, lamp_irradiance=2.0 * irradiance).image - plain
+    torch.testing.assert_close(doubled, 2.0 * (scene.render(camera).image - plain), rtol=1e-4, atol=1e-6)
+    out, moments = scene.render_with_depth_moments(camera, lamp_irradiance=irradiance)
+    torch.testing.assert_close(out.image, scene.render(camera).image, rtol=0, atol=0)
+    with pytest.raises(ValueError, match="no lamp bounce"):
+        without.lamp_bounce_irradiance(camera)
+
+
+def test_training_reuses_each_views_irradiance_for_lamp_bounce_every_steps():
+    from spotlessgs.training.config import TrainConfig
+    from spotlessgs.training.view_caches import LampBounceCache
+
+    camera = Cameras(torch.eye(4), Intrinsics(40.0, 40.0, WIDTH / 2, HEIGHT / 2, WIDTH, HEIGHT))
+    g = _wall_scene()
+    scene = RelightableScene.create(dataclasses.replace(MODEL_VARIANTS["darkgs"], lamp_bounce=True), g, seed=0)
+    cache = LampBounceCache(TrainConfig(lamp_bounce_every=3))
+    first = cache.get(scene, 0, 10, camera)
+    torch.testing.assert_close(first, scene.lamp_bounce_irradiance(camera), rtol=0, atol=0)
+    with torch.no_grad():
+        g.params["albedo_raw"].add_(1.0)  # a brighter spotlit render: more bounce light once recomputed
+    assert cache.get(scene, 0, 12, camera) is first and cache.get(scene, 1, 12, camera) is not first
+    again = cache.get(scene, 0, 13, camera)  # three steps old: computed again
+    assert float(again.sum()) > 1.01 * float(first.sum())
+    restored = LampBounceCache(TrainConfig())
+    restored.load_state_dict(cache.state_dict(), "cpu")
+    assert set(restored.kept) == {0, 1} and restored.kept[0][0] == 13
+    torch.testing.assert_close(restored.kept[0][1], again, rtol=0, atol=0)
+    restored.load_state_dict({0: {"step": 4}}, "cpu")  # an entry without its tensor: computed anew when next used
+    assert restored.kept == {}
+    assert LampBounceCache(TrainConfig()).get(RelightableScene.create(MODEL_VARIANTS["darkgs"], g, seed=0),
+                                              0, 0, camera) is None
+    with pytest.raises(ValueError, match="lamp_bounce_every"):
+        TrainConfig(lamp_bounce_every=0)

@@ -232,7 +232,7 @@ def test_a_reused_map_gives_the_shadows_of_when_it_was_rendered():
 
 def test_training_reuses_each_views_map_for_shadow_map_every_steps():
     from spotlessgs.training.config import TrainConfig
-    from spotlessgs.training.shadow_maps import ShadowMapCache
+    from spotlessgs.training.view_caches import ShadowMapCache
 
     g, _ = _wall_and_occluder()
     camera = Cameras(torch.eye(4), Intrinsics(100.0, 100.0, 64.0, 48.0, WIDTH, HEIGHT))
@@ -244,12 +244,12 @@ def test_training_reuses_each_views_map_for_shadow_map_every_steps():
     state = cache.state_dict()
     restored = ShadowMapCache(TrainConfig())
     restored.load_state_dict(state, "cpu")
-    assert set(restored.maps) == {0, 1} and restored.maps[0][0] == 13
-    torch.testing.assert_close(restored.maps[0][1].camera_moments, cache.maps[0][1].camera_moments)
+    assert set(restored.kept) == {0, 1} and restored.kept[0][0] == 13
+    torch.testing.assert_close(restored.kept[0][1].camera_moments, cache.kept[0][1].camera_moments)
     lamp_only = {view: {k: v for k, v in entry.items() if k not in ("camera_moments", "world_to_camera")}
                  for view, entry in state.items()}  # a checkpoint from before the camera's own map
     restored.load_state_dict(lamp_only, "cpu")
-    assert restored.maps == {}  # its views render new maps
+    assert restored.kept == {}  # its views render new maps
     plain = RelightableScene.create(MODEL_VARIANTS["darkgs"], g, seed=0)
     assert ShadowMapCache(TrainConfig()).get(plain, 0, 0, camera) is None
     with pytest.raises(ValueError, match="shadow_map_every"):

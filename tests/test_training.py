@@ -302,20 +302,23 @@ def test_resume_equals_an_uninterrupted_run(bedroom, tmp_path):
 
 @pytest.mark.blender
 def test_resume_with_spot_shadows_reuses_the_checkpointed_maps(bedroom, tmp_path):
-    """The shadow maps go into the checkpoint: a run stopped while its views reuse maps resumes as if never stopped."""
+    """The shadow maps and the lamp bounce's irradiance go into the checkpoint: a run stopped while its views reuse
+    them resumes as if never stopped."""
     from spotlessgs.training.checkpoint import load_checkpoint
     from spotlessgs.training.trainer import train
 
     cfg = _tiny(iterations=40, image_width=40, densify_from=1000, checkpoint_every=20, spot_shadows=True,
-                shadow_map_every=30)
+                shadow_map_every=30, lamp_bounce=True, lamp_bounce_every=30)
     train(bedroom, tmp_path / "full", "darkgs", cfg, seed=3, progress=False)
     train(bedroom, tmp_path / "split", "darkgs", cfg, seed=3, progress=False, stop_after=20)
-    assert load_checkpoint(tmp_path / "split")["shadow_maps"]  # maps of step < 20, still in use after it
+    stopped = load_checkpoint(tmp_path / "split")
+    assert stopped["shadow_maps"] and stopped["lamp_bounces"]  # what steps < 20 rendered, still in use after it
     train(bedroom, tmp_path / "split", "darkgs", cfg, seed=3, progress=False, resume=True)
     a, b = load_checkpoint(tmp_path / "full"), load_checkpoint(tmp_path / "split")
     for name, tensor in a["gaussians"].items():
         torch.testing.assert_close(b["gaussians"][name], tensor, rtol=1e-5, atol=1e-6, msg=name)
     torch.testing.assert_close(b["appearance"]["light.translation"], a["appearance"]["light.translation"])
+    torch.testing.assert_close(b["appearance"]["lamp_bounce.log_gain"], a["appearance"]["lamp_bounce.log_gain"])
 
 
 @pytest.mark.blender

@@ -83,27 +83,32 @@ class RelightableScene(nn.Module):
     def render(
         self, camera: Cameras, *, relight_l0: torch.Tensor | Sequence[float] | None = None, backend: str = "auto",
         num_threads: int | None = None, background: torch.Tensor | None = None, split_lights: bool = False,
-        shadow_map: shadow.ShadowMap | None = None,
+        shadow_map: shadow.ShadowMap | None = None, lamp_irradiance: torch.Tensor | None = None,
     ) -> RasterOutput:
         """Render one view (``camera``: a single view): under the learned spotlight, or relit by L0 when
         ``relight_l0`` is given; ``split_lights``: a six-channel image, [spotlight part, low-frequency part] (their sum
         is the normal render). A variant with ``spot_shadows`` shades the spotlight with the lamp's shadow map
-        (models.shadow): ``shadow_map``, one rendered for this view a few steps ago, or else a new one."""
-        return self._render(camera, relight_l0, backend, num_threads, background, split_lights, shadow_map)
+        (models.shadow): ``shadow_map``, one rendered for this view a few steps ago, or else a new one. A variant with
+        ``lamp_bounce`` adds the lamp's bounce light of ``lamp_irradiance`` (H, W, 3), one computed for this view a
+        few steps ago (:meth:`lamp_bounce_irradiance`), or else a new one."""
+        return self._render(camera, relight_l0, backend, num_threads, background, split_lights, shadow_map,
+                            lamp_irradiance)
 
     def render_with_depth_moments(
         self, camera: Cameras, *, backend: str = "auto", num_threads: int | None = None,
-        shadow_map: shadow.ShadowMap | None = None,
+        shadow_map: shadow.ShadowMap | None = None, lamp_irradiance: torch.Tensor | None = None,
     ) -> tuple[RasterOutput, torch.Tensor]:
         """:meth:`render` under the learned spotlight, and the depth moments (H, W, 2) [Σ w z, Σ w z²] of the same
         compositing (w the weights, z each Gaussian's camera-frame depth; Σ w is the output's alpha), rendered in the
         same pass as two more channels (training's depth-spread term: losses.depth_spread_loss)."""
-        out = self._render(camera, None, backend, num_threads, None, False, shadow_map, depth_moments=True)
+        out = self._render(camera, None, backend, num_threads, None, False, shadow_map, lamp_irradiance,
+                           depth_moments=True)
         return dataclasses.replace(out, image=out.image[..., :-2]), out.image[..., -2:]
 
     def _render(self, camera: Cameras, relight_l0: torch.Tensor | Sequence[float] | None, backend: str,
                 num_threads: int | None, background: torch.Tensor | None, split_lights: bool,
-                shadow_map: shadow.ShadowMap | None, depth_moments: bool = False) -> RasterOutput:
+                shadow_map: shadow.ShadowMap | None, lamp_irradiance: torch.Tensor | None,
+                depth_moments: bool = False) -> RasterOutput:
         """:meth:`render`; ``depth_moments`` (no ``background``): two more channels, Σ w z and Σ w z²."""
         if camera.is_batch:
             raise ValueError("RelightableScene.render: expected one view, got a batch of cameras")
@@ -111,23 +116,30 @@ class RelightableScene(nn.Module):
         scales = g.scales
         K, width, height = camera.K, camera.width, camera.height
         mask = frustum_mask(g.means, scales, camera.viewmat, K, width, height)
-        visibility = None
-        if self.has_spot_shadows and relight_l0 is None:
-            if shadow_map is None:
-                shadow_map = self.shadow_map(camera, backend, num_threads)
-            visibility = shadow.spot_visibility(g, self.appearance.light, shadow_map, self.config.shadow_camera_relative)
-        bouncing = self.appearance.lamp_bounce is not None and relight_l0 is None
-        feats = self.colours(camera.c2w, mask=mask, relight_l0=relight_l0, split_lights=split_lights or bouncing,
-                             spot_visibility=visibility)
-        if bouncing:  # the receivers' albedo and the surfaces' camera-frame normals, for the bounce light
-            feats = torch.cat([feats, g.albedo, self.camera_normals(camera.c2w).detach()], dim=1)
+        lit_by_lamp = relight_l0 is None
+        if self.has_spot_shadows and lit_by_lamp and shadow_map is None:
+            shadow_map = self.shadow_map(camera, backend, num_threads)
+        bouncing = self.appearance.lamp_bounce is not None and lit_by_lamp
+        if bouncing and lamp_irradiance is None:
+            lamp_irradiance = self._lamp_bounce_irradiance(camera, mask, backend, num_threads, shadow_map)
+        feats = self.colours(camera.c2w, mask=mask, relight_l0=relight_l0, split_lights=split_lights,
+                             spot_visibility=self._spot_visibility(shadow_map) if lit_by_lamp else None)
+        if bouncing:  # the receivers' albedo, for the bounce light
+            feats = torch.cat([feats, g.albedo], dim=1)
         if depth_moments:
             depth = points_in_view(g.means, camera.viewmat)[:, 2:3]  # (N, 1) camera-frame z
             feats = torch.cat([feats, depth, depth * depth], dim=1)
         out = rasterize(g.means, g.quats, scales, g.opacities, feats, camera.viewmat, K, width, height,
                         background=None if bouncing else background, backend=backend, num_threads=num_threads,
                         rigid_camera_grad=True)  # a view matrix with a gradient is a pose correction's
-        return self._add_lamp_bounce(out, K, split_lights, background) if bouncing else out
+        return self._add_lamp_bounce(out, lamp_irradiance, split_lights, background) if bouncing else out
+
+    def _spot_visibility(self, shadow_map: shadow.ShadowMap | None) -> torch.Tensor | None:
+        """(N, 1) the spotlight's shadows of all Gaussians from ``shadow_map`` (None: a variant without them)."""
+        if not self.has_spot_shadows:
+            return None
+        return shadow.spot_visibility(self.gaussians, self.appearance.light, shadow_map,
+                                      self.config.shadow_camera_relative)
 
     def camera_normals(self, c2w: torch.Tensor) -> torch.Tensor:
         """(N, 3) the Gaussians' unit normals in the camera frame (OpenCV), turned to face the camera as shading
@@ -136,21 +148,50 @@ class RelightableScene(nn.Module):
         normals = shading_normals(self.config, g, view_directions(g.means, center), center)
         return normals @ c2w[:3, :3].to(normals)
 
-    def _add_lamp_bounce(self, out: RasterOutput, K: torch.Tensor, split_lights: bool,
+    def lamp_bounce_irradiance(self, camera: Cameras, backend: str = "auto", num_threads: int | None = None,
+                               shadow_map: shadow.ShadowMap | None = None) -> torch.Tensor:
+        """(H, W, 3) the one-bounce irradiance that the view's spotlit render gives every visible surface
+        (models.lamp_bounce.one_bounce_irradiance; no gradient), for :meth:`render`'s ``lamp_irradiance``.
+        ``shadow_map``: as :meth:`render`'s."""
+        if self.appearance.lamp_bounce is None:
+            raise ValueError(f"RelightableScene.lamp_bounce_irradiance: the variant {self.config.name!r} has no "
+                             "lamp bounce (ModelConfig.lamp_bounce)")
+        if camera.is_batch:
+            raise ValueError("RelightableScene.lamp_bounce_irradiance: expected one view, got a batch of cameras")
+        g = self.gaussians
+        mask = frustum_mask(g.means, g.scales, camera.viewmat, camera.K, camera.width, camera.height)
+        if self.has_spot_shadows and shadow_map is None:
+            shadow_map = self.shadow_map(camera, backend, num_threads)
+        return self._lamp_bounce_irradiance(camera, mask, backend, num_threads, shadow_map)
+
+    def _lamp_bounce_irradiance(self, camera: Cameras, mask: torch.Tensor, backend: str, num_threads: int | None,
+                                shadow_map: shadow.ShadowMap | None) -> torch.Tensor:
+        """:meth:`lamp_bounce_irradiance` of the Gaussians in ``mask`` (N,) bool, the frustum's."""
+        with torch.no_grad():
+            g = self.gaussians
+            spot = self.colours(camera.c2w, mask=mask, split_lights=True,
+                                spot_visibility=self._spot_visibility(shadow_map))[:, :3]
+            feats = torch.cat([spot, self.camera_normals(camera.c2w)], dim=1)
+            out = rasterize(g.means, g.quats, g.scales, g.opacities, feats, camera.viewmat, camera.K, camera.width,
+                            camera.height, backend=backend, num_threads=num_threads)
+            surface = out.alpha >= MIN_ALPHA
+            normals = torch.nn.functional.normalize(out.image[..., 3:6], dim=-1)
+            return one_bounce_irradiance(out.image[..., :3], out.depth, normals, surface, camera.K)
+
+    def _add_lamp_bounce(self, out: RasterOutput, irradiance: torch.Tensor, split_lights: bool,
                          background: torch.Tensor | None) -> RasterOutput:
-        """``out`` rendered with channels [spotlight part (3), low-frequency part (3), albedo (3), normals (3),
-        extra...] → [spotlight + low-frequency + bounce light (3), extra...], or with ``split_lights``
-        [spotlight part, low-frequency part + bounce light, extra...]; ``background`` added as rasterize adds it."""
+        """``out`` rendered with channels [lit (3, or with ``split_lights`` 6: spotlight part, low-frequency part),
+        albedo (3), extra...] → [lit + bounce light, extra...] (with ``split_lights``: the bounce light added to the
+        low-frequency part), the bounce light that of ``irradiance`` (H, W, 3) on the albedo; ``background`` added as
+        rasterize adds it."""
         image = out.image
-        spot, low, albedo, normals = image[..., :3], image[..., 3:6], image[..., 6:9], image[..., 9:12]
-        surface = out.alpha.detach() >= MIN_ALPHA
-        irradiance = one_bounce_irradiance(spot.detach(), out.depth.detach(),
-                                           torch.nn.functional.normalize(normals.detach(), dim=-1), surface, K)
-        low = low + self.appearance.lamp_bounce.colour(albedo, irradiance)
-        lit = torch.cat([spot, low], -1) if split_lights else spot + low
+        lit_channels = 6 if split_lights else 3
+        lit, albedo = image[..., :lit_channels], image[..., lit_channels:lit_channels + 3]
+        bounce = self.appearance.lamp_bounce.colour(albedo, irradiance)
+        lit = torch.cat([lit[..., :3], lit[..., 3:] + bounce], -1) if split_lights else lit + bounce
         if background is not None:
             lit = lit + (1.0 - out.alpha)[..., None] * background
-        return dataclasses.replace(out, image=torch.cat([lit, image[..., 12:]], -1))
+        return dataclasses.replace(out, image=torch.cat([lit, image[..., lit_channels + 3:]], -1))
 
     @property
     def has_spot_shadows(self) -> bool:

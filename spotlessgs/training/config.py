@@ -24,7 +24,8 @@ SWITCH_VALUES = ("auto", "on", "off")
 #: Settings whose default is not what a run trained with before the setting existed. Absent from an older run's saved
 #: settings, such a setting takes this value instead of the default, so the run reloads and resumes as it trained.
 PREDATING_VALUES: dict[str, Any] = {"bounce_light_degree": -1, "shadow_camera_relative": False,
-                                    "depth_spread_weight": 0.0, "depth_spread": "on", "depth_spread_every": 1}
+                                    "depth_spread_weight": 0.0, "depth_spread": "on", "depth_spread_every": 1,
+                                    "lamp_bounce_every": 1}
 
 
 def with_defaults(cls: type, saved: dict[str, Any]) -> dict[str, Any]:
@@ -158,6 +159,9 @@ class TrainConfig:
     # bedroom (54 training views): a map serves about three visits of its view, for +7 % per step (90: +17 %) with the
     # lamp as well placed within the seeds' spread (docs/results.md, "Shadows relative to the camera").
     shadow_map_every: int = 180
+    # Steps a training view's lamp bounce irradiance is reused for (lamp_bounce only; training.view_caches): at 180 on
+    # the bedroom (54 training views) it is recomputed about every third visit of its view.
+    lamp_bounce_every: int = 180
     # Weight of the light-translation prior ‖t - t_prior‖ (used only when a prior is given).
     light_prior_weight: float = 1.0
     # Weight of the normal-shape term mean(1 - |n̂·â|) over the visible Gaussians, â each one's shortest axis
@@ -304,6 +308,8 @@ class TrainConfig:
             raise ValueError(f"TrainConfig: validation_every must be 0 (off) or >= 2, got {self.validation_every}")
         if self.shadow_map_every < 1:
             raise ValueError(f"TrainConfig: shadow_map_every must be >= 1, got {self.shadow_map_every}")
+        if self.lamp_bounce_every < 1:
+            raise ValueError(f"TrainConfig: lamp_bounce_every must be >= 1, got {self.lamp_bounce_every}")
         if self.validation_average < 1:
             raise ValueError(f"TrainConfig: validation_average must be >= 1, got {self.validation_average}")
         if not 0.0 <= self.validation_blocks < 1.0:

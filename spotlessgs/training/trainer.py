@@ -50,7 +50,7 @@ from spotlessgs.training.losses import (camera_up, depth_spread_loss, normal_gra
 from spotlessgs.training.pose_alignment import AlignedView, align_views
 from spotlessgs.training.pose_file import write_refined_poses
 from spotlessgs.training.strategy import DensifyConfig, DensifyStrategy
-from spotlessgs.training.shadow_maps import ShadowMapCache
+from spotlessgs.training.view_caches import LampBounceCache, ShadowMapCache
 from spotlessgs.training.warm_start import warm_start_scene
 from spotlessgs.training.budget import BudgetConfig, BudgetStrategy, budget_report
 from spotlessgs.training.validation import (
@@ -287,7 +287,8 @@ def densify_config(config: TrainConfig) -> DensifyConfig:
 
 def _payload(step: int, scene: RelightableScene, opts, strategy: DensifyStrategy,
              photometric: PhotometricCamera | None, poses: PoseCorrection | None = None,
-             shadow_maps: ShadowMapCache | None = None) -> dict[str, Any]:
+             shadow_maps: ShadowMapCache | None = None, lamp_bounces: LampBounceCache | None = None,
+             ) -> dict[str, Any]:
     payload = {
         "step": step,
         "gaussians": {k: v.detach().clone() for k, v in scene.gaussians.params.items()},
@@ -299,8 +300,10 @@ def _payload(step: int, scene: RelightableScene, opts, strategy: DensifyStrategy
         payload["photometric"] = photometric.state_dict()
     if poses is not None:
         payload["pose"] = poses.state_dict()
-    if shadow_maps is not None and shadow_maps.maps:
+    if shadow_maps is not None and shadow_maps.kept:
         payload["shadow_maps"] = shadow_maps.state_dict()
+    if lamp_bounces is not None and lamp_bounces.kept:
+        payload["lamp_bounces"] = lamp_bounces.state_dict()
     return payload
 
 
@@ -488,11 +491,13 @@ def _train_locked(data_dir: Path, run_dir: Path, variant: str | ModelConfig, con
     poses = PoseCorrection(len(views.names)).to(device) if config.refine_poses else None  # per-view corrections
 
     shadow_maps = ShadowMapCache(config)  # each view's lamp shadow map (spotlight shadows only)
+    lamp_bounces = LampBounceCache(config)  # each view's lamp bounce irradiance (lamp_bounce only)
     start = 0
     if resume and has_checkpoint:
         ckpt = load_checkpoint(run_dir)
         scene = restore_scene(ckpt, run_info, config).to(device)
         shadow_maps.load_state_dict(ckpt.get("shadow_maps", {}), device)
+        lamp_bounces.load_state_dict(ckpt.get("lamp_bounces", {}), device)
         if photometric is not None:
             if "photometric" not in ckpt:
                 raise InputError(f"{ckpt_file}: the run was trained without a photometric camera; resume it with "
@@ -568,8 +573,10 @@ def _train_locked(data_dir: Path, run_dir: Path, variant: str | ModelConfig, con
             refining = poses is not None and step >= config.pose_refine_from
             row = poses.row(k) if refining else None  # (9,) the view's correction, a sparse gradient
             camera = corrected_camera(cameras[k], row) if refining else cameras[k]
+            shadow_map = shadow_maps.get(scene, k, step, camera)
             render_options = {"backend": config.raster_backend, "num_threads": config.num_threads,
-                              "shadow_map": shadow_maps.get(scene, k, step, camera)}
+                              "shadow_map": shadow_map,
+                              "lamp_irradiance": lamp_bounces.get(scene, k, step, camera, shadow_map)}
             depth_spread_step = depth_spread_weight > 0 and step % config.depth_spread_every == 0
             if depth_spread_step:
                 out, depth_moments = scene.render_with_depth_moments(camera, **render_options)
@@ -628,7 +635,8 @@ def _train_locked(data_dir: Path, run_dir: Path, variant: str | ModelConfig, con
                 # A NaN parameter of a visible Gaussian already shows in the next render (checked every step);
                 # this check, before every save, keeps any other one out of the checkpoint.
                 _check_finite(scene, step, ckpt_file, poses)
-                save_checkpoint(run_dir, _payload(s, scene, opts, strategy, photometric, poses, shadow_maps))
+                save_checkpoint(run_dir, _payload(s, scene, opts, strategy, photometric, poses, shadow_maps,
+                                                  lamp_bounces))
             if stop.requested:  # Ctrl-C / SIGTERM: the step is finished and saved; `--resume` continues from it
                 log.warning("stopped at step %d; the checkpoint %s holds it (resume with --resume)", s, ckpt_file)
                 stop.raise_if_requested()
