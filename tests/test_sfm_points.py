@@ -147,3 +147,29 @@ def test_normals_of_sfm_points_are_estimated_unless_switched_off(room, tmp_path)
     assert estimated.normals is not None and np.allclose(np.linalg.norm(estimated.normals, axis=1), 1.0)
     kept = initial_point_cloud(views, np.random.default_rng(0), estimate=False)
     assert (kept.normals is None or not kept.normals.any()) and np.array_equal(kept.xyz, estimated.xyz)
+
+
+def test_only_a_dense_start_with_normals_is_trusted_with_its_geometry(room, tmp_path):
+    from spotlessgs.training.config import preset
+    from spotlessgs.training.data import load_training_views
+    from spotlessgs.training.trainer import start_geometry_settings
+
+    root, _seq = room
+    data = tmp_path / "data"
+    shutil.copytree(root, data)
+    auto = preset("quick").replace(trust_start_geometry="auto")
+    trusted = auto.replace(lr_normals=0.0, lamp_bounce=True)
+    assert start_geometry_settings(auto, load_training_views(data)) == auto  # no cloud: a random start
+    points = add_sfm_points(data)["points"]
+    views = load_training_views(data)
+    assert start_geometry_settings(auto, views) == auto  # a sparse SfM start: its normals learned, no bounce
+    on = auto.replace(trust_start_geometry="on")
+    assert start_geometry_settings(on, views) == on.replace(lr_normals=0.0, lamp_bounce=True)
+    small = auto.replace(init_points=points, max_gaussians=points)  # the same cloud is dense for a smaller limit
+    assert start_geometry_settings(small, views) == small.replace(lr_normals=0.0, lamp_bounce=True)
+    # ... unless it has no normals and gets none estimated
+    assert start_geometry_settings(small.replace(estimate_normals=False), views).lamp_bounce is False
+    assert start_geometry_settings(trusted, views) == trusted  # applying it twice changes nothing more
+    off = auto.replace(trust_start_geometry="off", lamp_bounce=True)  # off: the settings as given
+    assert start_geometry_settings(off.replace(init_points=points, max_gaussians=points), views).lr_normals == \
+        auto.lr_normals

@@ -838,3 +838,23 @@ def test_normal_gravity_prior_pulls_to_the_nearer_of_horizontal_and_vertical():
     look_x = torch.tensor([[0.0, 0.0, 1.0, 0.0], [-1.0, 0.0, 0.0, 0.0], [0.0, -1.0, 0.0, 1.5], [0.0, 0.0, 0.0, 1.0]])
     look_y = torch.tensor([[1.0, 0.0, 0.0, 0.0], [0.0, 0.0, 1.0, 0.0], [0.0, -1.0, 0.0, 1.5], [0.0, 0.0, 0.0, 1.0]])
     torch.testing.assert_close(camera_up(torch.stack([look_x, look_y])), up)
+
+
+@pytest.mark.blender
+def test_a_trusted_dense_start_keeps_its_normals_and_trains_the_bounce(bedroom, tmp_path):
+    """trust_start_geometry=auto on the simulator's dense cloud: the normals stay the start's, the bounce's gain
+    learns, and the run loads with its bounce (the setting is resolved from the dataset again)."""
+    from spotlessgs.training.checkpoint import load_checkpoint
+    from spotlessgs.training.data import load_training_views
+    from spotlessgs.training.trainer import build_scene, load_run, start_geometry_settings, train
+
+    cfg = _tiny(iterations=30, image_width=40, densify_from=1000, checkpoint_every=30, trust_start_geometry="auto")
+    train(bedroom, tmp_path / "run", "darkgs", cfg, seed=3, progress=False)
+    saved = load_checkpoint(tmp_path / "run")
+    start = build_scene(load_training_views(bedroom, cfg.image_width), "darkgs",
+                        start_geometry_settings(cfg, load_training_views(bedroom, cfg.image_width)), 3)
+    torch.testing.assert_close(saved["gaussians"]["normals_raw"], start.gaussians.params["normals_raw"], rtol=0, atol=0)
+    assert float(saved["appearance"]["lamp_bounce.log_gain"]) != 0.0  # learned from its start at 0
+    scene, _views, config, _info = load_run(tmp_path / "run")
+    assert scene.appearance.lamp_bounce is not None and config.lr_normals == 0.0
+    assert float(scene.appearance.lamp_bounce.log_gain) == float(saved["appearance"]["lamp_bounce.log_gain"])

@@ -141,6 +141,15 @@ class TrainConfig:
     # The lamp's bounce light computed from the model's own geometry (ModelConfig.lamp_bounce; models.lamp_bounce):
     # one bounce of the spotlit render in screen space, learned through one gain, left out of relighting.
     lamp_bounce: bool = False
+    # Trust a dense start's geometry (training.trainer.start_geometry_settings): hold the start's normals (lr_normals
+    # 0) and turn the lamp's bounce light from the model's geometry on (lamp_bounce). The bounce needs normals that
+    # face the way the surfaces do; learned ones lean towards the camera's height and the bounce then costs 1.1-1.35
+    # dB against the uniform ground truth, where with the start's normals held it gains 1.0-2.4 dB on every simulator
+    # room and on the robot copy started from a dense cloud (docs/results.md, "A bounce light from the model's
+    # geometry"). "auto": for a start cloud that is not sparse (SPARSE_START_SHARE) and has or gets normals (a depth
+    # camera's, the simulator's), not for a sparse SfM start (its estimated normals are too rough to hold) or a random
+    # one; "on": any start; "off": lr_normals and lamp_bounce as set.
+    trust_start_geometry: str = "off"
     # The low-frequency light's gradient reaches the normals (ModelConfig.low_frequency_turns_normals; True: the paper's).
     low_frequency_turns_normals: bool = True
     # Spotlight shadows from a shadow map rendered at the learned light pose (ModelConfig.spot_shadows; models.shadow):
@@ -283,6 +292,9 @@ class TrainConfig:
             raise ValueError(f"TrainConfig: photometric must be 'auto', 'on' or 'off', got {self.photometric!r}")
         if not (math.isfinite(self.normal_axis_weight) and self.normal_axis_weight >= 0):
             raise ValueError(f"TrainConfig: normal_axis_weight must be finite and >= 0, got {self.normal_axis_weight}")
+        if self.trust_start_geometry not in SWITCH_VALUES:
+            raise ValueError(f"TrainConfig: trust_start_geometry must be 'auto', 'on' or 'off', "
+                             f"got {self.trust_start_geometry!r}")
         if self.depth_spread not in SWITCH_VALUES:
             raise ValueError(f"TrainConfig: depth_spread must be 'auto', 'on' or 'off', got {self.depth_spread!r}")
         if self.depth_spread_every < 1:

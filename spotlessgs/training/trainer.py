@@ -27,6 +27,7 @@ from spotlessgs.io.folder_lock import folder_lock
 from spotlessgs.io.json_files import read_json, require_keys
 from spotlessgs.io.paths import refuse_overlap
 from spotlessgs.io.signals import StopRequest, deferred_interrupts
+from spotlessgs.io.ply import PointCloud
 from spotlessgs.io.provenance import provenance
 from spotlessgs.io.seeding import numpy_rng, torch_generator
 from spotlessgs.metrics import psnr_from_mse
@@ -123,18 +124,46 @@ def initial_gaussian_limit(config: TrainConfig) -> int:
     return config.max_gaussians if config.init_points is None else min(config.init_points, config.max_gaussians)
 
 
+def _start_is_sparse(config: TrainConfig, cloud: PointCloud) -> bool:
+    """Whether the dataset's ``cloud`` has fewer points than SPARSE_START_SHARE of the start's Gaussians."""
+    return len(cloud.xyz) < SPARSE_START_SHARE * initial_gaussian_limit(config)
+
+
 def sparse_start_schedule(config: TrainConfig, views: TrainingViews) -> TrainConfig:
     """``config`` with ``densify_from`` at the first densification step when the dataset's point cloud is sparse
     (see SPARSE_START_SHARE); unchanged for a dense cloud or none (the random start has enough points)."""
     if not config.sparse_start:
         return config
     cloud = load_initial_points(views.dataset)
-    sparse = cloud is not None and len(cloud.xyz) < SPARSE_START_SHARE * initial_gaussian_limit(config)
+    sparse = cloud is not None and _start_is_sparse(config, cloud)
     if not sparse or config.densify_from <= config.densify_every:
         return config
     log.info("%s: a sparse start (%d points): densifying from step %d", views.dataset.root, len(cloud.xyz),
              config.densify_every)
     return dataclasses.replace(config, densify_from=config.densify_every)
+
+
+def dense_start_with_normals(config: TrainConfig, views: TrainingViews) -> bool:
+    """Whether the run starts from a dense point cloud (not sparse by SPARSE_START_SHARE; a depth camera's or the
+    simulator's) whose normals it has or estimates (``config.estimate_normals``)."""
+    cloud = load_initial_points(views.dataset)
+    if cloud is None or len(cloud.xyz) == 0 or _start_is_sparse(config, cloud):
+        return False
+    return config.estimate_normals or (cloud.normals is not None and bool(np.any(cloud.normals)))
+
+
+def start_geometry_settings(config: TrainConfig, views: TrainingViews) -> TrainConfig:
+    """``config`` with ``trust_start_geometry`` applied: where it is "on", or "auto" and the start is
+    :func:`dense_start_with_normals`, the start's normals are held (``lr_normals`` 0) and the lamp's bounce light
+    from the model's geometry is on (``lamp_bounce``); elsewhere ``config`` unchanged. Derived from the dataset: the
+    same on a resume and when a finished run is loaded."""
+    trust = config.trust_start_geometry
+    if trust == "off" or (trust == "auto" and not dense_start_with_normals(config, views)):
+        return config
+    if trust == "auto":
+        log.info("%s: a dense start: its normals held, the lamp's bounce light on (trust_start_geometry=auto)",
+                 views.dataset.root)
+    return dataclasses.replace(config, lr_normals=0.0, lamp_bounce=True)
 
 
 def build_scene(
@@ -476,6 +505,7 @@ def _train_locked(data_dir: Path, run_dir: Path, variant: str | ModelConfig, con
     split = split_training_views(views.train, config.validation_every)
     judge_from = config.densify_from  # the budget judges growth from the preset's start, also after a sparse start
     config = sparse_start_schedule(config, views)  # derived from the dataset: the same on a resume
+    config = start_geometry_settings(config, views)  # likewise
     extent = views.scene_extent()
     images, saturated = views.images.to(device), views.saturated.to(device)
     held_out = None  # (V, H, W) bool pixel blocks never fitted (validation_blocks > 0)
@@ -851,6 +881,7 @@ def load_run(run_dir: str | Path, device: str = "auto", data_dir: str | Path | N
     config = saved_train_config(run_dir / "config.json")
     views = load_training_views(resolve_data_dir(run_dir, info, data_dir), config.image_width, config.linear_input,
                                 config.saturation_threshold)
+    config = start_geometry_settings(config, views)  # as the run trained
     scene = restore_scene(load_checkpoint(run_dir), info, config).to(resolve_device(device))
     scene.eval()
     return scene, views, config, info
