@@ -849,10 +849,12 @@ def test_a_trusted_dense_start_keeps_its_normals_and_trains_the_bounce(bedroom, 
     from spotlessgs.training.trainer import build_scene, load_run, start_geometry_settings, train
 
     cfg = _tiny(iterations=30, image_width=40, densify_from=1000, checkpoint_every=30, trust_start_geometry="auto")
-    train(bedroom, tmp_path / "run", "darkgs", cfg, seed=3, progress=False)
+    train(bedroom, tmp_path / "run", "darkgs+sh", cfg, seed=3, progress=False)
+    train(bedroom, tmp_path / "darkgs", "darkgs", cfg, seed=3, progress=False)  # no SH light: its normals learned
+    assert "lamp_bounce.log_gain" not in load_checkpoint(tmp_path / "darkgs")["appearance"]
     saved = load_checkpoint(tmp_path / "run")
-    start = build_scene(load_training_views(bedroom, cfg.image_width), "darkgs",
-                        start_geometry_settings(cfg, load_training_views(bedroom, cfg.image_width)), 3)
+    views = load_training_views(bedroom, cfg.image_width)
+    start = build_scene(views, "darkgs+sh", start_geometry_settings(cfg, views, "darkgs+sh"), 3)
     torch.testing.assert_close(saved["gaussians"]["normals_raw"], start.gaussians.params["normals_raw"], rtol=0, atol=0)
     assert float(saved["appearance"]["lamp_bounce.log_gain"]) != 0.0  # learned from its start at 0
     scene, _views, config, _info = load_run(tmp_path / "run")

@@ -148,7 +148,9 @@ class TrainConfig:
     # room and on the robot copy started from a dense cloud (docs/results.md, "A bounce light from the model's
     # geometry"). "auto": for a start cloud that is not sparse (SPARSE_START_SHARE) and has or gets normals (a depth
     # camera's, the simulator's), not for a sparse SfM start (its estimated normals are too rough to hold) or a random
-    # one; "on": any start; "off": lr_normals and lamp_bounce as set.
+    # one; "on": any start; "off": lr_normals and lamp_bounce as set. Only the variants with an SH light (ambient "sh":
+    # SpotlessGS, DarkGS + SH light) are trusted so: the bounce is part of their low-frequency light, as the SH bounce
+    # light is; DarkGS's constant ambient and 3DGS ignore the setting.
     trust_start_geometry: str = "off"
     # The low-frequency light's gradient reaches the normals (ModelConfig.low_frequency_turns_normals; True: the paper's).
     low_frequency_turns_normals: bool = True

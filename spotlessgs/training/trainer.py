@@ -36,7 +36,7 @@ from spotlessgs.models.gaussians import GaussianParams
 from spotlessgs.models.photometric import PhotometricCamera
 from spotlessgs.models.pose import PoseCorrection, corrected_camera
 from spotlessgs.models.relightable import RelightableScene
-from spotlessgs.models.shading import MODEL_VARIANTS, ModelConfig
+from spotlessgs.models.shading import MODEL_VARIANTS, ModelConfig, resolve_variant
 from spotlessgs.rasterizer.cpp_kernel import numerics_record
 from spotlessgs.training.checkpoint import (
     RUN_SCHEMA_VERSION, check_schema_version, checkpoint_path, data_dir_fields, existing_checkpoint, load_checkpoint,
@@ -152,13 +152,16 @@ def dense_start_with_normals(config: TrainConfig, views: TrainingViews) -> bool:
     return config.estimate_normals or (cloud.normals is not None and bool(np.any(cloud.normals)))
 
 
-def start_geometry_settings(config: TrainConfig, views: TrainingViews) -> TrainConfig:
-    """``config`` with ``trust_start_geometry`` applied: where it is "on", or "auto" and the start is
-    :func:`dense_start_with_normals`, the start's normals are held (``lr_normals`` 0) and the lamp's bounce light
-    from the model's geometry is on (``lamp_bounce``); elsewhere ``config`` unchanged. Derived from the dataset: the
+def start_geometry_settings(config: TrainConfig, views: TrainingViews, variant: str | ModelConfig) -> TrainConfig:
+    """``config`` for a run of ``variant`` with ``trust_start_geometry`` applied: where it is "on", or "auto" and the
+    start is :func:`dense_start_with_normals`, the start's normals are held (``lr_normals`` 0) and the lamp's bounce
+    light from the model's geometry is on (``lamp_bounce``), for a model with an SH light only (the bounce is part of
+    its low-frequency light, as the SH bounce light is); elsewhere ``config`` unchanged. Derived from the dataset: the
     same on a resume and when a finished run is loaded."""
     trust = config.trust_start_geometry
-    if trust == "off" or (trust == "auto" and not dense_start_with_normals(config, views)):
+    if trust == "off" or resolve_variant(variant).ambient != "sh":
+        return config
+    if trust == "auto" and not dense_start_with_normals(config, views):
         return config
     if trust == "auto":
         log.info("%s: a dense start: its normals held, the lamp's bounce light on (trust_start_geometry=auto)",
@@ -372,12 +375,16 @@ def build_photometric(config: TrainConfig, views: TrainingViews, split: ViewSpli
                              log_gain_prior=prior).to(device)
 
 
+def run_variant(run_info: dict[str, Any]) -> str | ModelConfig:
+    """The variant a run trained (its run.json ``run_info``): a preset's name, or the ModelConfig that a run of an
+    arbitrary one (``spotless train --model auto``) stores itself."""
+    saved = run_info.get("model_config")
+    return ModelConfig(**with_defaults(ModelConfig, saved)) if saved is not None else run_info["model"]
+
+
 def restore_scene(ckpt: dict[str, Any], run_info: dict[str, Any], config: TrainConfig) -> RelightableScene:
     """Rebuild the model of a checkpoint (modules with the same structure, then their saved values)."""
-    # a run of an arbitrary ModelConfig (``spotless train --model auto``) stores the config itself
-    saved = run_info.get("model_config")
-    cfg = model_config(ModelConfig(**with_defaults(ModelConfig, saved)) if saved is not None else run_info["model"],
-                       config)
+    cfg = model_config(run_variant(run_info), config)
     gaussians = GaussianParams(ckpt["gaussians"])
     light_init: dict[str, Any] = {}
     if cfg.calibrated:  # the structure needs a cone; the fitted values are overwritten by the saved state
@@ -505,7 +512,7 @@ def _train_locked(data_dir: Path, run_dir: Path, variant: str | ModelConfig, con
     split = split_training_views(views.train, config.validation_every)
     judge_from = config.densify_from  # the budget judges growth from the preset's start, also after a sparse start
     config = sparse_start_schedule(config, views)  # derived from the dataset: the same on a resume
-    config = start_geometry_settings(config, views)  # likewise
+    config = start_geometry_settings(config, views, variant)  # likewise
     extent = views.scene_extent()
     images, saturated = views.images.to(device), views.saturated.to(device)
     held_out = None  # (V, H, W) bool pixel blocks never fitted (validation_blocks > 0)
@@ -881,7 +888,7 @@ def load_run(run_dir: str | Path, device: str = "auto", data_dir: str | Path | N
     config = saved_train_config(run_dir / "config.json")
     views = load_training_views(resolve_data_dir(run_dir, info, data_dir), config.image_width, config.linear_input,
                                 config.saturation_threshold)
-    config = start_geometry_settings(config, views)  # as the run trained
+    config = start_geometry_settings(config, views, run_variant(info))  # as the run trained
     scene = restore_scene(load_checkpoint(run_dir), info, config).to(resolve_device(device))
     scene.eval()
     return scene, views, config, info
