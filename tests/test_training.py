@@ -862,3 +862,13 @@ def test_a_trusted_dense_start_keeps_its_normals_and_trains_the_bounce(bedroom, 
     scene, _views, config, _info = load_run(tmp_path / "run")
     assert scene.appearance.lamp_bounce is not None and config.lr_normals == 0.0
     assert float(scene.appearance.lamp_bounce.log_gain) == float(saved["appearance"]["lamp_bounce.log_gain"])
+    # the dataset moved and its point cloud became a sparse one: the run still loads as it trained, with its bounce
+    from spotlessgs.io.ply import read_point_cloud, write_point_cloud
+
+    moved = tmp_path / "moved"
+    shutil.copytree(bedroom, moved)
+    cloud = read_point_cloud(moved / "points3d.ply")
+    write_point_cloud(moved / "points3d.ply", cloud.xyz[:20], cloud.rgb[:20])
+    assert start_geometry_settings(cfg, load_training_views(moved, cfg.image_width), "darkgs+sh") == cfg
+    scene, _views, _config, _info = load_run(tmp_path / "run", data_dir=moved)
+    assert float(scene.appearance.lamp_bounce.log_gain) == float(saved["appearance"]["lamp_bounce.log_gain"])

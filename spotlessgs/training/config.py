@@ -174,7 +174,7 @@ class TrainConfig:
     # lamp as well placed within the seeds' spread (docs/results.md, "Shadows relative to the camera").
     shadow_map_every: int = 180
     # Steps a training view's lamp bounce irradiance is reused for (lamp_bounce only; training.view_caches): at 180 on
-    # the bedroom (54 training views) it is recomputed about every third visit of its view.
+    # the bedroom (54 training views) it is recomputed about every fourth visit of its view.
     lamp_bounce_every: int = 180
     # Weight of the light-translation prior ‖t - t_prior‖ (used only when a prior is given).
     light_prior_weight: float = 1.0

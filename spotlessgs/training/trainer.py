@@ -889,6 +889,11 @@ def load_run(run_dir: str | Path, device: str = "auto", data_dir: str | Path | N
     views = load_training_views(resolve_data_dir(run_dir, info, data_dir), config.image_width, config.linear_input,
                                 config.saturation_threshold)
     config = start_geometry_settings(config, views, run_variant(info))  # as the run trained
-    scene = restore_scene(load_checkpoint(run_dir), info, config).to(resolve_device(device))
+    ckpt = load_checkpoint(run_dir)
+    # the model's structure is the checkpoint's, even where the dataset's start cloud has changed since
+    trained_bounce = any(name.startswith("lamp_bounce.") for name in ckpt["appearance"])
+    if trained_bounce != config.lamp_bounce:
+        config = dataclasses.replace(config, lamp_bounce=trained_bounce)
+    scene = restore_scene(ckpt, info, config).to(resolve_device(device))
     scene.eval()
     return scene, views, config, info
