@@ -187,8 +187,8 @@ def test_tiny_training_does_real_work(bedroom, tmp_path):
     from spotlessgs.training.trainer import train
 
     run = tmp_path / "run"
-    # every parameter learned, the normals too: a dense start's normals held (trust_start_geometry, the default "auto")
-    # fit these 300 steps' training views 0.7 dB less (23.86 dB) and its held-out views 4.8 dB better
+    # every parameter learned, the normals too: a dense start's normals held (trust_start_geometry=auto) fit these 300
+    # steps' training views 0.7 dB less (23.86 dB) and its held-out views 4.8 dB better
     result = train(bedroom, run, "spotless", _tiny(trust_start_geometry="off"), seed=0, progress=False)
     log = [json.loads(line) for line in (run / "metrics.jsonl").read_text().splitlines()]
     first, last = np.mean([r["loss"] for r in log[:2]]), np.mean([r["loss"] for r in log[-2:]])

@@ -25,7 +25,7 @@ SWITCH_VALUES = ("auto", "on", "off")
 #: settings, such a setting takes this value instead of the default, so the run reloads and resumes as it trained.
 PREDATING_VALUES: dict[str, Any] = {"bounce_light_degree": -1, "shadow_camera_relative": False,
                                     "depth_spread_weight": 0.0, "depth_spread": "on", "depth_spread_every": 1,
-                                    "lamp_bounce_every": 1, "trust_start_geometry": "off"}
+                                    "lamp_bounce_every": 1}
 
 
 def with_defaults(cls: type, saved: dict[str, Any]) -> dict[str, Any]:
@@ -150,11 +150,12 @@ class TrainConfig:
     # camera's, the simulator's), not for a sparse SfM start (its estimated normals are too rough to hold) or a random
     # one; "on": any start; "off": lr_normals and lamp_bounce as set. Only the variants with an SH light (ambient "sh":
     # SpotlessGS, DarkGS + SH light) are trusted so: the bounce is part of their low-frequency light, as the SH bounce
-    # light is; DarkGS's constant ambient and 3DGS ignore the setting. "auto" is the default since 2026-11-27: in the
-    # quick reproduction SpotlessGS gains +0.07 to +0.12 dB against the lamps-on ground truth and +1.29 to +1.80 dB
-    # against the uniform one on the simulator's bedroom copies, at about +15 % per step (docs/results.md, "The
-    # geometric bounce, cached, and trusted on dense starts"); runs saved before keep "off" (PREDATING_VALUES).
-    trust_start_geometry: str = "auto"
+    # light is; DarkGS's constant ambient and 3DGS ignore the setting. Not the default: with "auto" the quick
+    # reproduction's SpotlessGS gains +0.07 to +0.12 dB against the lamps-on ground truth and +1.29 to +1.80 dB against
+    # the uniform one on the bedroom copies, at about +15 % per step, but the glossy storage room loses 0.8 dB
+    # (SpotlessGS) and 1.5 dB (DarkGS + SH light) against the uniform ground truth, three seeds (docs/results.md,
+    # "The geometric bounce, cached, and trusted on dense starts").
+    trust_start_geometry: str = "off"
     # The low-frequency light's gradient reaches the normals (ModelConfig.low_frequency_turns_normals; True: the paper's).
     low_frequency_turns_normals: bool = True
     # Spotlight shadows from a shadow map rendered at the learned light pose (ModelConfig.spot_shadows; models.shadow):
