@@ -152,7 +152,7 @@ class TrainConfig:
     # SpotlessGS, DarkGS + SH light) are trusted so: the bounce is part of their low-frequency light, as the SH bounce
     # light is; DarkGS's constant ambient and 3DGS ignore the setting. Not the default: with "auto" the quick
     # reproduction's SpotlessGS gains +0.07 to +0.12 dB against the lamps-on ground truth and +1.29 to +1.80 dB against
-    # the uniform one on the bedroom copies, at about +15 % per step, but the glossy storage room loses 0.8 dB
+    # the uniform one on the bedroom copies, at +15.1 % per step, but the glossy storage room loses 0.8 dB
     # (SpotlessGS) and 1.5 dB (DarkGS + SH light) against the uniform ground truth, three seeds (docs/results.md,
     # "The geometric bounce, cached, and trusted on dense starts").
     trust_start_geometry: str = "off"
