@@ -161,9 +161,9 @@ def start_geometry_settings(config: TrainConfig, views: TrainingViews, variant: 
     trust = config.trust_start_geometry
     if trust == "off" or resolve_variant(variant).ambient != "sh":
         return config
-    if trust == "auto" and not dense_start_with_normals(config, views):
-        return config
     if trust == "auto":
+        if not dense_start_with_normals(config, views):
+            return config
         log.info("%s: a dense start: its normals held, the lamp's bounce light on (trust_start_geometry=auto)",
                  views.dataset.root)
     return dataclasses.replace(config, lr_normals=0.0, lamp_bounce=True)
