@@ -158,20 +158,22 @@ def test_only_a_dense_start_with_normals_is_trusted_with_its_geometry(room, tmp_
     data = tmp_path / "data"
     shutil.copytree(root, data)
     auto = preset("quick").replace(trust_start_geometry="auto")
-    trusted = auto.replace(lr_normals=0.0, lamp_bounce=True)
+    trusted = auto.replace(lr_normals=0.0, lamp_bounce=True, brdf_upper_clamp=False)
     assert start_geometry_settings(auto, load_training_views(data), "spotless") == auto  # no cloud: a random start
     points = add_sfm_points(data)["points"]
     views = load_training_views(data)
     assert start_geometry_settings(auto, views, "spotless") == auto  # a sparse SfM start: normals learned, no bounce
     on = auto.replace(trust_start_geometry="on")
-    assert start_geometry_settings(on, views, "spotless") == on.replace(lr_normals=0.0, lamp_bounce=True)
+    assert start_geometry_settings(on, views, "spotless") == on.replace(lr_normals=0.0, lamp_bounce=True,
+                                                                        brdf_upper_clamp=False)
     small = auto.replace(init_points=points, max_gaussians=points)  # the same cloud is dense for a smaller limit
-    assert start_geometry_settings(small, views, "spotless") == small.replace(lr_normals=0.0, lamp_bounce=True)
+    assert start_geometry_settings(small, views, "spotless") == small.replace(lr_normals=0.0, lamp_bounce=True,
+                                                                              brdf_upper_clamp=False)
     # ... unless it has no normals and gets none estimated
     assert start_geometry_settings(small.replace(estimate_normals=False), views, "spotless").lamp_bounce is False
     assert start_geometry_settings(trusted, views, "spotless") == trusted  # applying it twice changes nothing more
-    for variant in ("darkgs", "darkgs-calibrated", "darkgs+brdf", "3dgs"):  # only a model with an SH light trusts it
+    # only a model with an SH light and a learned BRDF trusts it (a Lambertian albedo paints a metal's glint in)
+    for variant in ("darkgs", "darkgs-calibrated", "darkgs+brdf", "darkgs+sh", "3dgs"):
         assert start_geometry_settings(small, views, variant) == small
-    assert start_geometry_settings(small, views, "darkgs+sh") == small.replace(lr_normals=0.0, lamp_bounce=True)
     off = small.replace(trust_start_geometry="off", lamp_bounce=True)  # off: the settings as given
     assert start_geometry_settings(off, views, "spotless") == off

@@ -845,30 +845,42 @@ def test_normal_gravity_prior_pulls_to_the_nearer_of_horizontal_and_vertical():
 @pytest.mark.blender
 def test_a_trusted_dense_start_keeps_its_normals_and_trains_the_bounce(bedroom, tmp_path):
     """trust_start_geometry=auto on the simulator's dense cloud: the normals stay the start's, the bounce's gain
-    learns, and the run loads with its bounce (the setting is resolved from the dataset again)."""
-    from spotlessgs.training.checkpoint import load_checkpoint
+    learns, the BRDF is unclamped, and the run loads as it trained (its checkpoint records the model's settings),
+    also after its dataset's cloud changed, and from a checkpoint that predates the record."""
+    from spotlessgs.io.errors import InputError
+    from spotlessgs.io.ply import read_point_cloud, write_point_cloud
+    from spotlessgs.training.checkpoint import load_checkpoint, save_checkpoint
     from spotlessgs.training.data import load_training_views
     from spotlessgs.training.trainer import build_scene, load_run, start_geometry_settings, train
 
     cfg = _tiny(iterations=30, image_width=40, densify_from=1000, checkpoint_every=30, trust_start_geometry="auto")
-    train(bedroom, tmp_path / "run", "darkgs+sh", cfg, seed=3, progress=False)
-    train(bedroom, tmp_path / "darkgs", "darkgs", cfg, seed=3, progress=False)  # no SH light: its normals learned
-    assert "lamp_bounce.log_gain" not in load_checkpoint(tmp_path / "darkgs")["appearance"]
+    train(bedroom, tmp_path / "run", "spotless", cfg, seed=3, progress=False)
+    train(bedroom, tmp_path / "lambert", "darkgs+sh", cfg, seed=3, progress=False)  # Lambertian: not trusted
+    assert "lamp_bounce.log_gain" not in load_checkpoint(tmp_path / "lambert")["appearance"]
     saved = load_checkpoint(tmp_path / "run")
+    assert saved["model_settings"] == {"lamp_bounce": True, "brdf_upper_clamp": False}
     views = load_training_views(bedroom, cfg.image_width)
-    start = build_scene(views, "darkgs+sh", start_geometry_settings(cfg, views, "darkgs+sh"), 3)
+    start = build_scene(views, "spotless", start_geometry_settings(cfg, views, "spotless"), 3)
     torch.testing.assert_close(saved["gaussians"]["normals_raw"], start.gaussians.params["normals_raw"], rtol=0, atol=0)
     assert float(saved["appearance"]["lamp_bounce.log_gain"]) != 0.0  # learned from its start at 0
     scene, _views, config, _info = load_run(tmp_path / "run")
     assert scene.appearance.lamp_bounce is not None and config.lr_normals == 0.0
-    assert float(scene.appearance.lamp_bounce.log_gain) == float(saved["appearance"]["lamp_bounce.log_gain"])
-    # the dataset moved and its point cloud became a sparse one: the run still loads as it trained, with its bounce
-    from spotlessgs.io.ply import read_point_cloud, write_point_cloud
-
+    assert scene.appearance.brdf.upper_clamp is False and config.brdf_upper_clamp is False
+    assert float(scene.appearance.lamp_bounce.log_gain.detach()) == float(saved["appearance"]["lamp_bounce.log_gain"])
+    # the dataset moved and its point cloud became a sparse one: the run still loads as it trained
     moved = tmp_path / "moved"
     shutil.copytree(bedroom, moved)
     cloud = read_point_cloud(moved / "points3d.ply")
     write_point_cloud(moved / "points3d.ply", cloud.xyz[:20], cloud.rgb[:20])
-    assert start_geometry_settings(cfg, load_training_views(moved, cfg.image_width), "darkgs+sh") == cfg
+    assert start_geometry_settings(cfg, load_training_views(moved, cfg.image_width), "spotless") == cfg
     scene, _views, _config, _info = load_run(tmp_path / "run", data_dir=moved)
-    assert float(scene.appearance.lamp_bounce.log_gain) == float(saved["appearance"]["lamp_bounce.log_gain"])
+    assert float(scene.appearance.lamp_bounce.log_gain.detach()) == float(saved["appearance"]["lamp_bounce.log_gain"])
+    assert scene.appearance.brdf.upper_clamp is False
+    # a checkpoint without the record (before 2026-11-27): the bounce as its modules show, the clamp as configured
+    older = {k: v for k, v in saved.items() if k not in ("version", "model_settings")}
+    save_checkpoint(tmp_path / "run", older)
+    scene, _views, _config, _info = load_run(tmp_path / "run", data_dir=moved)
+    assert scene.appearance.lamp_bounce is not None and scene.appearance.brdf.upper_clamp is True
+    save_checkpoint(tmp_path / "run", {**older, "model_settings": {"lamp_bounce": "yes", "brdf_upper_clamp": False}})
+    with pytest.raises(InputError, match="last.safetensors: model_settings must give lamp_bounce"):
+        load_run(tmp_path / "run")

@@ -25,7 +25,7 @@ SWITCH_VALUES = ("auto", "on", "off")
 #: settings, such a setting takes this value instead of the default, so the run reloads and resumes as it trained.
 PREDATING_VALUES: dict[str, Any] = {"bounce_light_degree": -1, "shadow_camera_relative": False,
                                     "depth_spread_weight": 0.0, "depth_spread": "on", "depth_spread_every": 1,
-                                    "lamp_bounce_every": 1}
+                                    "lamp_bounce_every": 1, "trust_start_geometry": "off"}
 
 
 def with_defaults(cls: type, saved: dict[str, Any]) -> dict[str, Any]:
@@ -142,20 +142,20 @@ class TrainConfig:
     # one bounce of the spotlit render in screen space, learned through one gain, left out of relighting.
     lamp_bounce: bool = False
     # Trust a dense start's geometry (training.trainer.start_geometry_settings): hold the start's normals (lr_normals
-    # 0) and turn the lamp's bounce light from the model's geometry on (lamp_bounce). The bounce needs normals that
-    # face the way the surfaces do; learned ones lean towards the camera's height and the bounce then costs 1.1-1.35
-    # dB against the uniform ground truth, where with the start's normals held it gains 1.0-2.4 dB on every simulator
-    # room and on the robot copy started from a dense cloud (docs/results.md, "A bounce light from the model's
-    # geometry"). "auto": for a start cloud that is not sparse (SPARSE_START_SHARE) and has or gets normals (a depth
-    # camera's, the simulator's), not for a sparse SfM start (its estimated normals are too rough to hold) or a random
-    # one; "on": any start; "off": lr_normals and lamp_bounce as set. Only the variants with an SH light (ambient "sh":
-    # SpotlessGS, DarkGS + SH light) are trusted so: the bounce is part of their low-frequency light, as the SH bounce
-    # light is; DarkGS's constant ambient and 3DGS ignore the setting. Not the default: with "auto" the quick
-    # reproduction's SpotlessGS gains +0.07 to +0.12 dB against the lamps-on ground truth and +1.29 to +1.80 dB against
-    # the uniform one on the bedroom copies, at +15.1 % per step, but the glossy storage room loses 0.8 dB
-    # (SpotlessGS) and 1.5 dB (DarkGS + SH light) against the uniform ground truth, three seeds (docs/results.md,
-    # "The geometric bounce, cached, and trusted on dense starts").
-    trust_start_geometry: str = "off"
+    # 0), turn the lamp's bounce light from the model's geometry on (lamp_bounce) and take the learned BRDF's clamp
+    # f̃ ≤ 1 off (brdf_upper_clamp). The bounce needs normals that face the way the surfaces do (learned ones lean
+    # towards the camera's height, and the bounce then costs 1.1-1.35 dB against the uniform ground truth); held
+    # normals leave a smooth metal's glint to the BRDF's specular lobe, which the clamp flattens (with the clamp the
+    # glossy storage room loses 0.8 dB against the uniform ground truth; unclamped it gains 1.35). "auto": for a start
+    # cloud that is not sparse (SPARSE_START_SHARE) and has or gets normals (a depth camera's, the simulator's), not
+    # for a sparse SfM start (its estimated normals are too rough to hold) or a random one; "on": any start; "off":
+    # lr_normals, lamp_bounce and brdf_upper_clamp as set. Only SpotlessGS's models (an SH light and a learned BRDF:
+    # training.trainer.trusts_start_geometry) are trusted so: the bounce is part of the SH light, as the SH bounce
+    # light is, and a Lambertian albedo with held normals paints a metal's glint in (the storage room's DarkGS + SH
+    # light −1.8 dB). With "auto" SpotlessGS gains about +0.2 / +1.4-1.8 dB (lamps-on / uniform ground truth) on every
+    # simulator room with a dense start, at +15 % per step (docs/results.md, "Trusting a dense start, with the BRDF
+    # unclamped").
+    trust_start_geometry: str = "auto"
     # The low-frequency light's gradient reaches the normals (ModelConfig.low_frequency_turns_normals; True: the paper's).
     low_frequency_turns_normals: bool = True
     # Spotlight shadows from a shadow map rendered at the learned light pose (ModelConfig.spot_shadows; models.shadow):

@@ -118,6 +118,13 @@ def resolve_device(name: str) -> torch.device:
 # PSNR; a lower gradient threshold as well lost 0.4 dB (docs/results.md, "Real robot cameras").
 SPARSE_START_SHARE = 0.25
 
+#: What ``trust_start_geometry`` sets (:func:`start_geometry_settings`): the start's normals held, the lamp's bounce
+#: light from the model's geometry, the learned BRDF without its f̃ ≤ 1 clamp (held normals cannot turn a smooth
+#: metal's glint into the Lambertian shading of a surface that faces the lamp; the clamp flattens the lobe that can).
+TRUSTED_START_SETTINGS: dict[str, object] = {"lr_normals": 0.0, "lamp_bounce": True, "brdf_upper_clamp": False}
+#: The model settings a checkpoint records, so that a finished run loads as it trained (:func:`load_run`).
+RECORDED_MODEL_SETTINGS: tuple[str, ...] = ("lamp_bounce", "brdf_upper_clamp")
+
 
 def initial_gaussian_limit(config: TrainConfig) -> int:
     """The most Gaussians a run starts with (a seeded subset of a larger point cloud)."""
@@ -154,19 +161,28 @@ def dense_start_with_normals(config: TrainConfig, views: TrainingViews) -> bool:
 
 def start_geometry_settings(config: TrainConfig, views: TrainingViews, variant: str | ModelConfig) -> TrainConfig:
     """``config`` for a run of ``variant`` with ``trust_start_geometry`` applied: where it is "on", or "auto" and the
-    start is :func:`dense_start_with_normals`, the start's normals are held (``lr_normals`` 0) and the lamp's bounce
-    light from the model's geometry is on (``lamp_bounce``), for a model with an SH light only (the bounce is part of
-    its low-frequency light, as the SH bounce light is); elsewhere ``config`` unchanged. Derived from the dataset: the
-    same on a resume and when a finished run is loaded."""
+    start is :func:`dense_start_with_normals`, :data:`TRUSTED_START_SETTINGS` (the start's normals held, the lamp's
+    bounce light from the model's geometry on, the learned BRDF unclamped), for a model with an SH light and a learned
+    BRDF only (:func:`trusts_start_geometry`); elsewhere ``config`` unchanged. Derived from the dataset: the same on a
+    resume and when a finished run is loaded."""
     trust = config.trust_start_geometry
-    if trust == "off" or resolve_variant(variant).ambient != "sh":
+    if trust == "off" or not trusts_start_geometry(variant):
         return config
     if trust == "auto":
         if not dense_start_with_normals(config, views):
             return config
-        log.info("%s: a dense start: its normals held, the lamp's bounce light on (trust_start_geometry=auto)",
-                 views.dataset.root)
-    return dataclasses.replace(config, lr_normals=0.0, lamp_bounce=True)
+        log.info("%s: a dense start: its normals held, the lamp's bounce light on, the BRDF unclamped "
+                 "(trust_start_geometry=auto)", views.dataset.root)
+    return dataclasses.replace(config, **TRUSTED_START_SETTINGS)
+
+
+def trusts_start_geometry(variant: str | ModelConfig) -> bool:
+    """Whether ``trust_start_geometry`` applies to ``variant``: a model with an SH light (the geometric bounce is part
+    of its low-frequency light, as the SH bounce light is) and a learned BRDF (with the normals held, a glint on a
+    smooth metal is the BRDF's to show; a Lambertian albedo paints it in, and the storage room's DarkGS + SH light
+    then loses 1.8 dB against the uniform ground truth: docs/results.md)."""
+    cfg = resolve_variant(variant)
+    return cfg.ambient == "sh" and cfg.brdf == "mlp"
 
 
 def build_scene(
@@ -327,6 +343,7 @@ def _payload(step: int, scene: RelightableScene, opts, strategy: DensifyStrategy
         "appearance": scene.modules_.state_dict(),
         "optimizers": {k: o.state_dict() for k, o in opts.items()},
         "strategy": strategy.state_dict(),
+        "model_settings": {name: getattr(scene.config, name) for name in RECORDED_MODEL_SETTINGS},
     }
     if photometric is not None:
         payload["photometric"] = photometric.state_dict()
@@ -885,15 +902,21 @@ def load_run(run_dir: str | Path, device: str = "auto", data_dir: str | Path | N
     # what restore_scene needs: the model (its name, or the config of `--model auto`) and the seed
     require_keys(info, run_dir / "run.json", "run description",
                  ("seed",) if "model_config" in info else ("model", "seed"))
-    config = saved_train_config(run_dir / "config.json")
-    views = load_training_views(resolve_data_dir(run_dir, info, data_dir), config.image_width, config.linear_input,
-                                config.saturation_threshold)
-    config = start_geometry_settings(config, views, run_variant(info))  # as the run trained
+    saved = saved_train_config(run_dir / "config.json")
+    views = load_training_views(resolve_data_dir(run_dir, info, data_dir), saved.image_width, saved.linear_input,
+                                saved.saturation_threshold)
+    config = start_geometry_settings(saved, views, run_variant(info))  # as the run trained
     ckpt = load_checkpoint(run_dir)
     # the model's structure is the checkpoint's, even where the dataset's start cloud has changed since
-    trained_bounce = any(name.startswith("lamp_bounce.") for name in ckpt["appearance"])
-    if trained_bounce != config.lamp_bounce:
-        config = dataclasses.replace(config, lamp_bounce=trained_bounce)
+    settings = ckpt.get("model_settings")
+    if settings is None:  # a checkpoint from before 2026-11-27: the bounce as its modules show, the clamp as configured
+        settings = {"lamp_bounce": any(name.startswith("lamp_bounce.") for name in ckpt["appearance"]),
+                    "brdf_upper_clamp": saved.brdf_upper_clamp}
+    if not (isinstance(settings, dict)
+            and all(isinstance(settings.get(name), bool) for name in RECORDED_MODEL_SETTINGS)):
+        raise InputError(f"{checkpoint_path(run_dir)}: model_settings must give {', '.join(RECORDED_MODEL_SETTINGS)} "
+                         f"as true or false, got {settings!r}")
+    config = dataclasses.replace(config, **{name: settings[name] for name in RECORDED_MODEL_SETTINGS})
     scene = restore_scene(ckpt, info, config).to(resolve_device(device))
     scene.eval()
     return scene, views, config, info
