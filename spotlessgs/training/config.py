@@ -146,13 +146,13 @@ class TrainConfig:
     # f̃ ≤ 1 off (brdf_upper_clamp). The bounce needs normals that face the way the surfaces do (learned ones lean
     # towards the camera's height, and the bounce then costs 1.1-1.35 dB against the uniform ground truth); held
     # normals leave a smooth metal's glint to the BRDF's specular lobe, which the clamp flattens (with the clamp the
-    # glossy storage room loses 0.8 dB against the uniform ground truth; unclamped it gains 1.35). "auto": for a start
+    # glossy storage room loses 0.8 dB against the uniform ground truth; unclamped it gains 1.36). "auto": for a start
     # cloud that is not sparse (SPARSE_START_SHARE) and has or gets normals (a depth camera's, the simulator's), not
     # for a sparse SfM start (its estimated normals are too rough to hold) or a random one; "on": any start; "off":
     # lr_normals, lamp_bounce and brdf_upper_clamp as set. Only SpotlessGS's models (an SH light and a learned BRDF:
     # training.trainer.trusts_start_geometry) are trusted so: the bounce is part of the SH light, as the SH bounce
     # light is, and a Lambertian albedo with held normals paints a metal's glint in (the storage room's DarkGS + SH
-    # light −1.8 dB). With "auto" SpotlessGS gains about +0.2 / +1.4-1.8 dB (lamps-on / uniform ground truth) on every
+    # light −1.8 dB). With "auto" SpotlessGS gains +0.1-0.3 / +1.1-1.6 dB (lamps-on / uniform ground truth) on every
     # simulator room with a dense start, at +15 % per step (docs/results.md, "Trusting a dense start, with the BRDF
     # unclamped").
     trust_start_geometry: str = "auto"
