@@ -143,6 +143,36 @@ def test_irradiance_shading_uses_the_relit_reflectance_of_a_learned_brdf():
     assert not torch.allclose(paper[:, 3:], relit, atol=1e-3)  # the paper's shading differs
 
 
+def test_spot_only_is_the_split_renders_first_half_without_the_low_frequency_light(monkeypatch):
+    """``spot_only`` (the lamp bounce's emitters) gives the spotlight's part of the split exactly, with shadows and a
+    bounce light present, and never evaluates the low-frequency light; it refuses a relit or unlit render."""
+    g = _scene()
+    config = dataclasses.replace(MODEL_VARIANTS["spotless"], brdf_hidden=16, bounce_light_degree=2)
+    models = build_appearance_models(config, seed=2)
+    assert models.bounce_light is not None
+    with torch.no_grad():
+        models.lf_light.coeffs.normal_(0.0, 0.3, generator=torch.Generator().manual_seed(5))
+    c2w = _look_at_c2w([0.0, -3.0, 0.5], [0.0, 0.0, 0.0])
+    visibility = torch.rand((len(g), 1), generator=torch.Generator().manual_seed(6))
+    parts = shade(config, g, models.light, models.lf_light, models.brdf, c2w, split_lights=True,
+                  bounce_light=models.bounce_light, spot_visibility=visibility)
+    assert float(parts[:, 3:].abs().sum()) > 0 and float(parts[:, :3].abs().sum()) > 0
+
+    def unevaluated(normals):
+        raise AssertionError("spot_only evaluated a low-frequency light")
+
+    for light in (models.lf_light, models.bounce_light):
+        monkeypatch.setattr(light, "radiance", unevaluated)
+    spot = shade(config, g, models.light, models.lf_light, models.brdf, c2w, bounce_light=models.bounce_light,
+                 spot_visibility=visibility, spot_only=True)
+    torch.testing.assert_close(spot, parts[:, :3], rtol=0, atol=0)
+    with pytest.raises(ValueError, match="spot_only needs a spotlight-lit render"):
+        shade(config, g, models.light, models.lf_light, models.brdf, c2w, relight_l0=[1.0, 1.0, 1.0],
+              spot_only=True)
+    with pytest.raises(ValueError, match="spot_only needs a spotlight-lit render of a lit variant, not '3dgs'"):
+        shade("3dgs", g, None, None, None, c2w, spot_only=True)
+
+
 def test_grazing_and_back_facing_light_give_zero_spot_colour_with_finite_gradients():
     # Normal ⟂ light direction (grazing) and pointing away from the lamp (one-sided normals).
     c2w = _look_at_c2w([0.0, -2.0, 0.0], [0.0, 0.0, 0.0])

@@ -862,6 +862,7 @@ def test_a_trusted_dense_start_keeps_its_normals_and_trains_the_bounce(bedroom, 
     views = load_training_views(bedroom, cfg.image_width)
     start = build_scene(views, "spotless", start_geometry_settings(cfg, views, "spotless"), 3)
     torch.testing.assert_close(saved["gaussians"]["normals_raw"], start.gaussians.params["normals_raw"], rtol=0, atol=0)
+    assert saved["optimizers"]["normals_raw"]["state"] == {}  # held: no gradient computed, no moments kept
     assert float(saved["appearance"]["lamp_bounce.log_gain"]) != 0.0  # learned from its start at 0
     scene, _views, config, _info = load_run(tmp_path / "run")
     assert scene.appearance.lamp_bounce is not None and config.lr_normals == 0.0

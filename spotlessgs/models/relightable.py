@@ -64,19 +64,20 @@ class RelightableScene(nn.Module):
     def colours(
         self, c2w: torch.Tensor, mask: torch.Tensor | None = None,
         relight_l0: torch.Tensor | Sequence[float] | None = None, split_lights: bool = False,
-        spot_visibility: torch.Tensor | None = None,
+        spot_visibility: torch.Tensor | None = None, spot_only: bool = False,
     ) -> torch.Tensor:
         """(N, 3) linear colours of all Gaussians seen from ``c2w`` (OpenCV); zero outside ``mask`` (N,) bool.
         ``split_lights``: (N, 6), lit by the spotlight alone and by the low-frequency light alone (see ``shade``);
-        ``spot_visibility``: (N, 1) spotlight shadows of all Gaussians, or None (see ``shade``)."""
+        ``spot_only``: (N, 3), the first of those halves alone; ``spot_visibility``: (N, 1) spotlight shadows of all
+        Gaussians, or None (see ``shade``)."""
         app = self.appearance
         if mask is None:
             return shade(self.config, self.gaussians, app.light, app.lf_light, app.brdf, c2w, relight_l0,
-                         split_lights, app.bounce_light, spot_visibility)
+                         split_lights, app.bounce_light, spot_visibility, spot_only)
         idx = torch.nonzero(mask).squeeze(1)
         visibility = None if spot_visibility is None else spot_visibility[idx]
         colours = shade(self.config, self.gaussians.subset(idx), app.light, app.lf_light, app.brdf, c2w, relight_l0,
-                        split_lights, app.bounce_light, visibility)
+                        split_lights, app.bounce_light, visibility, spot_only)
         out = colours.new_zeros((len(self.gaussians), colours.shape[1]))
         return out.index_copy(0, idx, colours)
 
@@ -169,8 +170,10 @@ class RelightableScene(nn.Module):
         """:meth:`lamp_bounce_irradiance` of the Gaussians in ``mask`` (N,) bool, the frustum's."""
         with torch.no_grad():
             g = self.gaussians
-            spot = self.colours(camera.c2w, mask=mask, split_lights=True,
-                                spot_visibility=self._spot_visibility(shadow_map))[:, :3]
+            spot = self.colours(camera.c2w, mask=mask, spot_only=True,
+                                spot_visibility=self._spot_visibility(shadow_map))
+            # every Gaussian's normal: frustum_mask leaves out some that reach the image's outermost pixels (up to 2 %
+            # of a border pixel's weight), and the normals of those pixels would change
             feats = torch.cat([spot, self.camera_normals(camera.c2w)], dim=1)
             out = rasterize(g.means, g.quats, g.scales, g.opacities, feats, camera.viewmat, camera.K, camera.width,
                             camera.height, backend=backend, num_threads=num_threads)

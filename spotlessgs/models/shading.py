@@ -318,6 +318,7 @@ def shade(
     split_lights: bool = False,
     bounce_light: LowFrequencyLight | None = None,
     spot_visibility: torch.Tensor | None = None,
+    spot_only: bool = False,
 ) -> torch.Tensor:
     """Linear RGB colour of every Gaussian seen from camera `c2w`, (N, 3); differentiable; never clipped above.
 
@@ -337,12 +338,15 @@ def shade(
             relighting leaves it out.
         spot_visibility: (N, 1) in [0, 1], how much of the lamp each Gaussian sees (``shadow.spot_visibility``), or
             None (all of it): scales L_spot only; ignored by relighting.
+        spot_only: under the spotlight only: (N, 3) the colour lit by the spotlight alone, equal to the first half of
+            ``split_lights``; the low-frequency light is not evaluated (the lamp bounce's emitters).
     """
     cfg = resolve_variant(variant)
     check_c2w(c2w)
-    if split_lights and (cfg.light_model == "none" or relight_l0 is not None):
-        raise ValueError(f"split_lights needs a spotlight-lit render of a lit variant, not {cfg.name!r}"
-                         + (" relit" if relight_l0 is not None else ""))
+    for name, wanted in (("split_lights", split_lights), ("spot_only", spot_only)):
+        if wanted and (cfg.light_model == "none" or relight_l0 is not None):
+            raise ValueError(f"{name} needs a spotlight-lit render of a lit variant, not {cfg.name!r}"
+                             + (" relit" if relight_l0 is not None else ""))
     if cfg.light_model == "none":
         return vanilla_colours(gaussians, c2w, cfg.colour_sh_degree)
     _check_modules(cfg, light, lf_light, brdf, bounce_light, relit=relight_l0 is not None)
@@ -350,6 +354,9 @@ def shade(
     view_dirs = view_directions(gaussians.means, center)
     normals = shading_normals(cfg, gaussians, view_dirs, center)
     albedo, rough, metal = gaussians.albedo, gaussians.roughness, gaussians.metalness
+    if spot_only:
+        spot, light_dirs = _visible_spot(light, gaussians.means, c2w, spot_visibility)
+        return _unit_spot_response(albedo, rough, metal, normals, view_dirs, light_dirs, brdf) * spot
     low_frequency = lf_light.radiance(normals if cfg.low_frequency_turns_normals else normals.detach())
     if relight_l0 is not None:
         l0 = relight_radiance(relight_l0, albedo)
@@ -357,21 +364,36 @@ def shade(
     if bounce_light is not None:
         bounce_normals = normals if cfg.low_frequency_turns_normals else normals.detach()
         low_frequency = low_frequency + bounce_light.radiance(bounce_normals @ c2w[:3, :3].to(normals))
-    spot, light_dirs = light.incident(gaussians.means, c2w)
-    if spot_visibility is not None:
-        if spot_visibility.shape != spot.shape:
-            raise ValueError(f"spot_visibility must have shape {tuple(spot.shape)}, got {tuple(spot_visibility.shape)}")
-        spot = spot * spot_visibility.to(spot)
+    spot, light_dirs = _visible_spot(light, gaussians.means, c2w, spot_visibility)
     lf_reflect = None
     if cfg.low_frequency_shading == "irradiance":
         lf_reflect = model_reflectance(cfg, albedo, rough, metal, normals, brdf)
     if split_lights:
-        lit = spot_lit_colours(albedo, rough, metal, normals, view_dirs, light_dirs,
-                               torch.ones_like(spot), torch.zeros_like(low_frequency), brdf)  # f̃·cos
+        lit = _unit_spot_response(albedo, rough, metal, normals, view_dirs, light_dirs, brdf)
         low = lit * low_frequency if lf_reflect is None else lf_reflect * low_frequency
         return torch.cat([lit * spot, low], dim=1)
     return spot_lit_colours(albedo, rough, metal, normals, view_dirs, light_dirs, spot, low_frequency, brdf,
                             lf_reflect)
+
+
+def _visible_spot(light: SpotLight, means: torch.Tensor, c2w: torch.Tensor,
+                  spot_visibility: torch.Tensor | None) -> tuple[torch.Tensor, torch.Tensor]:
+    """The spotlight's radiance at every Gaussian (N, 1), scaled by ``spot_visibility`` (N, 1) when given, and the unit
+    directions towards the lamp (N, 3) (:meth:`SpotLight.incident`)."""
+    spot, light_dirs = light.incident(means, c2w)
+    if spot_visibility is not None:
+        if spot_visibility.shape != spot.shape:
+            raise ValueError(f"spot_visibility must have shape {tuple(spot.shape)}, got {tuple(spot_visibility.shape)}")
+        spot = spot * spot_visibility.to(spot)
+    return spot, light_dirs
+
+
+def _unit_spot_response(albedo: torch.Tensor, rough: torch.Tensor, metal: torch.Tensor, normals: torch.Tensor,
+                        view_dirs: torch.Tensor, light_dirs: torch.Tensor, brdf: nn.Module) -> torch.Tensor:
+    """(N, 3) f̃ · max(0, n̂·l̂): the colour under a unit spotlight radiance and no low-frequency light."""
+    ones = torch.ones((len(normals), 1), dtype=normals.dtype, device=normals.device)
+    return spot_lit_colours(albedo, rough, metal, normals, view_dirs, light_dirs, ones, torch.zeros_like(normals),
+                            brdf)
 
 
 def _check_modules(cfg: ModelConfig, light, lf_light, brdf, bounce_light, relit: bool) -> None:

@@ -220,13 +220,16 @@ def build_scene(
 def build_optimizers(scene: RelightableScene, config: TrainConfig, extent: float,
                      photometric: PhotometricCamera | None = None) -> dict[str, torch.optim.Optimizer]:
     """One Adam per per-Gaussian parameter (so densification can edit its state) plus the appearance modules and the
-    photometric camera."""
+    photometric camera. Normals at learning rate 0 (a trusted start's) are held: they get no gradient (their Adam keeps
+    no moments and leaves them as they are, as it would with the gradient at that rate)."""
     lrs = {
         "means": config.lr_means_init * extent, "quats": config.lr_quats, "log_scales": config.lr_scales,
         "opacity_logits": config.lr_opacity, "albedo_raw": config.lr_albedo, "normals_raw": config.lr_normals,
         "roughness_raw": config.lr_roughness, "metalness_raw": config.lr_metalness, "sh0": config.lr_sh0,
         "shN": config.lr_shN,
     }
+    if "normals_raw" in scene.gaussians.params:
+        scene.gaussians.params["normals_raw"].requires_grad_(config.lr_normals != 0)
     opts: dict[str, torch.optim.Optimizer] = {
         name: torch.optim.Adam([p], lr=lrs[name], eps=1e-15, fused=True) for name, p in scene.gaussians.params.items()
     }
