@@ -843,6 +843,24 @@ def test_normal_gravity_prior_pulls_to_the_nearer_of_horizontal_and_vertical():
 
 
 @pytest.mark.blender
+def test_the_start_point_cloud_is_read_once_at_start_up(bedroom, monkeypatch):
+    """The start-up decisions (a sparse start's schedule, a trusted dense start) and the initial Gaussians share one
+    read of the dataset's point cloud."""
+    import spotlessgs.io.dataset as dataset_io
+    from spotlessgs.training.data import load_training_views
+    from spotlessgs.training.trainer import build_scene, sparse_start_schedule, start_geometry_settings
+
+    reads = []
+    original = dataset_io.read_point_cloud
+    monkeypatch.setattr(dataset_io, "read_point_cloud", lambda path: reads.append(path) or original(path))
+    cfg = _tiny(image_width=40, trust_start_geometry="auto")
+    views = load_training_views(bedroom, cfg.image_width)
+    cfg = start_geometry_settings(sparse_start_schedule(cfg, views), views, "spotless")
+    assert cfg.lamp_bounce and cfg.lr_normals == 0.0  # the shipped bedroom's dense start is trusted
+    build_scene(views, "spotless", cfg, seed=0)
+    assert len(reads) == 1
+
+
 def test_a_trusted_dense_start_keeps_its_normals_and_trains_the_bounce(bedroom, tmp_path):
     """trust_start_geometry=auto on the simulator's dense cloud: the normals stay the start's, the bounce's gain
     learns, the BRDF is unclamped, and the run loads as it trained (its checkpoint records the model's settings),

@@ -7,6 +7,7 @@ the working pixels without an input sample are marked ``unseen`` and take no par
 
 from __future__ import annotations
 
+import functools
 import logging
 import math
 from dataclasses import dataclass
@@ -62,6 +63,12 @@ class TrainingViews:
     unseen: torch.Tensor | None = None
     radius: torch.Tensor | None = None
     exposures: list[float] | None = None
+
+    @functools.cached_property
+    def start_points(self) -> PointCloud | None:
+        """The dataset's initial point cloud (:func:`~spotlessgs.io.dataset.load_initial_points`), read once; None
+        when it has none. Treat it as read-only: the start-up decisions and the initial Gaussians share it."""
+        return load_initial_points(self.dataset)
 
     def scene_extent(self) -> float:
         """Radius of the camera centres around their mean × 1.1 (3DGS's 'cameras extent'); at least 0.1 m."""
@@ -237,7 +244,7 @@ def initial_point_cloud(views: TrainingViews, rng: np.random.Generator, n_random
     points are drawn per training view at uniform pixels and depths in [0.3, 2 × scene extent] m, grey, without
     normals.
     """
-    cloud = load_initial_points(views.dataset)
+    cloud = views.start_points
     if cloud is not None and len(cloud.xyz) > 0:
         if estimate and (cloud.normals is None or not np.any(cloud.normals)):  # none in the file, or zeros
             centres = views.cameras.centres[views.train].double().numpy()

@@ -19,7 +19,7 @@ from typing import Any, Sequence
 import numpy as np
 import torch
 
-from spotlessgs.io.dataset import load_initial_points, read_dataset
+from spotlessgs.io.dataset import read_dataset
 from spotlessgs.io.dataset_fingerprint import dataset_fingerprint, other_dataset
 from spotlessgs.io.atomic import remove_partial_files, write_json
 from spotlessgs.io.errors import InputError, write_error
@@ -141,7 +141,7 @@ def sparse_start_schedule(config: TrainConfig, views: TrainingViews) -> TrainCon
     (see SPARSE_START_SHARE); unchanged for a dense cloud or none (the random start has enough points)."""
     if not config.sparse_start:
         return config
-    cloud = load_initial_points(views.dataset)
+    cloud = views.start_points
     sparse = cloud is not None and _start_is_sparse(config, cloud)
     if not sparse or config.densify_from <= config.densify_every:
         return config
@@ -153,7 +153,7 @@ def sparse_start_schedule(config: TrainConfig, views: TrainingViews) -> TrainCon
 def dense_start_with_normals(config: TrainConfig, views: TrainingViews) -> bool:
     """Whether the run starts from a dense point cloud (not sparse by SPARSE_START_SHARE; a depth camera's or the
     simulator's) whose normals it has or estimates (``config.estimate_normals``)."""
-    cloud = load_initial_points(views.dataset)
+    cloud = views.start_points
     if cloud is None or len(cloud.xyz) == 0 or _start_is_sparse(config, cloud):
         return False
     return config.estimate_normals or (cloud.normals is not None and bool(np.any(cloud.normals)))
