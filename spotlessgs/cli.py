@@ -50,6 +50,9 @@ def main(verbose: bool) -> None:
                    "the coordinate search's two decisions, BRDF then SH degree, get half each).")
 @click.option("--selection-search", type=click.Choice(["coordinate", "grid"]), default=None,
               help="--model auto: candidate search (default coordinate).")
+@click.option("--trusted-start-reflectance", type=click.Choice(["compare", "learned"]), default=None,
+              help="--model auto on a start the trainer trusts (a dense one with normals): compare the BRDFs on "
+                   "held-out pixels (default) or keep the learned BRDF, the start's normals held.")
 @click.option("--gaussian-budget", is_flag=True,
               help="Stop densifying when held-out error stops improving and prune Gaussians that do not change the "
                    "renders (spotlessgs.training.budget).")
@@ -71,15 +74,16 @@ def main(verbose: bool) -> None:
 @click.option("--device", default="auto", show_default=True, type=click.Choice(["auto", "cpu", "cuda"]))
 @click.option("-q", "--quiet", is_flag=True, help="No progress bar.")
 def train(data_dir, run_dir, model, preset, iterations, image_width, seed, resume, light_prior, light_prior_weight,
-          linear_input, max_gaussians, tolerance_db, selection_search, gaussian_budget, photometric,
-          low_frequency_shading, refine_poses, settings, threads, device, quiet):
+          linear_input, max_gaussians, tolerance_db, selection_search, trusted_start_reflectance, gaussian_budget,
+          photometric, low_frequency_shading, refine_poses, settings, threads, device, quiet):
     """Train a relightable model (or a baseline) on the uneven images of a dataset."""
     # deferred (here and in the other commands): the torch-based library, kept out of `spotless --help`
     from spotlessgs.run import RunSpec, train as train_run
     from spotlessgs.training.selection import format_selection_table, selection_config
 
-    if model != "auto" and (tolerance_db is not None or selection_search is not None):
-        raise click.UsageError("--tolerance-db and --selection-search only apply to --model auto")
+    if model != "auto" and any(v is not None for v in (tolerance_db, selection_search, trusted_start_reflectance)):
+        raise click.UsageError("--tolerance-db, --selection-search and --trusted-start-reflectance only apply to "
+                               "--model auto")
     overrides = {**dict(settings), "device": device, "linear_input": linear_input}
     if refine_poses:
         overrides["refine_poses"] = True
@@ -90,7 +94,8 @@ def train(data_dir, run_dir, model, preset, iterations, image_width, seed, resum
             overrides[key] = value
     spec = RunSpec(data=data_dir, model=model, preset=preset, strategy="budget" if gaussian_budget else "default",
                    seed=seed, overrides=tuple(overrides.items()), light_prior=light_prior or None,
-                   selection=selection_config(tolerance_db, selection_search) if model == "auto" else None)
+                   selection=selection_config(tolerance_db, selection_search, trusted_start_reflectance)
+                   if model == "auto" else None)
     run = train_run(spec, run_dir, resume=resume, progress=not quiet)
     if run.decision is not None:
         click.echo(format_selection_table(run.decision))

@@ -77,6 +77,7 @@ def test_candidates_are_spotlight_models_with_an_sh_light():
     ({"sh_degrees": (0, 5)}, "sh_degrees"), ({"sh_degrees": ()}, "sh_degrees"),
     ({"holdout": "pixels"}, "holdout must be"), ({"holdout_fraction": 1.0}, "holdout_fraction"),
     ({"min_low_frequency_share": 1.0}, "min_low_frequency_share"), ({"share_views": 0}, "share_views"),
+    ({"trusted_start_reflectance": "lambert"}, "trusted_start_reflectance must be"),
 ])
 def test_selection_config_rejects_bad_values(kwargs, match):
     with pytest.raises(ValueError, match=match):
@@ -437,6 +438,51 @@ def test_train_model_auto_writes_the_decision_prints_the_table_and_trains_the_ch
     with pytest.raises(ValueError, match="model selection version 4, this is version 5.*to decide again"):
         select_model(box_room, out, _tiny(iterations=300, image_width=32), 0, SelectionConfig(tolerance_db=0.3),
                      resume=True)
+
+
+def test_a_trusted_start_keeps_the_learned_brdf_by_rule_and_the_base_holds_the_start_normals(box_room, tmp_path):
+    """``trusted_start_reflectance="learned"``: on a start the trainer trusts, no reflectance phase; the shared base
+    holds the start's normals, the light phase trains the learned BRDF from it (trusted: normals held, the lamp's
+    bounce on, unclamped); elsewhere, and by default, the BRDFs compete as before."""
+    from spotlessgs.training.selection import select_model, trusted_start
+    from spotlessgs.training.trainer import trusts_start_geometry
+
+    cfg = _tiny(iterations=300, image_width=32, trust_start_geometry="on")
+    assert trusted_start(cfg, box_room)
+    assert not trusted_start(cfg.replace(trust_start_geometry="auto"), box_room)  # no point cloud: a random start
+    assert not trusted_start(cfg.replace(trust_start_geometry="off"), box_room)
+    out = tmp_path / "auto"
+    rule = SelectionConfig(tolerance_db=0.3, trusted_start_reflectance="learned")
+    decision = select_model(box_room, out, cfg, 0, rule)
+    assert decision["reflectance"] == "learned by rule"
+    assert [(c["name"], c["phase"]) for c in decision["candidates"]] == [("auto-sh0-mlp", "light"),
+                                                                        ("auto-sh3-mlp", "light")]
+    assert decision["chosen_model"]["brdf"] == "mlp"
+    assert "the learned BRDF by rule" in format_selection_table(decision)
+
+    def train_settings(folder):
+        return json.loads((out / "selection" / folder / "config.json").read_text())["train"]
+
+    assert train_settings("base")["lr_normals"] == 0.0  # the Lambertian base is not trusted: held by the rule
+    for degree in (0, 3):  # trusted by the trainer's own policy (normals held, bounce, unclamped: test_training)
+        name = f"auto-sh{degree}-mlp-light"
+        assert json.loads((out / "selection" / name / "run.json").read_text())["init_from"] == \
+            str((out / "selection" / "base").resolve())
+        assert train_settings(name)["trust_start_geometry"] == "on"
+        assert trusts_start_geometry(candidate_model(degree, "mlp"))
+    # a decision written before the setting existed compared the BRDFs: resumed under the default, reused as it was
+    older = json.loads((out / SELECTION_FILE).read_text())
+    del older["settings"]["selection"]["trusted_start_reflectance"]
+    (out / SELECTION_FILE).write_text(json.dumps(older))
+    assert select_model(box_room, out, cfg, 0, SelectionConfig(tolerance_db=0.3), resume=True) == older
+    with pytest.raises(ValueError, match="other selection settings"):
+        select_model(box_room, out, cfg, 0, rule, resume=True)
+    # not trusted (the default rule, or a start the trainer does not trust): the reflectance phase runs
+    compared = select_model(box_room, tmp_path / "compared", cfg.replace(trust_start_geometry="off"), 0, rule)
+    assert compared["reflectance"] == "compared"
+    assert [c["phase"] for c in compared["candidates"]] == ["reflectance"] * 2 + ["light"] * 2
+    assert json.loads((tmp_path / "compared" / "selection" / "base" / "config.json").read_text())["train"][
+        "lr_normals"] == cfg.lr_normals > 0
 
 
 def test_selection_options_need_model_auto(box_room, tmp_path):

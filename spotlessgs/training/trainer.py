@@ -153,7 +153,11 @@ def sparse_start_schedule(config: TrainConfig, views: TrainingViews) -> TrainCon
 def dense_start_with_normals(config: TrainConfig, views: TrainingViews) -> bool:
     """Whether the run starts from a dense point cloud (not sparse by SPARSE_START_SHARE; a depth camera's or the
     simulator's) whose normals it has or estimates (``config.estimate_normals``)."""
-    cloud = views.start_points
+    return cloud_is_dense_with_normals(config, views.start_points)
+
+
+def cloud_is_dense_with_normals(config: TrainConfig, cloud: PointCloud | None) -> bool:
+    """:func:`dense_start_with_normals` of a dataset's start point cloud (None: the dataset has none)."""
     if cloud is None or len(cloud.xyz) == 0 or _start_is_sparse(config, cloud):
         return False
     return config.estimate_normals or (cloud.normals is not None and bool(np.any(cloud.normals)))
