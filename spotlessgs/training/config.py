@@ -153,8 +153,8 @@ class TrainConfig:
     # training.trainer.trusts_start_geometry) are trusted so: the bounce is part of the SH light, as the SH bounce
     # light is, and a Lambertian albedo with held normals paints a metal's glint in (the storage room's DarkGS + SH
     # light −1.8 dB). With "auto" SpotlessGS gains +0.1-0.3 / +1.1-1.6 dB (lamps-on / uniform ground truth) on every
-    # simulator room with a dense start, at +15.3 % per step (docs/results.md, "Trusting a dense start, with the BRDF
-    # unclamped").
+    # simulator room with a dense start, at +15 to +21 % per step (idle A/Bs; docs/results.md, "Trusting a dense
+    # start, with the BRDF unclamped", "The bounce pass's cost").
     trust_start_geometry: str = "auto"
     # The low-frequency light's gradient reaches the normals (ModelConfig.low_frequency_turns_normals; True: the paper's).
     low_frequency_turns_normals: bool = True
