@@ -188,11 +188,8 @@ class SelectionConfig:
 
 def trusted_start(config: TrainConfig, data_dir: str | Path) -> bool:
     """Whether a SpotlessGS model trained on ``data_dir`` with ``config`` holds its start's normals
-    (:func:`~spotlessgs.training.trainer.start_geometry_settings`: ``trust_start_geometry`` "on", or "auto" and a
-    dense start with normals)."""
-    if config.trust_start_geometry != "auto":
-        return config.trust_start_geometry == "on"
-    return trainer.cloud_is_dense_with_normals(config, load_initial_points(read_dataset(data_dir)))
+    (:func:`~spotlessgs.training.trainer.start_is_trusted` of the dataset's start point cloud)."""
+    return trainer.start_is_trusted(config, load_initial_points(read_dataset(data_dir)))
 
 
 def candidate_model(sh_degree: int, brdf: str) -> ModelConfig:

@@ -150,31 +150,26 @@ def sparse_start_schedule(config: TrainConfig, views: TrainingViews) -> TrainCon
     return dataclasses.replace(config, densify_from=config.densify_every)
 
 
-def dense_start_with_normals(config: TrainConfig, views: TrainingViews) -> bool:
-    """Whether the run starts from a dense point cloud (not sparse by SPARSE_START_SHARE; a depth camera's or the
-    simulator's) whose normals it has or estimates (``config.estimate_normals``)."""
-    return cloud_is_dense_with_normals(config, views.start_points)
-
-
-def cloud_is_dense_with_normals(config: TrainConfig, cloud: PointCloud | None) -> bool:
-    """:func:`dense_start_with_normals` of a dataset's start point cloud (None: the dataset has none)."""
+def start_is_trusted(config: TrainConfig, cloud: PointCloud | None) -> bool:
+    """Whether ``config.trust_start_geometry`` trusts a start from the dataset's point ``cloud`` (None: it has none):
+    "on", or "auto" and a dense cloud (not sparse by SPARSE_START_SHARE; a depth camera's or the simulator's) whose
+    normals the run has or estimates (``config.estimate_normals``)."""
+    if config.trust_start_geometry != "auto":
+        return config.trust_start_geometry == "on"
     if cloud is None or len(cloud.xyz) == 0 or _start_is_sparse(config, cloud):
         return False
     return config.estimate_normals or (cloud.normals is not None and bool(np.any(cloud.normals)))
 
 
 def start_geometry_settings(config: TrainConfig, views: TrainingViews, variant: str | ModelConfig) -> TrainConfig:
-    """``config`` for a run of ``variant`` with ``trust_start_geometry`` applied: where it is "on", or "auto" and the
-    start is :func:`dense_start_with_normals`, :data:`TRUSTED_START_SETTINGS` (the start's normals held, the lamp's
-    bounce light from the model's geometry on, the learned BRDF unclamped), for a model with an SH light and a learned
-    BRDF only (:func:`trusts_start_geometry`); elsewhere ``config`` unchanged. Derived from the dataset: the same on a
-    resume and when a finished run is loaded."""
-    trust = config.trust_start_geometry
-    if trust == "off" or not trusts_start_geometry(variant):
+    """``config`` for a run of ``variant`` with ``trust_start_geometry`` applied: where the start is trusted
+    (:func:`start_is_trusted`), :data:`TRUSTED_START_SETTINGS` (the start's normals held, the lamp's bounce light from
+    the model's geometry on, the learned BRDF unclamped), for a model with an SH light and a learned BRDF only
+    (:func:`trusts_start_geometry`); elsewhere ``config`` unchanged. Derived from the dataset: the same on a resume
+    and when a finished run is loaded."""
+    if not trusts_start_geometry(variant) or not start_is_trusted(config, views.start_points):
         return config
-    if trust == "auto":
-        if not dense_start_with_normals(config, views):
-            return config
+    if config.trust_start_geometry == "auto":
         log.info("%s: a dense start: its normals held, the lamp's bounce light on, the BRDF unclamped "
                  "(trust_start_geometry=auto)", views.dataset.root)
     return dataclasses.replace(config, **TRUSTED_START_SETTINGS)
