@@ -15,9 +15,10 @@ from spotlessgs.io.camera_batch import Cameras
 from spotlessgs.io.cameras import Intrinsics
 from spotlessgs.models.gaussians import GaussianParams
 from spotlessgs.models.lamp_bounce import (
-    LampBounce, _clamped_cosine_irradiance, _incident_moments, one_bounce_irradiance,
+    MIN_ALPHA, LampBounce, _clamped_cosine_irradiance, _incident_moments, one_bounce_irradiance,
 )
-from spotlessgs.models.relightable import RelightableScene
+from spotlessgs.models.relightable import RelightableScene, frustum_mask
+from spotlessgs.rasterizer import rasterize
 from spotlessgs.models.shading import MODEL_VARIANTS, build_appearance_models
 
 
@@ -201,8 +202,38 @@ def test_a_given_irradiance_is_the_one_the_render_uses():
     torch.testing.assert_close(doubled, 2.0 * (scene.render(camera).image - plain), rtol=1e-4, atol=1e-6)
     out, moments = scene.render_with_depth_moments(camera, lamp_irradiance=irradiance)
     torch.testing.assert_close(out.image, scene.render(camera).image, rtol=0, atol=0)
+    assert out.lamp_irradiance is irradiance and scene.render(camera, relight_l0=[1.0, 1.0, 1.0]).lamp_irradiance is None
     with pytest.raises(ValueError, match="no lamp bounce"):
         without.lamp_bounce_irradiance(camera)
+
+
+@pytest.mark.parametrize("split_lights", [False, True])
+def test_the_irradiance_computed_in_the_renders_own_pass_equals_a_pass_of_its_own(split_lights):
+    """The render computes a new irradiance from channels it composites beside the colour; a separate forward pass
+    of the spotlight's part of the colour and the camera-frame normals gives the same, bit for bit, and so does
+    the pass with the depth moments."""
+    camera = Cameras(torch.eye(4), Intrinsics(40.0, 40.0, WIDTH / 2, HEIGHT / 2, WIDTH, HEIGHT))
+    g = _wall_scene(seed=3)
+    scene = RelightableScene.create(dataclasses.replace(MODEL_VARIANTS["spotless"], lamp_bounce=True), g, seed=1)
+    with torch.no_grad():
+        scene.appearance.lf_light.coeffs.normal_(0.0, 0.3, generator=torch.Generator().manual_seed(2))
+    out = scene.render(camera, split_lights=split_lights)
+    with torch.no_grad():
+        mask = frustum_mask(g.means, g.scales, camera.viewmat, camera.K, camera.width, camera.height)
+        spot = scene.colours(camera.c2w, mask=mask, split_lights=True)[:, :3]
+        alone = rasterize(g.means, g.quats, g.scales, g.opacities, torch.cat([spot, scene.camera_normals(camera.c2w)], 1),
+                          camera.viewmat, camera.K, camera.width, camera.height)
+        normals = torch.nn.functional.normalize(alone.image[..., 3:], dim=-1)
+        expected = one_bounce_irradiance(alone.image[..., :3], alone.depth, normals, alone.alpha >= MIN_ALPHA,
+                                         camera.K)
+    assert float(expected.max()) > 0
+    torch.testing.assert_close(out.lamp_irradiance, expected, rtol=0, atol=0)
+    assert out.image.shape == (HEIGHT, WIDTH, 6 if split_lights else 3)  # the bounce's channels are taken off
+    given = scene.render(camera, split_lights=split_lights, lamp_irradiance=expected)
+    torch.testing.assert_close(out.image, given.image, rtol=0, atol=0)
+    with_moments, moments = scene.render_with_depth_moments(camera)
+    torch.testing.assert_close(with_moments.lamp_irradiance, expected, rtol=0, atol=0)
+    assert moments.shape == (HEIGHT, WIDTH, 2)
 
 
 def test_training_reuses_each_views_irradiance_for_lamp_bounce_every_steps():
@@ -213,20 +244,28 @@ def test_training_reuses_each_views_irradiance_for_lamp_bounce_every_steps():
     g = _wall_scene()
     scene = RelightableScene.create(dataclasses.replace(MODEL_VARIANTS["darkgs"], lamp_bounce=True), g, seed=0)
     cache = LampBounceCache(TrainConfig(lamp_bounce_every=3))
-    first = cache.get(scene, 0, 10, camera)
+
+    def fitted(view: int, step: int) -> torch.Tensor:  # as the trainer's step renders a view
+        irradiance = scene.render(camera, lamp_irradiance=cache.fresh(view, step)).lamp_irradiance
+        cache.keep(view, step, irradiance)
+        return irradiance
+
+    assert cache.fresh(0, 10) is None
+    first = fitted(0, 10)
     torch.testing.assert_close(first, scene.lamp_bounce_irradiance(camera), rtol=0, atol=0)
     with torch.no_grad():
         g.params["albedo_raw"].add_(1.0)  # a brighter spotlit render: more bounce light once recomputed
-    assert cache.get(scene, 0, 12, camera) is first and cache.get(scene, 1, 12, camera) is not first
-    again = cache.get(scene, 0, 13, camera)  # three steps old: computed again
+    assert fitted(0, 12) is first and cache.fresh(0, 12) is first and fitted(1, 12) is not first
+    again = fitted(0, 13)  # three steps old: computed again
     assert float(again.sum()) > 1.01 * float(first.sum())
+    cache.keep(0, 14, first)  # a fresh one is not replaced
+    assert cache.fresh(0, 14) is again
     restored = LampBounceCache(TrainConfig())
     restored.load_state_dict(cache.state_dict(), "cpu")
     assert set(restored.kept) == {0, 1} and restored.kept[0][0] == 13
     torch.testing.assert_close(restored.kept[0][1], again, rtol=0, atol=0)
     restored.load_state_dict({0: {"step": 4}}, "cpu")  # an entry without its tensor: computed anew when next used
     assert restored.kept == {}
-    assert LampBounceCache(TrainConfig()).get(RelightableScene.create(MODEL_VARIANTS["darkgs"], g, seed=0),
-                                              0, 0, camera) is None
+    assert RelightableScene.create(MODEL_VARIANTS["darkgs"], g, seed=0).render(camera).lamp_irradiance is None
     with pytest.raises(ValueError, match="lamp_bounce_every"):
         TrainConfig(lamp_bounce_every=0)

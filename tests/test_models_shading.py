@@ -143,34 +143,40 @@ def test_irradiance_shading_uses_the_relit_reflectance_of_a_learned_brdf():
     assert not torch.allclose(paper[:, 3:], relit, atol=1e-3)  # the paper's shading differs
 
 
-def test_spot_only_is_the_split_renders_first_half_without_the_low_frequency_light(monkeypatch):
-    """``spot_only`` (the lamp bounce's emitters) gives the spotlight's part of the split exactly, with shadows and a
-    bounce light present, and never evaluates the low-frequency light; it refuses a relit or unlit render."""
+@pytest.mark.parametrize("low_frequency_shading", ["spot_cosine", "irradiance"])
+def test_with_spot_part_gives_the_colour_and_the_split_renders_first_half_exactly(low_frequency_shading):
+    """``with_spot_part`` (the lamp bounce's emitters, in the training render's own pass) gives the normal colour and
+    the spotlight's part of the split bit for bit, with shadows and a bounce light present, the part detached; it
+    refuses a relit or unlit render and the split."""
     g = _scene()
-    config = dataclasses.replace(MODEL_VARIANTS["spotless"], brdf_hidden=16, bounce_light_degree=2)
+    config = dataclasses.replace(MODEL_VARIANTS["spotless"], brdf_hidden=16, bounce_light_degree=2,
+                                 low_frequency_shading=low_frequency_shading)
     models = build_appearance_models(config, seed=2)
     assert models.bounce_light is not None
     with torch.no_grad():
         models.lf_light.coeffs.normal_(0.0, 0.3, generator=torch.Generator().manual_seed(5))
     c2w = _look_at_c2w([0.0, -3.0, 0.5], [0.0, 0.0, 0.0])
     visibility = torch.rand((len(g), 1), generator=torch.Generator().manual_seed(6))
-    parts = shade(config, g, models.light, models.lf_light, models.brdf, c2w, split_lights=True,
-                  bounce_light=models.bounce_light, spot_visibility=visibility)
+    common = dict(bounce_light=models.bounce_light, spot_visibility=visibility)
+    parts = shade(config, g, models.light, models.lf_light, models.brdf, c2w, split_lights=True, **common)
     assert float(parts[:, 3:].abs().sum()) > 0 and float(parts[:, :3].abs().sum()) > 0
-
-    def unevaluated(normals):
-        raise AssertionError("spot_only evaluated a low-frequency light")
-
-    for light in (models.lf_light, models.bounce_light):
-        monkeypatch.setattr(light, "radiance", unevaluated)
-    spot = shade(config, g, models.light, models.lf_light, models.brdf, c2w, bounce_light=models.bounce_light,
-                 spot_visibility=visibility, spot_only=True)
-    torch.testing.assert_close(spot, parts[:, :3], rtol=0, atol=0)
-    with pytest.raises(ValueError, match="spot_only needs a spotlight-lit render"):
+    colour = shade(config, g, models.light, models.lf_light, models.brdf, c2w, **common)
+    both = shade(config, g, models.light, models.lf_light, models.brdf, c2w, with_spot_part=True, **common)
+    torch.testing.assert_close(both[:, :3], colour, rtol=0, atol=0)
+    torch.testing.assert_close(both[:, 3:], parts[:, :3], rtol=0, atol=0)
+    # the part carries no gradient: the colour's alone reaches the albedo
+    (grad_part,) = torch.autograd.grad(both[:, 3:].sum(), g.params["albedo_raw"], retain_graph=True)
+    assert float(grad_part.abs().sum()) == 0
+    (grad_both,) = torch.autograd.grad(both.sum(), g.params["albedo_raw"])
+    (grad_colour,) = torch.autograd.grad(colour.sum(), g.params["albedo_raw"])
+    torch.testing.assert_close(grad_both, grad_colour, rtol=0, atol=0)
+    with pytest.raises(ValueError, match="with_spot_part needs a spotlight-lit render"):
         shade(config, g, models.light, models.lf_light, models.brdf, c2w, relight_l0=[1.0, 1.0, 1.0],
-              spot_only=True)
-    with pytest.raises(ValueError, match="spot_only needs a spotlight-lit render of a lit variant, not '3dgs'"):
-        shade("3dgs", g, None, None, None, c2w, spot_only=True)
+              with_spot_part=True)
+    with pytest.raises(ValueError, match="with_spot_part needs a spotlight-lit render of a lit variant, not '3dgs'"):
+        shade("3dgs", g, None, None, None, c2w, with_spot_part=True)
+    with pytest.raises(ValueError, match="already the first half of split_lights"):
+        shade(config, g, models.light, models.lf_light, models.brdf, c2w, split_lights=True, with_spot_part=True)
 
 
 def test_grazing_and_back_facing_light_give_zero_spot_colour_with_finite_gradients():

@@ -40,6 +40,15 @@ def frustum_mask(
         return (z > near) & (u + r > 0) & (u - r < width) & (v + r > 0) & (v - r < height)
 
 
+@dataclasses.dataclass(frozen=True)
+class SceneRender(RasterOutput):
+    """What :meth:`RelightableScene.render` returns: the rasterizer's output and, for a variant with the lamp's
+    bounce light rendered under the spotlight, the one-bounce irradiance (H, W, 3) it used (given, or computed in
+    the same pass: a caller keeps it to reuse for a few steps); None otherwise."""
+
+    lamp_irradiance: torch.Tensor | None = None
+
+
 class RelightableScene(nn.Module):
     """Gaussians and the appearance modules of one model variant.
 
@@ -64,20 +73,20 @@ class RelightableScene(nn.Module):
     def colours(
         self, c2w: torch.Tensor, mask: torch.Tensor | None = None,
         relight_l0: torch.Tensor | Sequence[float] | None = None, split_lights: bool = False,
-        spot_visibility: torch.Tensor | None = None, spot_only: bool = False,
+        spot_visibility: torch.Tensor | None = None, with_spot_part: bool = False,
     ) -> torch.Tensor:
         """(N, 3) linear colours of all Gaussians seen from ``c2w`` (OpenCV); zero outside ``mask`` (N,) bool.
         ``split_lights``: (N, 6), lit by the spotlight alone and by the low-frequency light alone (see ``shade``);
-        ``spot_only``: (N, 3), the first of those halves alone; ``spot_visibility``: (N, 1) spotlight shadows of all
-        Gaussians, or None (see ``shade``)."""
+        ``with_spot_part``: (N, 6), the colour and, detached, the first of those halves; ``spot_visibility``: (N, 1)
+        spotlight shadows of all Gaussians, or None (see ``shade``)."""
         app = self.appearance
         if mask is None:
             return shade(self.config, self.gaussians, app.light, app.lf_light, app.brdf, c2w, relight_l0,
-                         split_lights, app.bounce_light, spot_visibility, spot_only)
+                         split_lights, app.bounce_light, spot_visibility, with_spot_part)
         idx = torch.nonzero(mask).squeeze(1)
         visibility = None if spot_visibility is None else spot_visibility[idx]
         colours = shade(self.config, self.gaussians.subset(idx), app.light, app.lf_light, app.brdf, c2w, relight_l0,
-                        split_lights, app.bounce_light, visibility, spot_only)
+                        split_lights, app.bounce_light, visibility, with_spot_part)
         out = colours.new_zeros((len(self.gaussians), colours.shape[1]))
         return out.index_copy(0, idx, colours)
 
@@ -85,20 +94,21 @@ class RelightableScene(nn.Module):
         self, camera: Cameras, *, relight_l0: torch.Tensor | Sequence[float] | None = None, backend: str = "auto",
         num_threads: int | None = None, background: torch.Tensor | None = None, split_lights: bool = False,
         shadow_map: shadow.ShadowMap | None = None, lamp_irradiance: torch.Tensor | None = None,
-    ) -> RasterOutput:
+    ) -> SceneRender:
         """Render one view (``camera``: a single view): under the learned spotlight, or relit by L0 when
         ``relight_l0`` is given; ``split_lights``: a six-channel image, [spotlight part, low-frequency part] (their sum
         is the normal render). A variant with ``spot_shadows`` shades the spotlight with the lamp's shadow map
         (models.shadow): ``shadow_map``, one rendered for this view a few steps ago, or else a new one. A variant with
         ``lamp_bounce`` adds the lamp's bounce light of ``lamp_irradiance`` (H, W, 3), one computed for this view a
-        few steps ago (:meth:`lamp_bounce_irradiance`), or else a new one."""
+        few steps ago (the ``lamp_irradiance`` of an earlier render), or else a new one, computed from this render's
+        own spotlit colours, depth and normals (four more channels composited in the same pass)."""
         return self._render(camera, relight_l0, backend, num_threads, background, split_lights, shadow_map,
                             lamp_irradiance)
 
     def render_with_depth_moments(
         self, camera: Cameras, *, backend: str = "auto", num_threads: int | None = None,
         shadow_map: shadow.ShadowMap | None = None, lamp_irradiance: torch.Tensor | None = None,
-    ) -> tuple[RasterOutput, torch.Tensor]:
+    ) -> tuple[SceneRender, torch.Tensor]:
         """:meth:`render` under the learned spotlight, and the depth moments (H, W, 2) [Σ w z, Σ w z²] of the same
         compositing (w the weights, z each Gaussian's camera-frame depth; Σ w is the output's alpha), rendered in the
         same pass as two more channels (training's depth-spread term: losses.depth_spread_loss)."""
@@ -109,7 +119,7 @@ class RelightableScene(nn.Module):
     def _render(self, camera: Cameras, relight_l0: torch.Tensor | Sequence[float] | None, backend: str,
                 num_threads: int | None, background: torch.Tensor | None, split_lights: bool,
                 shadow_map: shadow.ShadowMap | None, lamp_irradiance: torch.Tensor | None,
-                depth_moments: bool = False) -> RasterOutput:
+                depth_moments: bool = False) -> SceneRender:
         """:meth:`render`; ``depth_moments`` (no ``background``): two more channels, Σ w z and Σ w z²."""
         if camera.is_batch:
             raise ValueError("RelightableScene.render: expected one view, got a batch of cameras")
@@ -121,19 +131,34 @@ class RelightableScene(nn.Module):
         if self.has_spot_shadows and lit_by_lamp and shadow_map is None:
             shadow_map = self.shadow_map(camera, backend, num_threads)
         bouncing = self.appearance.lamp_bounce is not None and lit_by_lamp
-        if bouncing and lamp_irradiance is None:
-            lamp_irradiance = self._lamp_bounce_irradiance(camera, mask, backend, num_threads, shadow_map)
+        new_bounce = bouncing and lamp_irradiance is None
         feats = self.colours(camera.c2w, mask=mask, relight_l0=relight_l0, split_lights=split_lights,
-                             spot_visibility=self._spot_visibility(shadow_map) if lit_by_lamp else None)
+                             spot_visibility=self._spot_visibility(shadow_map) if lit_by_lamp else None,
+                             with_spot_part=new_bounce and not split_lights)
+        if new_bounce:  # the bounce's emitters: the spotlight's part of the colour, set aside for the last channels
+            spot = feats[:, :3].detach() if split_lights else feats[:, 3:]
+            feats = feats if split_lights else feats[:, :3]
         if bouncing:  # the receivers' albedo, for the bounce light
             feats = torch.cat([feats, g.albedo], dim=1)
         if depth_moments:
             depth = points_in_view(g.means, camera.viewmat)[:, 2:3]  # (N, 1) camera-frame z
             feats = torch.cat([feats, depth, depth * depth], dim=1)
+        if new_bounce:
+            # and every Gaussian's normal: frustum_mask leaves out some that reach the image's outermost pixels (up to
+            # 2 % of a border pixel's weight), and the normals of those pixels would change
+            with torch.no_grad():
+                normals = self.camera_normals(camera.c2w)
+            feats = torch.cat([feats, spot, normals], dim=1)
         out = rasterize(g.means, g.quats, scales, g.opacities, feats, camera.viewmat, K, width, height,
                         background=None if bouncing else background, backend=backend, num_threads=num_threads,
                         rigid_camera_grad=True)  # a view matrix with a gradient is a pose correction's
-        return self._add_lamp_bounce(out, lamp_irradiance, split_lights, background) if bouncing else out
+        if new_bounce:
+            lamp_irradiance = self._lamp_bounce_irradiance(out, camera.K)
+            out = dataclasses.replace(out, image=out.image[..., :-6])
+        if bouncing:
+            out = self._add_lamp_bounce(out, lamp_irradiance, split_lights, background)
+        return SceneRender(**{f.name: getattr(out, f.name) for f in dataclasses.fields(out)},
+                           lamp_irradiance=lamp_irradiance if bouncing else None)
 
     def _spot_visibility(self, shadow_map: shadow.ShadowMap | None) -> torch.Tensor | None:
         """(N, 1) the spotlight's shadows of all Gaussians from ``shadow_map`` (None: a variant without them)."""
@@ -152,34 +177,22 @@ class RelightableScene(nn.Module):
     def lamp_bounce_irradiance(self, camera: Cameras, backend: str = "auto", num_threads: int | None = None,
                                shadow_map: shadow.ShadowMap | None = None) -> torch.Tensor:
         """(H, W, 3) the one-bounce irradiance that the view's spotlit render gives every visible surface
-        (models.lamp_bounce.one_bounce_irradiance; no gradient), for :meth:`render`'s ``lamp_irradiance``.
-        ``shadow_map``: as :meth:`render`'s."""
+        (models.lamp_bounce.one_bounce_irradiance; no gradient): the ``lamp_irradiance`` of :meth:`render`'s spotlit
+        render of the view. ``shadow_map``: as :meth:`render`'s."""
         if self.appearance.lamp_bounce is None:
             raise ValueError(f"RelightableScene.lamp_bounce_irradiance: the variant {self.config.name!r} has no "
                              "lamp bounce (ModelConfig.lamp_bounce)")
-        if camera.is_batch:
-            raise ValueError("RelightableScene.lamp_bounce_irradiance: expected one view, got a batch of cameras")
-        g = self.gaussians
-        mask = frustum_mask(g.means, g.scales, camera.viewmat, camera.K, camera.width, camera.height)
-        if self.has_spot_shadows and shadow_map is None:
-            shadow_map = self.shadow_map(camera, backend, num_threads)
-        return self._lamp_bounce_irradiance(camera, mask, backend, num_threads, shadow_map)
-
-    def _lamp_bounce_irradiance(self, camera: Cameras, mask: torch.Tensor, backend: str, num_threads: int | None,
-                                shadow_map: shadow.ShadowMap | None) -> torch.Tensor:
-        """:meth:`lamp_bounce_irradiance` of the Gaussians in ``mask`` (N,) bool, the frustum's."""
         with torch.no_grad():
-            g = self.gaussians
-            spot = self.colours(camera.c2w, mask=mask, spot_only=True,
-                                spot_visibility=self._spot_visibility(shadow_map))
-            # every Gaussian's normal: frustum_mask leaves out some that reach the image's outermost pixels (up to 2 %
-            # of a border pixel's weight), and the normals of those pixels would change
-            feats = torch.cat([spot, self.camera_normals(camera.c2w)], dim=1)
-            out = rasterize(g.means, g.quats, g.scales, g.opacities, feats, camera.viewmat, camera.K, camera.width,
-                            camera.height, backend=backend, num_threads=num_threads)
+            return self.render(camera, backend=backend, num_threads=num_threads, shadow_map=shadow_map).lamp_irradiance
+
+    @staticmethod
+    def _lamp_bounce_irradiance(out: RasterOutput, K: torch.Tensor) -> torch.Tensor:
+        """(H, W, 3) :meth:`lamp_bounce_irradiance` from a render whose last six channels are the spotlight's part of
+        the colour and the camera-frame normals (intrinsics ``K`` (3, 3))."""
+        with torch.no_grad():
             surface = out.alpha >= MIN_ALPHA
-            normals = torch.nn.functional.normalize(out.image[..., 3:6], dim=-1)
-            return one_bounce_irradiance(out.image[..., :3], out.depth, normals, surface, camera.K)
+            normals = torch.nn.functional.normalize(out.image[..., -3:], dim=-1)
+            return one_bounce_irradiance(out.image[..., -6:-3], out.depth, normals, surface, K)
 
     def _add_lamp_bounce(self, out: RasterOutput, irradiance: torch.Tensor, split_lights: bool,
                          background: torch.Tensor | None) -> RasterOutput:

@@ -318,7 +318,7 @@ def shade(
     split_lights: bool = False,
     bounce_light: LowFrequencyLight | None = None,
     spot_visibility: torch.Tensor | None = None,
-    spot_only: bool = False,
+    with_spot_part: bool = False,
 ) -> torch.Tensor:
     """Linear RGB colour of every Gaussian seen from camera `c2w`, (N, 3); differentiable; never clipped above.
 
@@ -338,15 +338,18 @@ def shade(
             relighting leaves it out.
         spot_visibility: (N, 1) in [0, 1], how much of the lamp each Gaussian sees (``shadow.spot_visibility``), or
             None (all of it): scales L_spot only; ignored by relighting.
-        spot_only: under the spotlight only: (N, 3) the colour lit by the spotlight alone, equal to the first half of
-            ``split_lights``; the low-frequency light is not evaluated (the lamp bounce's emitters).
+        with_spot_part: under the spotlight only, without ``split_lights``: return (N, 6), the colour and, detached,
+            the colour lit by the spotlight alone (the first half of ``split_lights``: the lamp bounce's emitters),
+            from one evaluation of the BRDF.
     """
     cfg = resolve_variant(variant)
     check_c2w(c2w)
-    for name, wanted in (("split_lights", split_lights), ("spot_only", spot_only)):
+    for name, wanted in (("split_lights", split_lights), ("with_spot_part", with_spot_part)):
         if wanted and (cfg.light_model == "none" or relight_l0 is not None):
             raise ValueError(f"{name} needs a spotlight-lit render of a lit variant, not {cfg.name!r}"
                              + (" relit" if relight_l0 is not None else ""))
+    if split_lights and with_spot_part:
+        raise ValueError("with_spot_part: the spotlight's part is already the first half of split_lights")
     if cfg.light_model == "none":
         return vanilla_colours(gaussians, c2w, cfg.colour_sh_degree)
     _check_modules(cfg, light, lf_light, brdf, bounce_light, relit=relight_l0 is not None)
@@ -354,9 +357,6 @@ def shade(
     view_dirs = view_directions(gaussians.means, center)
     normals = shading_normals(cfg, gaussians, view_dirs, center)
     albedo, rough, metal = gaussians.albedo, gaussians.roughness, gaussians.metalness
-    if spot_only:
-        spot, light_dirs = _visible_spot(light, gaussians.means, c2w, spot_visibility)
-        return _unit_spot_response(albedo, rough, metal, normals, view_dirs, light_dirs, brdf) * spot
     low_frequency = lf_light.radiance(normals if cfg.low_frequency_turns_normals else normals.detach())
     if relight_l0 is not None:
         l0 = relight_radiance(relight_l0, albedo)
@@ -368,10 +368,15 @@ def shade(
     lf_reflect = None
     if cfg.low_frequency_shading == "irradiance":
         lf_reflect = model_reflectance(cfg, albedo, rough, metal, normals, brdf)
-    if split_lights:
+    if split_lights or with_spot_part:
         lit = _unit_spot_response(albedo, rough, metal, normals, view_dirs, light_dirs, brdf)
-        low = lit * low_frequency if lf_reflect is None else lf_reflect * low_frequency
-        return torch.cat([lit * spot, low], dim=1)
+        spot_part = lit * spot
+        if split_lights:
+            low = lit * low_frequency if lf_reflect is None else lf_reflect * low_frequency
+            return torch.cat([spot_part, low], dim=1)
+        # as spot_lit_colours combines them (lit is its f̃ · cos: the unit response's × 1 + 0 is exact)
+        colour = lit * (spot + low_frequency) if lf_reflect is None else spot_part + lf_reflect * low_frequency
+        return torch.cat([colour, spot_part.detach()], dim=1)
     return spot_lit_colours(albedo, rough, metal, normals, view_dirs, light_dirs, spot, low_frequency, brdf,
                             lf_reflect)
 

@@ -631,13 +631,14 @@ def _train_locked(data_dir: Path, run_dir: Path, variant: str | ModelConfig, con
             camera = corrected_camera(cameras[k], row) if refining else cameras[k]
             shadow_map = shadow_maps.get(scene, k, step, camera)
             render_options = {"backend": config.raster_backend, "num_threads": config.num_threads,
-                              "shadow_map": shadow_map,
-                              "lamp_irradiance": lamp_bounces.get(scene, k, step, camera, shadow_map)}
+                              "shadow_map": shadow_map, "lamp_irradiance": lamp_bounces.fresh(k, step)}
             depth_spread_step = depth_spread_weight > 0 and step % config.depth_spread_every == 0
             if depth_spread_step:
                 out, depth_moments = scene.render_with_depth_moments(camera, **render_options)
             else:
                 out = scene.render(camera, **render_options)
+            if out.lamp_irradiance is not None:  # the one the render was given, or a new one it computed
+                lamp_bounces.keep(k, step, out.lamp_irradiance)
             if not torch.isfinite(out.image).all():
                 raise TrainingDivergedError(f"step {step}: the render of view {views.names[k]} has NaN/Inf; "
                                             f"the last good checkpoint {ckpt_file} is intact")

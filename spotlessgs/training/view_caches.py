@@ -6,10 +6,10 @@ rasterizations at half the camera's focal length); reused for a few visits of it
 reused map gives the shadows of the geometry and lamp pose it was rendered from; the gradient still reaches the
 lamp's current position (:func:`spotlessgs.models.shadow.spot_visibility`).
 
-A view's one-bounce irradiance (models.lamp_bounce) costs a forward rasterization of the spotlit render and the
-camera-frame normals, and the bounce's pair sums; it carries no gradient, so a reused one changes only what the bounce
-light was computed from: the geometry, normals and spotlight of a few steps ago. The training step itself then
-composites the albedo only.
+A view's one-bounce irradiance (models.lamp_bounce) is computed in the training step's own render, from six more
+channels (the spotlight's part of the colour and the camera-frame normals) and the bounce's pair sums; it carries no
+gradient, so a reused one changes only what the bounce light was computed from: the geometry, normals and spotlight
+of a few steps ago. A step that reuses one composites the albedo only.
 
 Both go into the checkpoints, so that a resumed run reuses what an uninterrupted one would.
 """
@@ -31,21 +31,13 @@ Kept = TypeVar("Kept")
 
 
 class _ViewCache(abc.ABC, Generic[Kept]):
-    """Something rendered per training view, re-rendered once ``every`` steps old; subclasses say what and
-    how it is stored as named tensors."""
+    """Something rendered per training view, re-rendered once ``every`` steps old; subclasses say how it is stored
+    as named tensors."""
 
     def __init__(self, config: TrainConfig, every: int) -> None:
         self.config = config
         self.every = every
         self.kept: dict[int, tuple[int, Kept]] = {}
-
-    @abc.abstractmethod
-    def _wanted(self, scene: RelightableScene) -> bool:
-        """Whether ``scene`` uses what this cache keeps."""
-
-    @abc.abstractmethod
-    def _render(self, scene: RelightableScene, camera: Cameras, shadow_map: ShadowMap | None) -> Kept:
-        """A new one for ``camera`` (one view), under the view's current ``shadow_map``."""
 
     @abc.abstractmethod
     def _tensors(self, kept: Kept) -> dict[str, torch.Tensor]:
@@ -55,17 +47,15 @@ class _ViewCache(abc.ABC, Generic[Kept]):
     def _from_tensors(self, tensors: dict[str, Any], device: torch.device | str) -> Kept | None:
         """:meth:`_tensors`' inverse onto ``device``; None when a tensor is missing."""
 
-    def get(self, scene: RelightableScene, view: int, step: int, camera: Cameras,
-            shadow_map: ShadowMap | None = None) -> Kept | None:
-        """What ``view`` keeps for ``step`` (None when the model does not use it: nothing to cache); ``shadow_map``:
-        the view's current shadow map, for what is rendered under the spotlight."""
-        if not self._wanted(scene):
-            return None
+    def fresh(self, view: int, step: int) -> Kept | None:
+        """What ``view`` keeps, if it is less than ``every`` steps old at ``step``; else None."""
         cached = self.kept.get(view)
-        if cached is None or step - cached[0] >= self.every:
-            cached = (step, self._render(scene, camera, shadow_map))
-            self.kept[view] = cached
-        return cached[1]
+        return None if cached is None or step - cached[0] >= self.every else cached[1]
+
+    def keep(self, view: int, step: int, kept: Kept) -> None:
+        """Keep ``kept``, new at ``step``, for ``view`` (unless the view's kept one is still fresh)."""
+        if self.fresh(view, step) is None:
+            self.kept[view] = (step, kept)
 
     def state_dict(self) -> dict[int, dict[str, Any]]:
         """What is kept, by view: the step it was rendered at and its tensors (for a checkpoint)."""
@@ -87,11 +77,16 @@ class ShadowMapCache(_ViewCache[ShadowMap]):
     def __init__(self, config: TrainConfig) -> None:
         super().__init__(config, config.shadow_map_every)
 
-    def _wanted(self, scene: RelightableScene) -> bool:
-        return scene.has_spot_shadows
-
-    def _render(self, scene: RelightableScene, camera: Cameras, shadow_map: ShadowMap | None) -> ShadowMap:
-        return scene.shadow_map(camera, self.config.raster_backend, self.config.num_threads)
+    def get(self, scene: RelightableScene, view: int, step: int, camera: Cameras) -> ShadowMap | None:
+        """The shadow map of ``view`` (``camera``: the view) for ``step``: the kept one, or a new one when it is
+        ``shadow_map_every`` steps old; None for a model without spotlight shadows."""
+        if not scene.has_spot_shadows:
+            return None
+        kept = self.fresh(view, step)
+        if kept is None:
+            kept = scene.shadow_map(camera, self.config.raster_backend, self.config.num_threads)
+            self.keep(view, step, kept)
+        return kept
 
     def _tensors(self, kept: ShadowMap) -> dict[str, torch.Tensor]:
         return {f.name: getattr(kept, f.name) for f in dataclasses.fields(ShadowMap)}
@@ -105,16 +100,11 @@ class ShadowMapCache(_ViewCache[ShadowMap]):
 
 class LampBounceCache(_ViewCache[torch.Tensor]):
     """Each training view's one-bounce irradiance (H, W, 3), recomputed when ``config.lamp_bounce_every`` steps old
-    (models.lamp_bounce; :meth:`RelightableScene.lamp_bounce_irradiance`)."""
+    (models.lamp_bounce): :meth:`fresh` gives the render its ``lamp_irradiance`` (None: the render computes a new
+    one in its own pass), :meth:`keep` takes the render's ``lamp_irradiance`` back."""
 
     def __init__(self, config: TrainConfig) -> None:
         super().__init__(config, config.lamp_bounce_every)
-
-    def _wanted(self, scene: RelightableScene) -> bool:
-        return scene.appearance.lamp_bounce is not None
-
-    def _render(self, scene: RelightableScene, camera: Cameras, shadow_map: ShadowMap | None) -> torch.Tensor:
-        return scene.lamp_bounce_irradiance(camera, self.config.raster_backend, self.config.num_threads, shadow_map)
 
     def _tensors(self, kept: torch.Tensor) -> dict[str, torch.Tensor]:
         return {"irradiance": kept}
