@@ -51,8 +51,8 @@ def main(verbose: bool) -> None:
 @click.option("--selection-search", type=click.Choice(["coordinate", "grid"]), default=None,
               help="--model auto: candidate search (default coordinate).")
 @click.option("--trusted-start-reflectance", type=click.Choice(["compare", "learned"]), default=None,
-              help="--model auto on a start the trainer trusts (a dense one with normals): compare the BRDFs on "
-                   "held-out pixels (default) or keep the learned BRDF, the start's normals held.")
+              help="--model auto on a start the trainer trusts (a dense one with normals): keep the learned BRDF, "
+                   "the start's normals held (default), or compare the BRDFs on held-out pixels.")
 @click.option("--gaussian-budget", is_flag=True,
               help="Stop densifying when held-out error stops improving and prune Gaussians that do not change the "
                    "renders (spotlessgs.training.budget).")

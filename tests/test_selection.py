@@ -441,9 +441,9 @@ def test_train_model_auto_writes_the_decision_prints_the_table_and_trains_the_ch
 
 
 def test_a_trusted_start_keeps_the_learned_brdf_by_rule_and_the_base_holds_the_start_normals(box_room, tmp_path):
-    """``trusted_start_reflectance="learned"``: on a start the trainer trusts, no reflectance phase; the shared base
-    holds the start's normals, the light phase trains the learned BRDF from it (trusted: normals held, the lamp's
-    bounce on, unclamped); elsewhere, and by default, the BRDFs compete as before."""
+    """``trusted_start_reflectance="learned"`` (the default): on a start the trainer trusts, no reflectance phase; the
+    shared base holds the start's normals, the light phase trains the learned BRDF from it (trusted: normals held, the
+    lamp's bounce on, unclamped); elsewhere, and with ``"compare"``, the BRDFs compete as before."""
     from spotlessgs.training.selection import select_model, trusted_start
     from spotlessgs.training.trainer import trusts_start_geometry
 
@@ -452,7 +452,8 @@ def test_a_trusted_start_keeps_the_learned_brdf_by_rule_and_the_base_holds_the_s
     assert not trusted_start(cfg.replace(trust_start_geometry="auto"), box_room)  # no point cloud: a random start
     assert not trusted_start(cfg.replace(trust_start_geometry="off"), box_room)
     out = tmp_path / "auto"
-    rule = SelectionConfig(tolerance_db=0.3, trusted_start_reflectance="learned")
+    rule = SelectionConfig(tolerance_db=0.3)
+    assert rule.trusted_start_reflectance == "learned"
     decision = select_model(box_room, out, cfg, 0, rule)
     assert decision["reflectance"] == "learned by rule"
     assert [(c["name"], c["phase"]) for c in decision["candidates"]] == [("auto-sh0-mlp", "light"),
@@ -470,18 +471,22 @@ def test_a_trusted_start_keeps_the_learned_brdf_by_rule_and_the_base_holds_the_s
             str((out / "selection" / "base").resolve())
         assert train_settings(name)["trust_start_geometry"] == "on"
         assert trusts_start_geometry(candidate_model(degree, "mlp"))
-    # a decision written before the setting existed compared the BRDFs: resumed under the default, reused as it was
+    # a decision written before the setting existed compared the BRDFs: resumed under "compare", reused as it was;
+    # under the default rule --resume says which setting differs
     older = json.loads((out / SELECTION_FILE).read_text())
     del older["settings"]["selection"]["trusted_start_reflectance"]
     (out / SELECTION_FILE).write_text(json.dumps(older))
-    assert select_model(box_room, out, cfg, 0, SelectionConfig(tolerance_db=0.3), resume=True) == older
-    with pytest.raises(ValueError, match="other selection settings"):
+    compare = SelectionConfig(tolerance_db=0.3, trusted_start_reflectance="compare")
+    assert select_model(box_room, out, cfg, 0, compare, resume=True) == older
+    with pytest.raises(ValueError, match="other selection settings.*trusted_start_reflectance"):
         select_model(box_room, out, cfg, 0, rule, resume=True)
-    # not trusted (the default rule, or a start the trainer does not trust): the reflectance phase runs
-    compared = select_model(box_room, tmp_path / "compared", cfg.replace(trust_start_geometry="off"), 0, rule)
-    assert compared["reflectance"] == "compared"
-    assert [c["phase"] for c in compared["candidates"]] == ["reflectance"] * 2 + ["light"] * 2
-    assert json.loads((tmp_path / "compared" / "selection" / "base" / "config.json").read_text())["train"][
+    # not trusted (a start the trainer does not trust, or the "compare" rule): the reflectance phase runs
+    for folder, config, selection in (("untrusted", cfg.replace(trust_start_geometry="off"), rule),
+                                      ("compared", cfg, compare)):
+        compared = select_model(box_room, tmp_path / folder, config, 0, selection)
+        assert compared["reflectance"] == "compared"
+        assert [c["phase"] for c in compared["candidates"]] == ["reflectance"] * 2 + ["light"] * 2
+    assert json.loads((tmp_path / "untrusted" / "selection" / "base" / "config.json").read_text())["train"][
         "lr_normals"] == cfg.lr_normals > 0
 
 

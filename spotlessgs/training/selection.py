@@ -43,7 +43,7 @@ A start the trainer trusts (``TrainConfig.trust_start_geometry``: a dense start 
 pixels judge worst. SpotlessGS holds its normals there, and held normals fit the spotlit pixels less than free ones,
 which lean towards the camera, while they relight far better (quick bedroom: the trusted candidate scored 22.88 dB on
 the held-out pixels against 23.69 with free normals; relit against the uniform ground truth SpotlessGS scores 25.80 dB,
-the Lambertian model ``auto`` chose 23.37). ``trusted_start_reflectance="learned"`` (not the default) therefore takes
+the Lambertian model ``auto`` chose 23.37). ``trusted_start_reflectance="learned"`` (the default) therefore takes
 the reflectance from that rule rather than from the held-out pixels: on a trusted start the BRDF is the learned one
 (the model that the start's normals are held for; a Lambertian albedo paints a held surface's glints in), the shared
 base run holds the start's normals as well (else the candidates would hold the base's free-trained ones), and only
@@ -143,10 +143,10 @@ class SelectionConfig:
     search: str = "coordinate"
     # Candidate SH degrees of the low-frequency light.
     sh_degrees: tuple[int, ...] = (0, 1, 2, 3)
-    # On a start the trainer trusts (trusted_start): "compare" (the BRDFs compete on the held-out pixels, as on any
-    # other start) or "learned" (the learned BRDF without a reflectance phase, the shared base holding the start's
-    # normals; see the module docstring).
-    trusted_start_reflectance: str = "compare"
+    # On a start the trainer trusts (trusted_start): "learned" (the learned BRDF without a reflectance phase, the
+    # shared base holding the start's normals; see the module docstring) or "compare" (the BRDFs compete on the
+    # held-out pixels, as on any other start; the default before 2026-11-27, seventh session).
+    trusted_start_reflectance: str = "learned"
 
     def __post_init__(self) -> None:
         if not self.tolerance_db >= 0:
