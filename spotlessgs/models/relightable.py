@@ -101,7 +101,7 @@ class RelightableScene(nn.Module):
         (models.shadow): ``shadow_map``, one rendered for this view a few steps ago, or else a new one. A variant with
         ``lamp_bounce`` adds the lamp's bounce light of ``lamp_irradiance`` (H, W, 3), one computed for this view a
         few steps ago (the ``lamp_irradiance`` of an earlier render), or else a new one, computed from this render's
-        own spotlit colours, depth and normals (four more channels composited in the same pass)."""
+        own spotlit colours, depth and normals (six more channels composited in the same pass)."""
         return self._render(camera, relight_l0, backend, num_threads, background, split_lights, shadow_map,
                             lamp_irradiance)
 
