@@ -153,8 +153,9 @@ class TrainConfig:
     # training.trainer.trusts_start_geometry) are trusted so: the bounce is part of the SH light, as the SH bounce
     # light is, and a Lambertian albedo with held normals paints a metal's glint in (the storage room's DarkGS + SH
     # light −1.8 dB). With "auto" SpotlessGS gains +0.1-0.3 / +1.1-1.6 dB (lamps-on / uniform ground truth) on every
-    # simulator room with a dense start, at +15 to +21 % per step (idle A/Bs; docs/results.md, "Trusting a dense
-    # start, with the BRDF unclamped", "The bounce pass's cost").
+    # simulator room with a dense start, at +8.7 % per step since the bounce shares the training render's pass (idle
+    # A/B; docs/results.md, "Trusting a dense start, with the BRDF unclamped", "The bounce computed in the training
+    # render's own pass").
     trust_start_geometry: str = "auto"
     # The low-frequency light's gradient reaches the normals (ModelConfig.low_frequency_turns_normals; True: the paper's).
     low_frequency_turns_normals: bool = True
