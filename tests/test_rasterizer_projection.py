@@ -202,3 +202,41 @@ def test_cpp_projection_gradcheck():
 
     inputs = tuple(t.requires_grad_() for t in (means, quats, scales))
     assert torch.autograd.gradcheck(fn, inputs, eps=1e-7, atol=1e-5, rtol=1e-5)
+
+
+@pytest.mark.parametrize("dtype", [torch.float64, torch.float32])
+def test_may_touch_image_keeps_every_gaussian_the_projection_draws(dtype):
+    """may_touch_image (what a caller shades) is conservative against both projections' bounding boxes: anisotropic,
+    rotated, near the image's edges and off-axis (where the Jacobian stretches a Gaussian beyond f s / z), tiny and
+    huge; and it still leaves out Gaussians far outside the view or behind the camera."""
+    from spotlessgs.rasterizer import load_kernel, may_touch_image
+    from spotlessgs.rasterizer.projection_cpp import project_gaussians_cpp
+
+    width, height = 64, 48
+    view = _tilted_view().to(dtype)
+    _, K = camera(width, height, dtype=dtype)
+    gen = torch.Generator().manual_seed(11)
+    n = 4000
+    # camera-frame positions around the frustum's edges, a wide spread of depths and sizes, opacity up to 0.999
+    z = torch.rand(n, generator=gen, dtype=torch.float64) * 6.0 - 0.5
+    x = (torch.rand(n, generator=gen, dtype=torch.float64) * 3.0 - 1.5) * z.abs().clamp_min(0.05)
+    y = (torch.rand(n, generator=gen, dtype=torch.float64) * 2.4 - 1.2) * z.abs().clamp_min(0.05)
+    cam = torch.stack([x, y, z], -1)
+    inverse = torch.linalg.inv(view.to(torch.float64))
+    means = (cam @ inverse[:3, :3].T + inverse[:3, 3]).to(dtype)
+    scales = (10.0 ** (torch.rand((n, 3), generator=gen, dtype=torch.float64) * 3.0 - 3.0)).to(dtype)
+    quats = torch.randn((n, 4), generator=gen, dtype=torch.float64).to(dtype)
+    opac = (torch.rand(n, generator=gen, dtype=torch.float64) * 0.999).to(dtype)
+    mask = may_touch_image(means, scales, view, K, width, height)
+    projections = [project_gaussians] + ([project_gaussians_cpp] if load_kernel() is not None else [])
+    for project in projections:
+        drawn = project(means, quats, scales, opac, view, K, width, height).visible
+        assert drawn.sum() > 500
+        assert not (drawn & ~mask).any(), f"{project.__name__} draws {int((drawn & ~mask).sum())} left out"
+    assert (~mask).sum() > 500 and not mask[z.to(dtype) <= 0.01].any()
+    # the old mask's rule (3 s_max f / z + 1 around the centre) missed some of them
+    u = K[0, 0] * cam[:, 0] / cam[:, 2].clamp_min(0.01) + K[0, 2]
+    v = K[1, 1] * cam[:, 1] / cam[:, 2].clamp_min(0.01) + K[1, 2]
+    r = 3.0 * scales.to(torch.float64).max(1).values * float(K[0, 0]) / cam[:, 2].clamp_min(0.01) + 1.0
+    old = (cam[:, 2] > 0.01) & (u + r > 0) & (u - r < width) & (v + r > 0) & (v - r < height)
+    assert (drawn & ~old).any()

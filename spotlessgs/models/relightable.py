@@ -14,30 +14,25 @@ from torch import nn
 
 from spotlessgs.io.camera_batch import Cameras
 from spotlessgs.models.gaussians import GaussianParams
-from spotlessgs.models.geometry import pinhole_pixels, points_in_view
+from spotlessgs.models.geometry import points_in_view
 from spotlessgs.models import shadow
 from spotlessgs.models.lamp_bounce import MIN_ALPHA, one_bounce_irradiance
 from spotlessgs.models.shading import (AppearanceModels, ModelConfig, build_appearance_models, resolve_variant, shade,
                                        shading_normals, view_directions)
-from spotlessgs.rasterizer import RasterOutput, rasterize
+from spotlessgs.rasterizer import RasterOutput, may_touch_image, rasterize
 
 
 def frustum_mask(
     means: torch.Tensor, scales: torch.Tensor, viewmat: torch.Tensor, K: torch.Tensor, width: int, height: int,
-    near: float = 0.01,
 ) -> torch.Tensor:
-    """(N,) bool: Gaussians in front of the camera whose 3-sigma footprint can overlap the image (conservative).
+    """(N,) bool: the Gaussians the rasterizer may draw in this view, conservatively (rasterizer.may_touch_image):
+    the others get zero colour and are culled by the rasterizer.
 
     Args:
         means: (N, 3) world positions; scales: (N, 3) standard deviations (m); viewmat: (4, 4) world-to-camera
         (OpenCV); K: (3, 3); width, height: image size (px).
     """
-    with torch.no_grad():
-        cam = points_in_view(means, viewmat)
-        z = cam[:, 2]
-        u, v = pinhole_pixels(cam, K, near)
-        r = 3.0 * scales.max(dim=1).values * torch.maximum(K[0, 0], K[1, 1]) / z.clamp(min=near) + 1.0
-        return (z > near) & (u + r > 0) & (u - r < width) & (v + r > 0) & (v - r < height)
+    return may_touch_image(means, scales, viewmat, K, width, height)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -144,8 +139,7 @@ class RelightableScene(nn.Module):
             depth = points_in_view(g.means, camera.viewmat)[:, 2:3]  # (N, 1) camera-frame z
             feats = torch.cat([feats, depth, depth * depth], dim=1)
         if new_bounce:
-            # and every Gaussian's normal: frustum_mask leaves out some that reach the image's outermost pixels (up to
-            # 2 % of a border pixel's weight), and the normals of those pixels would change
+            # and every Gaussian's normal (those outside the frustum are culled by the rasterizer)
             with torch.no_grad():
                 normals = self.camera_normals(camera.c2w)
             feats = torch.cat([feats, spot, normals], dim=1)

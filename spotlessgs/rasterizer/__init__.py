@@ -13,7 +13,7 @@ by ``backend="auto"``; ``SPOTLESSGS_NUM_THREADS`` sets the default thread count 
 
 from .api import BACKEND_ENV, BACKENDS, THREADS_ENV, RasterOutput, rasterize, resolve_backend
 from .cpp_kernel import KernelBuildError, load_kernel
-from .projection import ProjectedGaussians, covariance_3d, project_gaussians, quat_to_rotmat
+from .projection import ProjectedGaussians, covariance_3d, may_touch_image, project_gaussians, quat_to_rotmat
 
 __all__ = [
     "BACKENDS",
@@ -24,6 +24,7 @@ __all__ = [
     "RasterOutput",
     "covariance_3d",
     "load_kernel",
+    "may_touch_image",
     "project_gaussians",
     "quat_to_rotmat",
     "rasterize",

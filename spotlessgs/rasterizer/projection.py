@@ -19,6 +19,7 @@ finite conics; zero-norm quaternions map to the identity rotation with a zero (f
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import torch
@@ -130,14 +131,7 @@ def project_gaussians(
     # Culled Gaussians get a harmless depth so that no inf/NaN reaches the (masked) gradient.
     tz = torch.where(in_depth, tz_raw, torch.ones_like(tz_raw))
 
-    tan_x = 0.5 * width / fx
-    tan_y = 0.5 * height / fy
-    lim_x_pos = (width - cx) / fx + 0.3 * tan_x
-    lim_x_neg = cx / fx + 0.3 * tan_x
-    lim_y_pos = (height - cy) / fy + 0.3 * tan_y
-    lim_y_neg = cy / fy + 0.3 * tan_y
-    u = torch.clamp(mean_c[:, 0] / tz, min=-lim_x_neg, max=lim_x_pos)  # x/z limited to 1.3× the field of view
-    v = torch.clamp(mean_c[:, 1] / tz, min=-lim_y_neg, max=lim_y_pos)
+    u, v = _clamped_tangents(mean_c, tz, fx, fy, cx, cy, width, height)
 
     # Rows of J M_c with J = [[fx/z, 0, -fx u/z], [0, fy/z, -fy v/z]]; Σ2d = (J M_c)(J M_c)ᵀ is PSD by construction.
     row_x = (fx / tz)[:, None] * (m_c[:, 0, :] - u[:, None] * m_c[:, 2, :])  # (N, 3)
@@ -167,6 +161,47 @@ def project_gaussians(
         radii=radii,
         cov2d=cov2d.to(out_dtype),
     )
+
+
+def _clamped_tangents(mean_c: Tensor, tz: Tensor, fx: Tensor, fy: Tensor, cx: Tensor, cy: Tensor, width: int,
+                      height: int) -> tuple[Tensor, Tensor]:
+    """x/z and y/z (N,) each of camera-frame means (N, 3) at depths ``tz`` (N,), limited to 1.3× the field of view
+    (the Jacobian's, as 3DGS limits it)."""
+    tan_x = 0.5 * width / fx
+    tan_y = 0.5 * height / fy
+    u = torch.clamp(mean_c[:, 0] / tz, min=-(cx / fx + 0.3 * tan_x), max=(width - cx) / fx + 0.3 * tan_x)
+    v = torch.clamp(mean_c[:, 1] / tz, min=-(cy / fy + 0.3 * tan_y), max=(height - cy) / fy + 0.3 * tan_y)
+    return u, v
+
+
+def may_touch_image(
+    means: Tensor, scales: Tensor, viewmat: Tensor, K: Tensor, width: int, height: int, *, near: float = 0.01,
+    far: float = 1e4, eps2d: float = 0.3,
+) -> Tensor:
+    """(N,) bool, conservative: False only for Gaussians that :func:`project_gaussians` culls or gives no pixel of
+    the image, whatever their rotation and opacity (the bounding box of the largest scale along every axis, at
+    opacity 1: the Mahalanobis radius sqrt(2 ln 255), and a pixel for the rounding). A caller that shades only
+    these Gaussians changes no pixel.
+
+    Args:
+        means: (N, 3) world positions; scales: (N, 3) standard deviations (m); viewmat: (4, 4) world-to-camera
+        (OpenCV); K: (3, 3); width, height: image size (px); near, far, eps2d: as :func:`project_gaussians`'.
+    """
+    with torch.no_grad():
+        work = torch.float64
+        mean_c = means.to(work) @ viewmat[:3, :3].to(work).T + viewmat[:3, 3].to(work)
+        tz_raw = mean_c[:, 2]
+        in_depth = (tz_raw > near) & (tz_raw < far)
+        tz = torch.where(in_depth, tz_raw, torch.ones_like(tz_raw))
+        fx, fy, cx, cy = (K[0, 0].to(work), K[1, 1].to(work), K[0, 2].to(work), K[1, 2].to(work))
+        u, v = _clamped_tangents(mean_c, tz, fx, fy, cx, cy, width, height)
+        largest = scales.to(work).max(dim=1).values / tz
+        # a row of J M_c is (f / z)(m_0 - u m_2): no longer than (f / z) s_max sqrt(1 + u²)
+        extent = math.sqrt(2.0 * math.log(1.0 / ALPHA_MIN))
+        radius_x = extent * torch.sqrt((fx * largest) ** 2 * (1.0 + u * u) + eps2d) + 1.0
+        radius_y = extent * torch.sqrt((fy * largest) ** 2 * (1.0 + v * v) + eps2d) + 1.0
+        x, y = fx * mean_c[:, 0] / tz + cx, fy * mean_c[:, 1] / tz + cy
+        return in_depth & (x + radius_x > 0) & (x - radius_x < width) & (y + radius_y > 0) & (y - radius_y < height)
 
 
 def _screen_radii(means2d: Tensor, cov2d: Tensor, opacities: Tensor, valid: Tensor, width: int, height: int) -> Tensor:
