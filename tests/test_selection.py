@@ -445,6 +445,7 @@ def test_a_trusted_start_keeps_the_learned_brdf_by_rule_and_the_base_holds_the_s
     shared base holds the start's normals, the light phase trains the learned BRDF from it (trusted: normals held, the
     lamp's bounce on, unclamped); elsewhere, and with ``"compare"``, the BRDFs compete as before."""
     from spotlessgs.training.selection import select_model, trusted_start
+    from spotlessgs.training.trainer import model_config as trainer_model_config
     from spotlessgs.training.trainer import trusts_start_geometry
 
     cfg = _tiny(iterations=300, image_width=32, trust_start_geometry="on")
@@ -460,6 +461,9 @@ def test_a_trusted_start_keeps_the_learned_brdf_by_rule_and_the_base_holds_the_s
                                                                         ("auto-sh3-mlp", "light")]
     assert decision["chosen_model"]["brdf"] == "mlp"
     assert "the learned BRDF by rule" in format_selection_table(decision)
+    for candidate, degree in zip(decision["candidates"], (0, 3)):  # trusted: the lamp bounce's gain counted too
+        untrusted = trainer_model_config(candidate_model(degree, "mlp"), cfg)
+        assert candidate["appearance_parameters"] == appearance_parameters(untrusted, cfg.brdf_hidden) + 1
 
     def train_settings(folder):
         return json.loads((out / "selection" / folder / "config.json").read_text())["train"]

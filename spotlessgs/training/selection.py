@@ -70,6 +70,7 @@ from spotlessgs.io.json_files import read_json, require_keys
 from spotlessgs.io.paths import refuse_overlap
 from spotlessgs.models.shading import ModelConfig, build_appearance_models
 from spotlessgs.training import trainer  # called as trainer.train: patching spotlessgs.training.trainer reaches here
+from spotlessgs.training.checkpoint import load_checkpoint
 from spotlessgs.training.config import TrainConfig, with_defaults
 from spotlessgs.training.light_need import dark_level, low_frequency_share
 from spotlessgs.training.validation import block_size, evenly_spaced
@@ -344,9 +345,11 @@ def _score(data_dir: Path, proxy_dir: Path, model: ModelConfig, config: TrainCon
                            progress=progress, init_from=start_dir)
     if result.validation_psnr is None:
         raise RuntimeError(f"{proxy_dir}: the proxy run of {model.name} has no validation PSNR")
+    # the model as the run trained it: a trusted start adds the lamp bounce's gain (the checkpoint's model_settings)
+    trained = config.replace(**load_checkpoint(proxy_dir).get("model_settings", {}))
     return CandidateResult(model.name, model.sh_degree, model.brdf, float(result.validation_psnr),
                            float(result.ms_per_step), int(result.steps),
-                           appearance_parameters(trainer.model_config(model, config), config.brdf_hidden), phase,
+                           appearance_parameters(trainer.model_config(model, trained), config.brdf_hidden), phase,
                            float(result.validation_psnr_dark), criterion)
 
 
