@@ -1,7 +1,8 @@
 """Initial point clouds from rendered depth maps: back-projection and voxel merging (bpy-free).
 
 Pixel (row i, column j) is the ray through its centre (u, v) = (j + 0.5, i + 0.5); with planar depth d the point in the
-OpenCV camera frame is ((u - cx) d / fx, (v - cy) d / fy, d), then mapped to the world by the camera-to-world pose.
+OpenCV camera frame is (x d, y d, d), (x, y) the centre undistorted through the camera's lens (a pinhole's
+((u - cx) / fx, (v - cy) / fy)), then mapped to the world by the camera-to-world pose.
 """
 
 from __future__ import annotations
@@ -11,6 +12,7 @@ from typing import NamedTuple
 import numpy as np
 
 from spotlessgs.io.cameras import Intrinsics, opengl_to_opencv_c2w
+from spotlessgs.io.lens import undistort
 
 
 class Points(NamedTuple):
@@ -44,7 +46,7 @@ def backproject_depth(
         depth: (H, W) planar depth along the optical axis, metres; inf, NaN and values <= 0 are skipped.
         rgb: (H, W, 3) uint8 colours.
         normals: (H, W, 3) world-space normals (normalised here; zero-length ones are skipped), or None.
-        intrinsics: the camera (its size must be W x H).
+        intrinsics: the camera (its size must be W x H; any lens the dataset contract allows).
         c2w_opengl: (4, 4) camera-to-world pose, OpenGL camera axes.
         stride: keep every ``stride``-th row and column (1 = all pixels).
         max_points: after striding, keep at most this many valid points, chosen uniformly without replacement by
@@ -81,8 +83,9 @@ def backproject_depth(
     if max_points is not None and len(d) > max_points:
         keep = np.sort(rng.choice(len(d), size=max_points, replace=False))
         rows, cols, d = rows[keep], cols[keep], d[keep]
-    u, v = cols + 0.5, rows + 0.5
-    cam = np.stack([(u - intrinsics.cx) / intrinsics.fx * d, (v - intrinsics.cy) / intrinsics.fy * d, d], axis=1)
+    # each pixel centre's ray through the lens (a pinhole's: ((u - cx) / fx, (v - cy) / fy))
+    rays = undistort(intrinsics, np.stack([cols + 0.5, rows + 0.5], axis=1))
+    cam = np.concatenate([rays * d[:, None], d[:, None]], axis=1)
     xyz = cam @ c2w[:3, :3].T + c2w[:3, 3]
     out_normals = None
     if normals is not None:

@@ -5,6 +5,8 @@ See ``docs/dataset.md`` for the full description and an example. In short:
 * top level (nerfstudio): ``camera_model`` ("OPENCV", distortion k1=k2=p1=p2=0), ``fl_x fl_y cx cy w h``,
   ``ply_file_path`` (optional), ``frames[]`` with ``file_path`` and ``transform_matrix`` (4x4 camera-to-world, OpenGL
   camera axes: x right, y up, looking along -z), plus our optional per-frame ``gt_file_path`` and ``exr_file_path``;
+  nerfstudio's optional per-frame ``depth_file_path`` (an RGB-D camera's registered depth image:
+  :mod:`spotlessgs.io.depth_images`) with the top-level ``depth_unit_scale_factor`` (metres per unit, default 0.001);
 * ``"spotless"``: ``schema_version`` (1), ``scene_id``, ``room``, ``seed``, ``preset``, ``split``, ``color_space``
   ("srgb"), ``light`` (:class:`LightTruth` or null), ``renderer`` and ``provenance`` (free dicts).
 
@@ -25,6 +27,7 @@ import numpy as np
 
 from spotlessgs.io.atomic import write_json
 from spotlessgs.io.cameras import Intrinsics, opengl_to_opencv_c2w, world_to_camera
+from spotlessgs.io.depth_images import DEFAULT_DEPTH_SCALE
 from spotlessgs.io.errors import InputError
 from spotlessgs.io.lens import check_invertible
 
@@ -194,18 +197,20 @@ class FrameRecord:
         c2w_opengl: (4, 4) camera-to-world matrix, OpenGL camera axes.
         gt_file_path: the evenly lit ground-truth image (relative), or None.
         exr_file_path: the linear EXR with renders, depth and normals (relative), or None.
+        depth_file_path: an RGB-D camera's depth image registered to ``file_path`` (relative), or None.
     """
 
     file_path: str
     c2w_opengl: np.ndarray
     gt_file_path: str | None = None
     exr_file_path: str | None = None
+    depth_file_path: str | None = None
 
     def __eq__(self, other: object) -> bool:
         return (
             isinstance(other, FrameRecord)
-            and (self.file_path, self.gt_file_path, self.exr_file_path)
-            == (other.file_path, other.gt_file_path, other.exr_file_path)
+            and (self.file_path, self.gt_file_path, self.exr_file_path, self.depth_file_path)
+            == (other.file_path, other.gt_file_path, other.exr_file_path, other.depth_file_path)
             and np.array_equal(self.c2w_opengl, other.c2w_opengl)
         )
 
@@ -268,8 +273,10 @@ def write_transforms(
     frames: list[FrameRecord],
     meta: DatasetMeta | None,
     ply_file_path: str | None = None,
+    depth_unit_scale_factor: float | None = None,
 ) -> None:
-    """Write ``transforms.json`` atomically (``meta=None`` writes a plain nerfstudio file without our block).
+    """Write ``transforms.json`` atomically (``meta=None`` writes a plain nerfstudio file without our block);
+    ``depth_unit_scale_factor``: the metres per unit of the frames' depth images (written when given).
 
     Raises DatasetError for empty frame lists, absolute paths, bad or non-finite matrices, unknown colour spaces.
     """
@@ -280,6 +287,8 @@ def write_transforms(
     if ply_file_path is not None:
         _check_relative(ply_file_path, f"{path}: ply_file_path")
         out["ply_file_path"] = ply_file_path
+    if depth_unit_scale_factor is not None:
+        out["depth_unit_scale_factor"] = _depth_scale(depth_unit_scale_factor, f"{path}: depth_unit_scale_factor")
     frame_list = []
     for i, frame in enumerate(frames):
         where = f"{path}: frames[{i}]"
@@ -292,6 +301,9 @@ def write_transforms(
         if frame.exr_file_path is not None:
             _check_relative(frame.exr_file_path, f"{where}.exr_file_path")
             entry["exr_file_path"] = frame.exr_file_path
+        if frame.depth_file_path is not None:
+            _check_relative(frame.depth_file_path, f"{where}.depth_file_path")
+            entry["depth_file_path"] = frame.depth_file_path
         frame_list.append(entry)
     out["frames"] = frame_list
     if meta is not None:
@@ -314,6 +326,13 @@ def write_transforms(
         write_json(path, out)
     except (TypeError, ValueError) as exc:
         raise DatasetError(f"{path}: metadata is not JSON-serialisable ({exc})") from exc
+
+
+def _depth_scale(value: Any, where: str) -> float:
+    """A depth image's metres per unit: a finite number > 0 (DatasetError naming ``where`` otherwise)."""
+    if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value) or value <= 0:
+        raise DatasetError(f"{where}: must be a positive number of metres per depth unit, got {value!r}")
+    return float(value)
 
 
 def _check_pose(value: Any, where: str) -> np.ndarray:
@@ -349,6 +368,9 @@ class DatasetDescription:
         image_paths: N resolved uneven-image paths.
         gt_paths: N resolved ground-truth paths (None where absent).
         exr_paths: N resolved EXR paths (None where absent).
+        depth_paths: N resolved depth-image paths (None where absent; :mod:`spotlessgs.io.depth_images`), or None
+            when no frame has one.
+        depth_scale: metres per unit of the depth images (``depth_unit_scale_factor``).
         split: the train/test split (from our block, else every 11th frame).
         light: the true spotlight, or None.
         ply_path: resolved initial point cloud, or None.
@@ -368,6 +390,8 @@ class DatasetDescription:
     light: LightTruth | None
     ply_path: Path | None
     meta: dict[str, Any]
+    depth_paths: tuple[Path | None, ...] | None = None
+    depth_scale: float = DEFAULT_DEPTH_SCALE
 
     def __post_init__(self) -> None:
         if len(self.cameras) != len(self.image_paths):
@@ -407,8 +431,10 @@ class DatasetDescription:
         def rel(p: Path | None) -> str | None:
             return None if p is None else p.relative_to(self.root).as_posix()
 
+        depths = self.depth_paths or (None,) * self.n_frames
         return [
-            FrameRecord(self.file_paths[i], self.c2w_opengl[i], rel(self.gt_paths[i]), rel(self.exr_paths[i]))
+            FrameRecord(self.file_paths[i], self.c2w_opengl[i], rel(self.gt_paths[i]), rel(self.exr_paths[i]),
+                        rel(depths[i]))
             for i in range(self.n_frames)
         ]
 
@@ -543,7 +569,7 @@ def read_transforms(path: str | os.PathLike, check_files: bool = False) -> Datas
     if not isinstance(frames, list) or not frames:
         raise DatasetError(f"{path}: missing or empty 'frames' list")
 
-    poses, file_paths, images, gts, exrs = [], [], [], [], []
+    poses, file_paths, images, gts, exrs, depths = [], [], [], [], [], []
     cameras: list[tuple] = []
     for i, frame in enumerate(frames):
         where = f"{path}: frames[{i}]"
@@ -556,7 +582,7 @@ def read_transforms(path: str | os.PathLike, check_files: bool = False) -> Datas
         poses.append(_check_pose(frame["transform_matrix"], f"{where}.transform_matrix"))
         file_paths.append(frame["file_path"])
         images.append(_resolve_image(root, frame["file_path"]))
-        for key, store in (("gt_file_path", gts), ("exr_file_path", exrs)):
+        for key, store in (("gt_file_path", gts), ("exr_file_path", exrs), ("depth_file_path", depths)):
             value = frame.get(key)
             if value is None:
                 store.append(None)
@@ -573,6 +599,9 @@ def read_transforms(path: str | os.PathLike, check_files: bool = False) -> Datas
     if data.get("ply_file_path") is not None:
         _check_relative(data["ply_file_path"], f"{path}: ply_file_path")
         ply_path = root / data["ply_file_path"]
+    depth_scale = DEFAULT_DEPTH_SCALE
+    if data.get("depth_unit_scale_factor") is not None:
+        depth_scale = _depth_scale(data["depth_unit_scale_factor"], f"{path}: depth_unit_scale_factor")
 
     n = len(frames)
     block = data.get("spotless")
@@ -600,7 +629,7 @@ def read_transforms(path: str | os.PathLike, check_files: bool = False) -> Datas
 
     if check_files:
         for i in range(n):
-            for label, p in (("image", images[i]), ("gt image", gts[i]), ("EXR", exrs[i])):
+            for label, p in (("image", images[i]), ("gt image", gts[i]), ("EXR", exrs[i]), ("depth image", depths[i])):
                 if p is not None and not p.is_file():
                     raise FileNotFoundError(f"{path}: frames[{i}]: {label} file {p} does not exist")
         if ply_path is not None and not ply_path.is_file():
@@ -621,4 +650,6 @@ def read_transforms(path: str | os.PathLike, check_files: bool = False) -> Datas
         light=light,
         ply_path=ply_path,
         meta=meta,
+        depth_paths=tuple(depths) if any(p is not None for p in depths) else None,
+        depth_scale=depth_scale,
     )
