@@ -216,14 +216,20 @@ def render_many(scene_patterns, out_dir, variants, frames, width, height, sample
               help="--robot-camera --lens: OpenCV's coefficients (opencv: k1,k2,p1,p2[,k3]; fisheye: k1,k2,k3,k4).")
 @click.option("--no-point-cloud", is_flag=True,
               help="Leave out the depth-derived point cloud (then: spotless prepare --points OUT).")
+@click.option("--depth-camera", is_flag=True,
+              help="Also an RGB-D camera's depth images, registered to the frames (OUT/depth/, 16-bit PNG, mm).")
+@click.option("--depth-noise", default=0.0025, show_default=True, type=click.FloatRange(0),
+              help="--depth-camera: the depth's standard deviation at 1 m, metres (it grows with depth squared).")
+@click.option("--depth-range", default=6.0, show_default=True, type=click.FloatRange(0, 65.535, min_open=True),
+              help="--depth-camera: the farthest depth measured, metres (farther pixels hold 0).")
 def add_noise(data_dir, out_dir, shot, read, seed, robot_camera, sensitivity, max_gain, vignetting, lens, distortion,
-              no_point_cloud):
+              no_point_cloud, depth_camera, depth_noise, depth_range):
     """Copy a dataset with camera sensor noise (shot + read) added to its spotlight-only images, and with
     --robot-camera a robot camera's auto-exposure and vignetting.
 
     OUT must not be DATA, lie inside it, or contain it.
     """
-    from simulator.sensor_noise import CameraEffects, SensorNoise, add_sensor_noise_to_dataset
+    from simulator.sensor_noise import CameraEffects, DepthCamera, SensorNoise, add_sensor_noise_to_dataset
 
     try:
         coefficients = tuple(float(v) for v in distortion.split(",") if v.strip())
@@ -231,8 +237,9 @@ def add_noise(data_dir, out_dir, shot, read, seed, robot_camera, sensitivity, ma
         raise click.BadParameter(f"not a comma-separated list of numbers: {distortion!r}", param_hint="--distortion")
     effects = CameraEffects(sensitivity=sensitivity, max_gain=max_gain, vignetting=vignetting, lens=lens,
                             distortion=coefficients) if robot_camera else None
+    depth = DepthCamera(noise=depth_noise, max_range=depth_range) if depth_camera else None
     written = add_sensor_noise_to_dataset(data_dir, out_dir, SensorNoise(shot, read), seed, effects,
-                                          point_cloud=not no_point_cloud)
+                                          point_cloud=not no_point_cloud, depth_camera=depth)
     click.echo(f"{out_dir}: wrote {written} image(s)")
 
 

@@ -38,6 +38,7 @@ from spotlessgs.io.atomic import atomic_path, remove_partial_files, write_json
 from spotlessgs.io.cameras import Intrinsics
 from spotlessgs.io.colorspace import linear_to_srgb
 from spotlessgs.io.dataset import UNIFORM_GT_DIR
+from spotlessgs.io.depth_images import DEFAULT_DEPTH_SCALE, MAX_DEPTH_UNITS, write_depth_image
 from spotlessgs.io.exr import FrameEXR, read_frame_exr, write_frame_exr
 from spotlessgs.io.folder_lock import folder_lock
 from spotlessgs.io.images import write_png
@@ -48,6 +49,8 @@ from spotlessgs.io.transforms import nerfstudio_camera, read_transforms
 
 NOISE_RECORD = "sensor_noise.json"
 EFFECTS_RECORD = "camera_effects.json"
+#: The folder of a depth camera's images in the copy (same file names as images/).
+DEPTH_DIR = "depth"
 # Everything of a dataset folder that the noisy copy takes over unchanged (images/ is written anew).
 COPIED = ("gt", UNIFORM_GT_DIR, "exr", "sparse", "points3d.ply", "plan.json", "transforms.json")
 
@@ -165,6 +168,42 @@ class CameraEffects:
         return 1.0 - self.vignetting * (np.hypot(u - cx, v - cy) / corner) ** 2
 
 
+@dataclass(frozen=True)
+class DepthCamera:
+    """An RGB-D camera's depth images, registered to the colour frames (RealSense's ``aligned_depth_to_color``).
+
+    The depth of a structured-light or stereo camera is noisy along the ray, its standard deviation growing with the
+    square of the depth (Khoshelham and Elberink 2012, "Accuracy and resolution of Kinect depth data")::
+
+        z' = z + N(0, (noise · z²)²),   then rounded to units of ``scale`` metres; 0 beyond ``max_range`` or no hit
+
+    Attributes:
+        noise: σ of the depth at 1 m, metres (σ = noise · z², z in metres); 0.0025: 2.5 mm at 1 m, 1 cm at 2 m.
+        max_range: the farthest depth measured, metres (farther pixels hold 0: no measurement).
+        scale: metres per depth unit of the 16-bit images (nerfstudio's ``depth_unit_scale_factor``).
+    """
+
+    noise: float = 0.0025
+    max_range: float = 6.0
+    scale: float = DEFAULT_DEPTH_SCALE
+
+    def __post_init__(self) -> None:
+        checks = {"noise": self.noise >= 0, "max_range": self.max_range > 0,
+                  "scale": self.scale > 0 and self.max_range / self.scale <= MAX_DEPTH_UNITS}
+        for name, ok in checks.items():
+            value = getattr(self, name)
+            if not (math.isfinite(value) and ok):
+                raise ValueError(f"DepthCamera: {name} out of range: {value} (max_range / scale must fit 16 bits)")
+
+    def measure(self, depth: np.ndarray, rng: np.random.Generator) -> np.ndarray:
+        """(H, W) the depth (m) this camera records of a true planar depth map (H, W) (inf: no surface): noisy, NaN
+        where nothing is measured."""
+        depth = np.asarray(depth, dtype=np.float64)
+        seen = np.isfinite(depth) & (depth > 0) & (depth <= self.max_range)
+        noisy = depth + self.noise * np.where(seen, depth, 0.0) ** 2 * rng.standard_normal(depth.shape)
+        return np.where(seen & (noisy > 0), noisy, np.nan)
+
+
 def add_sensor_noise(linear: np.ndarray, noise: SensorNoise, rng: np.random.Generator) -> np.ndarray:
     """A noisy copy of a linear image.
 
@@ -184,11 +223,14 @@ def add_sensor_noise(linear: np.ndarray, noise: SensorNoise, rng: np.random.Gene
 
 
 def add_sensor_noise_to_dataset(data: str | Path, out: str | Path, noise: SensorNoise | None, seed: int = 0,
-                                effects: CameraEffects | None = None, point_cloud: bool = True) -> int:
+                                effects: CameraEffects | None = None, point_cloud: bool = True,
+                                depth_camera: DepthCamera | None = None) -> int:
     """Write a copy of the finished dataset ``data`` to ``out`` whose spotlight-only images carry sensor noise
     (``noise``; None: none) and, with ``effects``, a robot camera's auto-exposure and vignetting. Without
     ``point_cloud`` the copy has no depth-derived point cloud (a robot has none: ``spotless prepare --points``
-    triangulates one from the images).
+    triangulates one from the images, or back-projects the depth images). With ``depth_camera`` every frame also
+    gets that camera's depth image (``depth/<frame>.png``, the frame's ``depth_file_path``), through the lens of
+    ``effects`` when it has one.
 
     Returns the number of images written now (frames already written by an earlier run with the same settings are
     kept; temporary files of a killed run are removed first). Raises ValueError naming the folder when ``data`` is not
@@ -208,6 +250,8 @@ def add_sensor_noise_to_dataset(data: str | Path, out: str | Path, noise: Sensor
         record["camera_effects"] = asdict(effects)
     if not point_cloud:
         record["point_cloud"] = False
+    if depth_camera is not None:
+        record["depth_camera"] = asdict(depth_camera)
     record_path = out / NOISE_RECORD
     if record_path.is_file():
         old = json.loads(record_path.read_text())
@@ -238,9 +282,9 @@ def add_sensor_noise_to_dataset(data: str | Path, out: str | Path, noise: Sensor
                 **asdict(effects), "camera": asdict(camera)})
         for name in COPIED:
             src, dst = data / name, out / name
-            if name == "transforms.json" and (effects is not None or not point_cloud):
+            if name == "transforms.json" and (effects is not None or not point_cloud or depth_camera is not None):
                 if not dst.exists():
-                    _write_transforms(src, dst, effects, camera, point_cloud)
+                    _write_transforms(src, dst, effects, camera, point_cloud, depth_camera)
                 continue
             if name in ("points3d.ply", "sparse") and not point_cloud:  # the COLMAP model holds the depth points too
                 continue
@@ -262,6 +306,11 @@ def add_sensor_noise_to_dataset(data: str | Path, out: str | Path, noise: Sensor
                 continue
             rendered = read_frame_exr(data / frame.exr_file_path)
             linear = rendered.uneven
+            if depth_camera is not None:  # written before the image, which marks the frame as done
+                true_depth = rendered.depth if lens_maps is None else remap_nearest(rendered.depth, *lens_maps)
+                write_depth_image(out / DEPTH_DIR / f"{Path(frame.file_path).stem}.png",
+                                  depth_camera.measure(true_depth, numpy_rng(seed, f"depth-noise/{index}")),
+                                  depth_camera.scale)
             if lens_maps is not None:  # the render seen through the lens; the ground truth and the geometry too
                 linear = remap(linear, *lens_maps)
                 gt = remap(rendered.gt, *lens_maps)
@@ -288,14 +337,19 @@ def add_sensor_noise_to_dataset(data: str | Path, out: str | Path, noise: Sensor
 
 
 def _write_transforms(src: Path, dst: Path, effects: CameraEffects | None, camera: Intrinsics,
-                      point_cloud: bool) -> None:
+                      point_cloud: bool, depth_camera: DepthCamera | None = None) -> None:
     """``src``'s transforms.json, written atomically to ``dst``, with ``camera_effects`` in its "spotless" block (a
     plain nerfstudio file, which has no block, keeps none: the trainer treats it as a real camera's anyway), for a
-    lens its camera (the EXRs are the renders resampled through it), and without ``point_cloud`` no
-    ``ply_file_path``."""
+    lens its camera (the EXRs are the renders resampled through it), without ``point_cloud`` no
+    ``ply_file_path``, and with ``depth_camera`` each frame's ``depth_file_path`` and the images'
+    ``depth_unit_scale_factor``."""
     data = json.loads(src.read_text(encoding="utf-8"))
     if not point_cloud:
         data.pop("ply_file_path", None)
+    if depth_camera is not None:
+        data["depth_unit_scale_factor"] = depth_camera.scale
+        for frame in data["frames"]:
+            frame["depth_file_path"] = f"{DEPTH_DIR}/{Path(frame['file_path']).stem}.png"
     if effects is not None and isinstance(data.get("spotless"), dict):
         data["spotless"]["camera_effects"] = {"exposure": "auto" if effects.auto_exposure else "fixed",
                                               "vignetting": effects.vignetting, "lens": effects.lens,
