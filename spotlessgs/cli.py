@@ -159,14 +159,21 @@ def render(run_dir, which, out_dir, exr, data_dir, device, quiet):
 @click.option("--camera-info-topic", default=None, help="--bag: its CameraInfo topic (the camera, kept fixed).")
 @click.option("--odometry-topic", default=None,
               help="--bag: Odometry or PoseStamped of the camera's optical frame: poses without SfM.")
+@click.option("--depth-topic", default=None,
+              help="--bag with --odometry-topic: an RGB-D camera's depth Image registered to the colour camera "
+                   "(16UC1 mm or 32FC1 m, e.g. aligned_depth_to_color): a dense start from it instead of SfM points.")
 @click.option("--every", "min_interval_s", default=0.0, show_default=True, type=click.FloatRange(0),
               help="--bag: keep frames at least this many seconds apart.")
 @click.option("--min-motion", "min_motion_m", default=0.0, show_default=True, type=click.FloatRange(0),
               help="--bag with --odometry-topic: keep frames at least this many metres apart.")
 @click.option("--points", "posed_dir", default=None,
               type=click.Path(exists=True, file_okay=False, path_type=Path),
-              help="Or a posed dataset (transforms.json) without a point cloud: triangulate sparse points with its "
-                   "poses on brightened training frames (DATA/sfm_points.ply); no --out.")
+              help="Or a posed dataset (transforms.json) without a point cloud: a dense cloud from its depth images "
+                   "(DATA/depth_points.ply) or sparse points triangulated with its poses on brightened training "
+                   "frames (DATA/sfm_points.ply); no --out.")
+@click.option("--points-from", default="auto", show_default=True, type=click.Choice(["auto", "depth", "sfm"]),
+              help="--points: back-project the frames' depth images (an RGB-D camera's depth_file_path), "
+                   "triangulate, or auto: depth images where every training frame has one.")
 @click.option("--out", "out_dir", default=None, type=click.Path(file_okay=False, path_type=Path),
               help="--images/--bag: the dataset folder to write: images/, sparse/0 (COLMAP), prepare.json.")
 @click.option("--camera-model", default="SIMPLE_RADIAL", show_default=True,
@@ -180,21 +187,34 @@ def render(run_dir, which, out_dir, exr, data_dir, device, quiet):
 @click.option("--threads", type=click.IntRange(1), default=1, show_default=True)
 @click.option("--seed", default=0, show_default=True, type=int)
 @click.option("-q", "--quiet", is_flag=True)
-def prepare(images_dir, bag, image_topic, camera_info_topic, odometry_topic, min_interval_s, min_motion_m, posed_dir,
-            out_dir, camera_model, matcher, truth_dir, threads, seed, quiet):
+def prepare(images_dir, bag, image_topic, camera_info_topic, odometry_topic, depth_topic, min_interval_s, min_motion_m,
+            posed_dir, points_from, out_dir, camera_model, matcher, truth_dir, threads, seed, quiet):
     """Turn a folder of spotlit frames, or a camera of a ROS bag, into a dataset: structure from motion on
     brightened copies (or the bag's odometry and points triangulated with it), the originals kept for training;
-    frames that do not register are named. --points adds triangulated points to a posed dataset."""
-    from spotlessgs.prepare import add_sfm_points, prepare_bag, prepare_images
+    frames that do not register are named. --points adds a start to a posed dataset: from its depth images, or
+    triangulated."""
+    from spotlessgs.io.dataset import read_dataset
+    from spotlessgs.prepare import add_depth_points, add_sfm_points, has_depth_images, prepare_bag, prepare_images
 
     if sum(x is not None for x in (images_dir, bag, posed_dir)) != 1:
         raise click.UsageError("give one of --images, --bag and --points")
     if bag is not None and image_topic is None:
         raise click.UsageError("--bag needs --image-topic")
+    if depth_topic is not None and bag is None:
+        raise click.UsageError("--depth-topic goes with --bag")
+    if points_from != "auto" and posed_dir is None:
+        raise click.UsageError("--points-from goes with --points")
     if (out_dir is None) != (posed_dir is not None):
         raise click.UsageError("--points adds to its dataset and takes no --out" if posed_dir is not None
                                else "--images and --bag need --out")
     progress = None if quiet else (lambda name: click.echo(f"prepare: {name}", err=True))
+    if posed_dir is not None and (points_from == "depth" or (
+            points_from == "auto" and (posed_dir / "transforms.json").is_file()
+            and has_depth_images(read_dataset(posed_dir)))):
+        points = add_depth_points(posed_dir, seed=seed, progress=progress)
+        click.echo(f"{posed_dir}: {points['points']} points from the depth images of {points['frames']} training "
+                   f"frames ({100 * points['voxel_m']:.1f} cm voxels) in {points['file']}")
+        return
     if posed_dir is not None:
         points = add_sfm_points(posed_dir, matcher, threads, seed, progress)
         click.echo(f"{posed_dir}: {points['points']} points triangulated from {points['frames']} training frames "
@@ -202,7 +222,8 @@ def prepare(images_dir, bag, image_topic, camera_info_topic, odometry_topic, min
         return
     if bag is not None:
         summary = prepare_bag(bag, out_dir, image_topic, camera_info_topic, odometry_topic, min_interval_s,
-                              min_motion_m, camera_model, matcher, truth_dir, threads, seed, progress)
+                              min_motion_m, camera_model, matcher, truth_dir, threads, seed, progress,
+                              depth_topic=depth_topic)
     else:
         summary = prepare_images(images_dir, out_dir, camera_model, matcher, truth=truth_dir, threads=threads,
                                  seed=seed, progress=progress)

@@ -29,8 +29,11 @@ def sequence():
     return render_room_sequence(num_frames=FRAMES, width=WIDTH, height=HEIGHT, seed=1)
 
 
-def _write_bag(path, sequence, ros: int, compressed: bool = False, encoding: str = "rgb8"):
-    """A bag with the sequence's frames (raw or JPEG), its CameraInfo and the camera's odometry."""
+def _write_bag(path, sequence, ros: int, compressed: bool = False, encoding: str = "rgb8", depth: str | None = None,
+               depth_offset_ns: int = 5_000_000):
+    """A bag with the sequence's frames (raw or JPEG), its CameraInfo and the camera's odometry; with ``depth``
+    (``16UC1`` or ``32FC1``) also its registered depth images on ``/cam/depth``, ``depth_offset_ns`` after each
+    frame."""
     if ros == 1:
         from rosbags.rosbag1 import Writer
         store = get_typestore(Stores.ROS1_NOETIC)
@@ -49,6 +52,7 @@ def _write_bag(path, sequence, ros: int, compressed: bool = False, encoding: str
         images = writer.add_connection("/cam/image", image_type, typestore=store)
         info = writer.add_connection("/cam/info", "sensor_msgs/msg/CameraInfo", typestore=store)
         odom = writer.add_connection("/cam/odom", "nav_msgs/msg/Odometry", typestore=store)
+        depths = writer.add_connection("/cam/depth", "sensor_msgs/msg/Image", typestore=store) if depth else None
 
         def header(ns):
             stamp = t["builtin_interfaces/msg/Time"](sec=ns // 10**9, nanosec=ns % 10**9)
@@ -90,6 +94,14 @@ def _write_bag(path, sequence, ros: int, compressed: bool = False, encoding: str
                 msg = t["sensor_msgs/msg/Image"](header=header(ns), height=height, width=width, encoding=encoding,
                                                  is_bigendian=0, step=3 * width, data=data.ravel())
             writer.write(images, ns, serialize(msg, image_type))
+            if depth is not None:
+                z = sequence.depth[i]
+                data, step = ((np.round(z * 1000).astype("<u2"), 2 * width) if depth == "16UC1"
+                              else (z.astype("<f4"), 4 * width))
+                msg = t["sensor_msgs/msg/Image"](header=header(ns + depth_offset_ns), height=height, width=width,
+                                                 encoding=depth, is_bigendian=0, step=step,
+                                                 data=data.view(np.uint8).ravel())
+                writer.write(depths, ns + depth_offset_ns, serialize(msg, "sensor_msgs/msg/Image"))
     return c2w
 
 
@@ -168,3 +180,43 @@ def test_a_bag_without_odometry_goes_through_structure_from_motion(tmp_path):
     assert summary["source"]["frames_kept"] == 16 and summary["source"]["pose_topic"] is None
     errors = trajectory_errors(read_dataset(tmp_path / "data").c2w_opencv, c2w)
     assert errors.ate_rmse < 0.02  # SfM's poses against the odometry the bag also holds, after similarity alignment
+
+
+@pytest.mark.parametrize("ros, encoding", [(2, "16UC1"), (1, "32FC1")])
+def test_a_bags_registered_depth_gives_depth_images_and_a_dense_start(sequence, tmp_path, ros, encoding):
+    from spotlessgs.io.depth_images import read_depth_image
+    from spotlessgs.io.ply import read_point_cloud
+    from spotlessgs.prepare import DEPTH_POINTS_FILE
+
+    bag = tmp_path / ("cam.bag" if ros == 1 else "cam")
+    _write_bag(bag, sequence, ros, depth=encoding)
+    result = CliRunner().invoke(main, ["prepare", "--bag", str(bag), "--image-topic", "/cam/image",
+                                       "--camera-info-topic", "/cam/info", "--odometry-topic", "/cam/odom",
+                                       "--depth-topic", "/cam/depth", "--out", str(tmp_path / "data"), "-q"])
+    assert result.exit_code == 0, result.output + repr(result.exception)
+    data = read_dataset(tmp_path / "data")
+    assert data.depth_scale == 0.001
+    for k, path in enumerate(data.depth_paths):  # each frame's own depth image (5 ms later), in millimetres
+        # the bag's millimetres (rounded in float32), or its metres rounded to millimetres here
+        z = sequence.depth[k] if encoding == "16UC1" else sequence.depth[k].astype(np.float64)
+        np.testing.assert_allclose(read_depth_image(path), np.round(z * 1000) / 1000, atol=1e-9)
+    assert data.ply_path == tmp_path / "data" / DEPTH_POINTS_FILE
+    summary = json.loads((tmp_path / "data" / "prepare.json").read_text())
+    assert summary["points"]["source"] == "depth images" and summary["source"]["depth_topic"] == "/cam/depth"
+    cloud = read_point_cloud(data.ply_path)
+    assert len(cloud.xyz) > 1000 and cloud.normals is not None
+
+
+def test_depth_that_is_not_in_step_with_the_frames_or_has_no_poses_is_refused(sequence, tmp_path):
+    bag = tmp_path / "cam"
+    _write_bag(bag, sequence, 2, depth="16UC1", depth_offset_ns=100_000_000)
+    with pytest.raises(InputError, match=r"cam: /cam/depth: no depth image within 40 ms of the frame at 0 ns "
+                                         r"\(nearest \+100.0 ms\)"):
+        read_bag(bag, "/cam/image", "/cam/info", "/cam/odom", depth_topic="/cam/depth")
+    with pytest.raises(InputError, match="depth images from '/cam/depth' need the camera's poses"):
+        prepare_bag(bag, tmp_path / "data", "/cam/image", "/cam/info", depth_topic="/cam/depth")
+    with pytest.raises(InputError, match=r"topic '/cam/info' is sensor_msgs/msg/CameraInfo, expected sensor_msgs/msg/Image"):
+        read_bag(bag, "/cam/image", "/cam/info", "/cam/odom", depth_topic="/cam/info")
+    result = CliRunner().invoke(main, ["prepare", "--images", str(tmp_path), "--depth-topic", "/cam/depth",
+                                       "--out", str(tmp_path / "o")])
+    assert result.exit_code != 0 and "--depth-topic goes with --bag" in result.output

@@ -5,7 +5,10 @@
 * camera: ``sensor_msgs/CameraInfo`` (K, and the distortion models ``plumb_bob`` / ``rational_polynomial`` as our
   ``opencv`` lens, ``equidistant`` as ``fisheye``; ROS's K puts pixel centres at integers, ours at +0.5);
 * poses: ``nav_msgs/Odometry`` or ``geometry_msgs/PoseStamped`` of the camera's optical frame (x right, y down, z
-  forward: OpenCV's axes), interpolated to each frame's time stamp (linear position, spherical rotation).
+  forward: OpenCV's axes), interpolated to each frame's time stamp (linear position, spherical rotation);
+* depth: an RGB-D camera's ``sensor_msgs/Image`` registered to the colour camera (RealSense's
+  ``aligned_depth_to_color``): ``16UC1`` in millimetres or ``32FC1`` in metres (REP 118; 0 or NaN: no measurement),
+  the one nearest in time to each kept frame, within :data:`DEPTH_SYNC_NS`.
 
 Frames are kept at least ``min_interval_s`` apart in time and, with poses, ``min_motion_m`` apart in space.
 """
@@ -27,6 +30,11 @@ from spotlessgs.io.errors import InputError
 
 IMAGE_TYPES = ("sensor_msgs/msg/Image", "sensor_msgs/msg/CompressedImage")
 POSE_TYPES = ("nav_msgs/msg/Odometry", "geometry_msgs/msg/PoseStamped")
+#: Depth encodings (REP 118) and the metres per unit of each.
+DEPTH_ENCODINGS = {"16uc1": (np.uint16, 0.001), "mono16": (np.uint16, 0.001), "32fc1": (np.float32, 1.0)}
+#: The most a depth image's stamp may be from its colour frame's (a camera's colour and depth streams at 15 fps or
+#: faster are within half a frame).
+DEPTH_SYNC_NS = 40_000_000
 _CHANNELS = {"rgb8": (3, np.uint8, None), "bgr8": (3, np.uint8, cv2.COLOR_BGR2RGB), "rgba8": (4, np.uint8, None),
              "bgra8": (4, np.uint8, cv2.COLOR_BGRA2RGBA), "mono8": (1, np.uint8, None), "mono16": (1, np.uint16, None),
              "rgb16": (3, np.uint16, None), "bgr16": (3, np.uint16, cv2.COLOR_BGR2RGB)}
@@ -44,6 +52,7 @@ class BagFrames:
         intrinsics: from the CameraInfo topic, or None.
         c2w: (N, 4, 4) camera-to-world (OpenCV axes) at the frames' stamps from the pose topic, or None.
         skipped: frames read but not kept (subsampling), and frames outside the pose topic's time span.
+        depths: N (H, W) float64 depth images in metres (NaN: no measurement) from the depth topic, or None.
     """
 
     stamps_ns: np.ndarray
@@ -51,6 +60,7 @@ class BagFrames:
     intrinsics: Intrinsics | None
     c2w: np.ndarray | None
     skipped: int
+    depths: list[np.ndarray] | None = None
 
 
 def decode_image(msg, msgtype: str, where: str) -> np.ndarray:
@@ -81,6 +91,17 @@ def decode_image(msg, msgtype: str, where: str) -> np.ndarray:
     if image.shape[2] == 1:
         image = np.repeat(image, 3, axis=2)
     return np.ascontiguousarray(image[..., :3])
+
+
+def decode_depth(msg, where: str) -> np.ndarray:
+    """(H, W) float64 depth in metres (NaN where 0, NaN or negative: no measurement) of a depth Image message
+    (:data:`DEPTH_ENCODINGS`); InputError naming ``where``."""
+    encoding = msg.encoding.lower()
+    if encoding not in DEPTH_ENCODINGS:
+        raise InputError(f"{where}: depth encoding {msg.encoding!r} is not supported (16UC1 in mm, 32FC1 in m)")
+    dtype, scale = DEPTH_ENCODINGS[encoding]
+    data = _rows(np.frombuffer(bytes(msg.data), np.uint8), msg, 1, dtype, where)[..., 0].astype(np.float64) * scale
+    return np.where(np.isfinite(data) & (data > 0), data, np.nan)
 
 
 def _rows(raw: np.ndarray, msg, channels: int, dtype, where: str) -> np.ndarray:
@@ -127,12 +148,14 @@ def _stamp_ns(msg, fallback: int) -> int:
 
 
 def read_bag(bag: str | Path, image_topic: str, camera_info_topic: str | None = None, pose_topic: str | None = None,
-             min_interval_s: float = 0.0, min_motion_m: float = 0.0) -> BagFrames:
-    """Read one camera's frames (and optionally its CameraInfo and poses) from a ROS 1 or ROS 2 bag.
+             min_interval_s: float = 0.0, min_motion_m: float = 0.0, depth_topic: str | None = None) -> BagFrames:
+    """Read one camera's frames (and optionally its CameraInfo, poses and registered depth images) from a ROS 1 or
+    ROS 2 bag.
 
     Raises:
         InputError: the bag cannot be read, a topic is missing or of the wrong type (the bag's topics are listed), a
-            frame cannot be decoded, or no frame is kept.
+            frame cannot be decoded, no frame is kept, or a kept frame has no depth image within DEPTH_SYNC_NS or one
+            of another size.
     """
     bag = Path(bag)
     try:
@@ -188,11 +211,49 @@ def read_bag(bag: str | Path, image_topic: str, camera_info_topic: str | None = 
             if pose is not None:
                 c2w.append(pose)
                 last_centre = pose[:3, 3]
+        if not images:
+            raise InputError(f"{bag}: no frame of {image_topic!r} was kept ({skipped} skipped)")
+        depths = None
+        if depth_topic is not None:
+            depths = _matched_depths(reader, connections(depth_topic, ("sensor_msgs/msg/Image",)), stamps,
+                                     f"{bag}: {depth_topic}")
+            for k, (image, depth) in enumerate(zip(images, depths)):
+                if depth.shape != image.shape[:2]:
+                    raise InputError(f"{bag}: {depth_topic}: the depth image at {stamps[k]} ns is "
+                                     f"{depth.shape[1]}x{depth.shape[0]}, the frame {image.shape[1]}x{image.shape[0]} "
+                                     "(the depth must be registered to the colour camera: aligned_depth_to_color)")
     finally:
         reader.close()
-    if not images:
-        raise InputError(f"{bag}: no frame of {image_topic!r} was kept ({skipped} skipped)")
-    return BagFrames(np.array(stamps, dtype=np.int64), images, intrinsics, np.stack(c2w) if poses else None, skipped)
+    return BagFrames(np.array(stamps, dtype=np.int64), images, intrinsics, np.stack(c2w) if poses else None, skipped,
+                     depths)
+
+
+def _matched_depths(reader, conns, stamps: list[int], where: str) -> list[np.ndarray]:
+    """The depth image (:func:`decode_depth`) nearest in time to each of ``stamps`` (ns), of the messages of
+    ``conns``: their stamps first, then only the matched messages decoded. InputError naming ``where`` and the
+    frame's stamp where none lies within DEPTH_SYNC_NS."""
+    depth_stamps = np.array(sorted(_stamp_ns(reader.deserialize(raw, c.msgtype), t)
+                                   for c, t, raw in reader.messages(connections=conns)), dtype=np.int64)
+    if len(depth_stamps) == 0:
+        raise InputError(f"{where}: the topic has no message")
+    wanted: dict[int, list[int]] = {}
+    for k, stamp in enumerate(stamps):
+        i = int(np.searchsorted(depth_stamps, stamp))
+        around = depth_stamps[max(i - 1, 0): i + 1]  # the stamps just before and after
+        nearest = int(around[np.argmin(np.abs(around - stamp))])
+        if abs(nearest - stamp) > DEPTH_SYNC_NS:
+            raise InputError(f"{where}: no depth image within {DEPTH_SYNC_NS / 1e6:.0f} ms of the frame at {stamp} ns "
+                             f"(nearest {(nearest - stamp) / 1e6:+.1f} ms)")
+        wanted.setdefault(nearest, []).append(k)
+    depths: list[np.ndarray | None] = [None] * len(stamps)
+    for conn, t, raw in reader.messages(connections=conns):
+        msg = reader.deserialize(raw, conn.msgtype)
+        frames = wanted.pop(_stamp_ns(msg, t), None)
+        if frames is not None:
+            depth = decode_depth(msg, f"{where} at {_stamp_ns(msg, t)} ns")
+            for k in frames:
+                depths[k] = depth
+    return depths  # type: ignore[return-value]
 
 
 def _interpolate(records, stamp: int) -> np.ndarray | None:

@@ -1,6 +1,7 @@
 """``spotless prepare --bag FILE --image-topic T [--odometry-topic T] --out DATA``: one camera of a ROS 1 or ROS 2
 bag becomes a dataset: with odometry, a posed nerfstudio dataset whose sparse points are triangulated with the poses
-(:mod:`spotlessgs.prepare.points`); without, the frames go through structure from motion
+(:mod:`spotlessgs.prepare.points`), or with an RGB-D camera's depth topic (``--depth-topic``) a dense cloud from its
+depth images (:mod:`spotlessgs.prepare.depth_points`); without odometry, the frames go through structure from motion
 (:mod:`spotlessgs.prepare.images`)."""
 
 from __future__ import annotations
@@ -14,12 +15,14 @@ from typing import Any
 
 from spotlessgs.io.atomic import write_json
 from spotlessgs.io.cameras import opencv_to_opengl_c2w
+from spotlessgs.io.depth_images import DEFAULT_DEPTH_SCALE, write_depth_image
 from spotlessgs.io.errors import InputError
 from spotlessgs.io.images import write_png
 from spotlessgs.io.paths import refuse_overlap
 from spotlessgs.io.provenance import provenance
 from spotlessgs.io.rosbag import read_bag
 from spotlessgs.io.transforms import FrameRecord, write_transforms
+from spotlessgs.prepare.depth_points import add_depth_points
 from spotlessgs.prepare.images import SUMMARY_FILE, pose_error, prepare_images
 from spotlessgs.prepare.points import add_sfm_points
 
@@ -31,6 +34,7 @@ def prepare_bag(
     pose_topic: str | None = None, min_interval_s: float = 0.0, min_motion_m: float = 0.0,
     camera_model: str = "SIMPLE_RADIAL", matcher: str = "sequential", truth: str | Path | None = None,
     threads: int = 1, seed: int = 0, progress: Callable[[str], None] | None = None, points: bool = True,
+    depth_topic: str | None = None,
 ) -> dict[str, Any]:
     """Turn one camera of a ROS 1 or ROS 2 bag into a dataset in ``out``.
 
@@ -38,20 +42,27 @@ def prepare_bag(
     ``transforms.json`` (the camera from ``camera_info_topic``, which is then required) and, with ``points``, sparse
     points triangulated with those poses (:func:`~spotlessgs.prepare.points.add_sfm_points`; when none can be, a
     warning, and the trainer starts without); without it the frames go through :func:`prepare_images` (structure
-    from motion; the CameraInfo camera, when given, is kept fixed).
+    from motion; the CameraInfo camera, when given, is kept fixed). With ``depth_topic`` (and ``pose_topic``) each
+    frame also gets its registered depth image (``depth/frame_*.png``, 16-bit millimetres, its ``depth_file_path``),
+    and the points are those depth images back-projected (:func:`~spotlessgs.prepare.depth_points.add_depth_points`).
 
     Raises:
-        InputError: as :func:`spotlessgs.io.rosbag.read_bag` and :func:`prepare_images`; poses without a camera.
+        InputError: as :func:`spotlessgs.io.rosbag.read_bag` and :func:`prepare_images`; poses without a camera;
+            depth without poses.
     """
     bag, out = Path(bag), Path(out)
     refuse_overlap(out, {"--bag": bag}, "--out")
     if pose_topic is not None and camera_info_topic is None:
         raise InputError(f"{bag}: poses from {pose_topic!r} need the camera too: give its CameraInfo topic")
+    if depth_topic is not None and pose_topic is None:
+        raise InputError(f"{bag}: depth images from {depth_topic!r} need the camera's poses (metric, as the depth): "
+                         "give its odometry topic")
     step = progress or (lambda _name: None)
     step(f"reading {image_topic}")
-    frames = read_bag(bag, image_topic, camera_info_topic, pose_topic, min_interval_s, min_motion_m)
+    frames = read_bag(bag, image_topic, camera_info_topic, pose_topic, min_interval_s, min_motion_m, depth_topic)
     source = {"bag": str(bag.resolve()), "image_topic": image_topic, "camera_info_topic": camera_info_topic,
-              "pose_topic": pose_topic, "frames_kept": len(frames.images), "frames_skipped": frames.skipped}
+              "pose_topic": pose_topic, "depth_topic": depth_topic, "frames_kept": len(frames.images),
+              "frames_skipped": frames.skipped}
     if frames.c2w is None:
         with tempfile.TemporaryDirectory(prefix="spotless-bag-") as tmp:
             for k, image in enumerate(frames.images):
@@ -63,10 +74,14 @@ def prepare_bag(
         return summary
     records = []
     for k, (image, c2w) in enumerate(zip(frames.images, frames.c2w)):
-        name = f"images/frame_{k:05d}.png"
+        name, depth_name = f"images/frame_{k:05d}.png", None
         write_png(out / name, image)
-        records.append(FrameRecord(name, opencv_to_opengl_c2w(c2w)))
-    write_transforms(out / "transforms.json", frames.intrinsics, records, None)
+        if frames.depths is not None:
+            depth_name = f"depth/frame_{k:05d}.png"
+            write_depth_image(out / depth_name, frames.depths[k], DEFAULT_DEPTH_SCALE)
+        records.append(FrameRecord(name, opencv_to_opengl_c2w(c2w), depth_file_path=depth_name))
+    write_transforms(out / "transforms.json", frames.intrinsics, records, None,
+                     depth_unit_scale_factor=None if frames.depths is None else DEFAULT_DEPTH_SCALE)
     summary = {"source": source, "frames": len(records), "registered": len(records), "not_registered": [],
                "poses": "from the pose topic", "camera": dataclasses.asdict(frames.intrinsics),
                "provenance": provenance(seed=seed)}
@@ -75,7 +90,8 @@ def prepare_bag(
     write_json(out / SUMMARY_FILE, summary)
     if points:
         try:
-            summary["points"] = add_sfm_points(out, matcher, threads, seed, progress)
+            summary["points"] = (add_sfm_points(out, matcher, threads, seed, progress) if frames.depths is None
+                                 else add_depth_points(out, seed=seed, progress=progress))
         except InputError as exc:
             log.warning("%s", exc)
     return summary
