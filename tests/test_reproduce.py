@@ -83,7 +83,8 @@ def test_results_json_structure(tiny_run):
     assert {"preset", "config", "datasets", "cyclegan", "tables", "agreement", "paper", "figures", "stage_seconds",
             "provenance"} <= set(results)
     assert results["preset"] == "tiny" and set(results["datasets"]) == {"bedroom-uneven", "bedroom-saturated",
-                                                                        "bedroom-uneven-noisy", "bedroom-robot"}
+                                                                        "bedroom-uneven-noisy", "bedroom-robot",
+                                                                        "bedroom-rgbd"}
     ds = results["datasets"]["bedroom-uneven"]
     assert set(ds["methods"]) == {"3dgs", "darkgs", "darkgs-calibrated", "darkgs+sh", "darkgs+brdf", "spotless",
                                   "auto"}
@@ -202,6 +203,32 @@ def test_robot_camera_copy_starts_from_triangulated_points_and_is_set_against_th
     assert f"beyond the uniform ground truth's steps (what enters the view) {excess:.3f}" in claims[
         "Acceptance on bedroom-robot: the relit sequence flickers no more than the ground truth"]["text"]
     assert "### Robot camera — what each method loses against the ideal input" in (out / "REPORT.md").read_text()
+
+
+def test_the_rgbd_copy_starts_from_its_depth_images_and_is_trusted(tiny_run):
+    """The robot copy with an RGB-D camera: the same images as the robot copy, depth images registered to them, a
+    start back-projected from them with normals, which SpotlessGS trusts (its normals held, the bounce light on);
+    the robot table sets it against the ideal input and says where its start came from."""
+    from spotlessgs.io.dataset import read_dataset
+    from spotlessgs.io.ply import read_point_cloud
+
+    out, _, _ = tiny_run
+    rgbd, robot = out / "datasets" / "bedroom-rgbd", out / "datasets" / "bedroom-robot"
+    data = read_dataset(rgbd)
+    assert data.depth_paths is not None and all(p.is_file() for p in data.depth_paths)
+    for name in ("frame_00001.png", "frame_00007.png"):  # the robot copy's frames, byte for byte
+        assert (rgbd / "images" / name).read_bytes() == (robot / "images" / name).read_bytes()
+    cloud = read_point_cloud(data.ply_path)
+    assert data.ply_path.name == "depth_points.ply" and len(cloud.xyz) > 1000 and cloud.normals is not None
+    results = json.loads((out / "results.json").read_text())
+    entry = results["datasets"]["bedroom-rgbd"]
+    assert entry["robot_camera"]["depth_camera"]["noise"] == 0.0025
+    assert entry["robot_camera"]["points"]["source"] == "depth images"
+    model_config = json.loads((out / "runs" / "bedroom-rgbd" / "spotless" / "config.json").read_text())
+    assert model_config["model_config"]["lamp_bounce"] is True  # the trusted start's bounce light
+    notes = " ".join(results["tables"]["robot"]["notes"])
+    assert f"the start is {len(cloud.xyz)} points back-projected from them, with normals" in notes
+    assert any(r[0] == "bedroom-rgbd" and r[1] == "SpotlessGS (ours)" for r in results["tables"]["robot"]["rows"])
 
 
 def test_every_dataset_is_set_against_its_relighting_ceiling(tiny_run):

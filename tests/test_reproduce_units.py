@@ -129,12 +129,21 @@ def test_sensor_noise_copies_are_extra_datasets():
     quick = preset("quick", scenes=("bedroom", "office"), gan_rooms=("living_room", "corridor"))
     assert quick.noisy_datasets() == [("bedroom", "uneven-noisy"), ("office", "uneven-noisy")]
     assert quick.robot_datasets() == [("bedroom", "robot"), ("office", "robot")]
-    assert quick.all_datasets() == quick.datasets() + quick.noisy_datasets() + quick.robot_datasets()
+    assert quick.rgbd_datasets() == [("bedroom", "rgbd"), ("office", "rgbd")]
+    assert quick.all_datasets() == (quick.datasets() + quick.noisy_datasets() + quick.robot_datasets()
+                                    + quick.rgbd_datasets())
     assert quick.methods_for("uneven-noisy") == ("spotless",) and quick.methods_for("saturated") == quick.methods
     assert quick.methods_for("robot") == quick.methods and preset("tiny").methods_for("robot") == ("spotless",)
+    assert quick.methods_for("rgbd") == ("darkgs", "spotless", "auto")
+    assert preset("tiny").methods_for("rgbd") == ("spotless",)
+    assert preset("quick", robot_depth_camera=False).rgbd_datasets() == []
     clean = preset("quick", sensor_noise=None, robot_camera=False, variants=("saturated",),
                    baseline_variants=("saturated",))
     assert clean.noisy_datasets() == [] and clean.all_datasets() == [("bedroom", "saturated")]
+    with pytest.raises(ValueError, match="robot_depth_noise must be finite and >= 0"):
+        ReproduceConfig(robot_depth_noise=-0.001)
+    with pytest.raises(ValueError, match=r"rgbd_methods: unknown \['ours'\]"):
+        ReproduceConfig(rgbd_methods=("ours",))
 
 
 def test_cli_options_to_config():
@@ -189,9 +198,9 @@ def test_pipeline_graph_shape(tmp_path):
     graph = build_graph(config, tmp_path)
     names = set(graph.stages)
     # 2 renders + 7 trainings and 1 inputs' evaluation per dataset (2 datasets), 2 GAN renders, the GAN, 3 baselines
-    # on the uneven set, the sensor-noise and the robot-camera copies each with its SpotlessGS run and inputs'
-    # evaluation, one relighting ceiling per dataset (4), report
-    assert len(names) == 2 + 14 + 2 + 2 + 1 + 3 + 3 + 3 + 4 + 1
+    # on the uneven set, the sensor-noise, the robot-camera and the RGB-D copies each with its SpotlessGS run and
+    # inputs' evaluation, one relighting ceiling per dataset (5), report
+    assert len(names) == 2 + 14 + 2 + 2 + 1 + 3 + 3 + 3 + 3 + 5 + 1
     noise = graph["noise/bedroom-uneven-noisy"]
     assert noise.function == "spotlessgs.experiments.reproduce.tasks:add_noise_copy" and not noise.clean_on_retry
     assert noise.deps == ("render/bedroom-uneven",)
@@ -207,7 +216,13 @@ def test_pipeline_graph_shape(tmp_path):
     assert graph["train/bedroom-uneven-noisy/spotless"].deps == ("noise/bedroom-uneven-noisy",)
     assert graph["eval-inputs/bedroom-uneven-noisy"].deps == ("noise/bedroom-uneven-noisy",)
     assert len(build_graph(preset("tiny", sensor_noise=None), tmp_path).stages) == len(names) - 4
-    assert len(build_graph(preset("tiny", robot_camera=False), tmp_path).stages) == len(names) - 4
+    assert len(build_graph(preset("tiny", robot_camera=False), tmp_path).stages) == len(names) - 8
+    assert len(build_graph(preset("tiny", robot_depth_camera=False), tmp_path).stages) == len(names) - 4
+    rgbd = graph["robot/bedroom-rgbd"]  # the robot copy with an RGB-D camera: the same task, with its depth
+    assert rgbd.function == "spotlessgs.experiments.reproduce.tasks:robot_camera_copy"
+    assert rgbd.kwargs == {**graph["robot/bedroom-robot"].kwargs, "depth_noise": 0.0025,
+                           "out_dir": str(tmp_path / "datasets" / "bedroom-rgbd")}
+    assert graph["train/bedroom-rgbd/spotless"].deps == ("robot/bedroom-rgbd",)
     robot = graph["robot/bedroom-robot"]
     assert robot.function == "spotlessgs.experiments.reproduce.tasks:robot_camera_copy" and not robot.clean_on_retry
     assert robot.deps == ("render/bedroom-uneven",)
@@ -228,8 +243,8 @@ def test_pipeline_graph_shape(tmp_path):
         assert {k: stage.kwargs[k] for k in ("sfm", "sfm_matcher", "lpips", "seed")} == {
             k: inputs.kwargs[k] for k in ("sfm", "sfm_matcher", "lpips", "seed")}
     assert sorted(n for n in names if n.startswith("eval-inputs/")) == [
-        "eval-inputs/bedroom-robot", "eval-inputs/bedroom-saturated", "eval-inputs/bedroom-uneven",
-        "eval-inputs/bedroom-uneven-noisy"]
+        "eval-inputs/bedroom-rgbd", "eval-inputs/bedroom-robot", "eval-inputs/bedroom-saturated",
+        "eval-inputs/bedroom-uneven", "eval-inputs/bedroom-uneven-noisy"]
     no_sfm = build_graph(preset("tiny", sfm=False, lpips=False, seed=4), tmp_path)["eval-inputs/bedroom-uneven"]
     assert (no_sfm.kwargs["sfm"], no_sfm.kwargs["lpips"], no_sfm.kwargs["seed"]) == (False, False, 4)
     auto = graph["train/bedroom-uneven/auto"]

@@ -34,6 +34,8 @@ PAPER_VARIANTS: tuple[str, ...] = ("uneven", "saturated")
 NOISY_VARIANT = "uneven-noisy"
 # The copy of a room's ``uneven`` dataset seen through a robot camera (ReproduceConfig.robot_camera).
 ROBOT_VARIANT = "robot"
+# The same robot camera with an RGB-D camera's depth images, started from them (ReproduceConfig.robot_depth_camera).
+RGBD_VARIANT = "rgbd"
 # The stage that scores a dataset's inputs once for every method (its folder: OUT/inputs/<dataset>).
 INPUTS_STAGE = "eval-inputs"
 # Stage name prefix of the relighting ceiling of each dataset (tasks.evaluate_ceiling).
@@ -145,6 +147,13 @@ class ReproduceConfig:
     # What the robot's sensor records of the render at gain 1 (a dark scene: auto-exposure raises the gain up to 4x).
     robot_sensitivity: float = 0.25
     robot_methods: tuple[str, ...] = METHODS_3D
+    # The robot with an RGB-D camera (``<room>-rgbd``): the robot copy's images, and depth images registered to them
+    # (``spotless-sim add-noise --depth-camera``: σ = ``robot_depth_noise`` · z² metres, 16-bit millimetres); the
+    # start is those depth images back-projected (``spotless prepare --points``: dense, with normals), which the
+    # trainer trusts (``TrainConfig.trust_start_geometry``). ``rgbd_methods`` are trained on it.
+    robot_depth_camera: bool = True
+    robot_depth_noise: float = 0.0025
+    rgbd_methods: tuple[str, ...] = ("darkgs", "spotless", "auto")
     # SfM pairing: "sequential" or "exhaustive" (short sequences with wide baselines need exhaustive).
     sfm_matcher: str = "sequential"
     # Compute LPIPS (AlexNet) besides PSNR and SSIM.
@@ -228,6 +237,11 @@ class ReproduceConfig:
             if not (math.isfinite(self.robot_sensitivity) and self.robot_sensitivity > 0):
                 raise ValueError(f"ReproduceConfig.robot_sensitivity must be > 0, got {self.robot_sensitivity!r}")
             check_subset("robot_methods", METHODS_3D)
+            if self.robot_depth_camera:
+                if not (math.isfinite(self.robot_depth_noise) and self.robot_depth_noise >= 0):
+                    raise ValueError(f"ReproduceConfig.robot_depth_noise must be finite and >= 0, got "
+                                     f"{self.robot_depth_noise!r}")
+                check_subset("rgbd_methods", METHODS_3D)
         if self.sfm_matcher not in ("sequential", "exhaustive"):
             raise ValueError(f"ReproduceConfig.sfm_matcher must be sequential or exhaustive, got {self.sfm_matcher!r}")
 
@@ -263,13 +277,19 @@ class ReproduceConfig:
         """(room, ROBOT_VARIANT) of every robot-camera copy (empty when ``robot_camera`` is off)."""
         return [(room, ROBOT_VARIANT) for room in self.scenes] if self.robot_camera else []
 
+    def rgbd_datasets(self) -> list[tuple[str, str]]:
+        """(room, RGBD_VARIANT) of every RGB-D robot copy (empty unless ``robot_camera`` and
+        ``robot_depth_camera``)."""
+        return [(room, RGBD_VARIANT) for room in self.scenes] if self.robot_camera and self.robot_depth_camera else []
+
     def all_datasets(self) -> list[tuple[str, str]]:
-        """Every test dataset, rendered ones, then noisy and robot-camera copies, in table order."""
-        return self.datasets() + self.noisy_datasets() + self.robot_datasets()
+        """Every test dataset, rendered ones, then noisy, robot-camera and RGB-D copies, in table order."""
+        return self.datasets() + self.noisy_datasets() + self.robot_datasets() + self.rgbd_datasets()
 
     def methods_for(self, variant: str) -> tuple[str, ...]:
         """The 3D methods trained on a dataset of this variant."""
-        return {NOISY_VARIANT: self.noisy_methods, ROBOT_VARIANT: self.robot_methods}.get(variant, self.methods)
+        return {NOISY_VARIANT: self.noisy_methods, ROBOT_VARIANT: self.robot_methods,
+                RGBD_VARIANT: self.rgbd_methods}.get(variant, self.methods)
 
     def gan_domains(self) -> tuple[tuple[str, ...], tuple[str, ...]]:
         """(rooms whose uneven inputs form the Cycle-GAN's source domain, rooms whose ground truth forms its target)."""
@@ -289,7 +309,7 @@ PRESETS: dict[str, ReproduceConfig] = {
         preset="tiny", frames=12, width=96, height=72, samples=4, train_preset="tiny", train_iterations=150,
         train_width=64, curve_fractions=(0.5,), selection_min_proxy_iterations=20, gan_rooms=("office", "living_room"),
         gan_frames=6, gan_width=96, gan_height=72, gan_samples=4, cyclegan_preset="tiny", cyclegan_steps=None,
-        sfm_matcher="exhaustive", robot_methods=("spotless",),
+        sfm_matcher="exhaustive", robot_methods=("spotless",), rgbd_methods=("spotless",),
     ),
     # README main job: about half an hour on a 2-core CPU.
     "quick": ReproduceConfig(),

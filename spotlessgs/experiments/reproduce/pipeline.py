@@ -30,8 +30,8 @@ from spotlessgs.io.atomic import write_json
 from spotlessgs.io.folder_lock import folder_lock
 from spotlessgs.io.paths import refuse_overlap
 from spotlessgs.experiments.reproduce.config import (
-    CEILING_STAGE, INPUTS_STAGE, NEUTRAL_NEW_FIELDS, NOISY_VARIANT, RESIDUAL_VARIANT, ROBOT_VARIANT, ReproduceConfig,
-    dataset_id, train_stage,
+    CEILING_STAGE, INPUTS_STAGE, NEUTRAL_NEW_FIELDS, NOISY_VARIANT, RESIDUAL_VARIANT, RGBD_VARIANT, ROBOT_VARIANT,
+    ReproduceConfig, dataset_id, train_stage,
 )
 from simulator.render_many import RENDER_MEMORY_MB
 from spotlessgs.jobs import ExecutorSpec, RunReport, Stage, StageGraph, StageResources, execute
@@ -56,7 +56,8 @@ def train_memory_mb(config: ReproduceConfig) -> int:
 def dataset_stage(variant: str, ds: str) -> str:
     """The stage that writes dataset ``ds``: ``noise/<ds>`` for a sensor-noise copy, ``robot/<ds>`` for a
     robot-camera copy, ``render/<ds>`` otherwise."""
-    return {NOISY_VARIANT: f"noise/{ds}", ROBOT_VARIANT: f"robot/{ds}"}.get(variant, f"render/{ds}")
+    return {NOISY_VARIANT: f"noise/{ds}", ROBOT_VARIANT: f"robot/{ds}", RGBD_VARIANT: f"robot/{ds}"}.get(
+        variant, f"render/{ds}")
 
 
 def build_graph(config: ReproduceConfig, out: Path) -> StageGraph:
@@ -110,12 +111,13 @@ def build_graph(config: ReproduceConfig, out: Path) -> StageGraph:
         shot, read = config.sensor_noise
         stages.append(copy_of_uneven("add_noise_copy", room, variant,
                                      {"shot": float(shot), "read": float(read), "seed": config.seed}))
-    for room, variant in config.robot_datasets():
+    for room, variant in config.robot_datasets() + config.rgbd_datasets():
         shot, read = config.robot_noise
+        depth = {"depth_noise": float(config.robot_depth_noise)} if variant == RGBD_VARIANT else {}
         stages.append(copy_of_uneven("robot_camera_copy", room, variant, {
             "shot": float(shot), "read": float(read), "sensitivity": float(config.robot_sensitivity),
             "lens": config.robot_lens, "distortion": [float(v) for v in config.robot_distortion],
-            "matcher": config.sfm_matcher, "seed": config.seed}))
+            "matcher": config.sfm_matcher, "seed": config.seed, **depth}))
     rendered = set(config.datasets())
     for room, variant in config.all_datasets():
         ds = dataset_id(room, variant)

@@ -11,7 +11,8 @@ from spotlessgs.io.atomic import write_json, write_text
 from spotlessgs.io.provenance import provenance
 from spotlessgs.experiments.reproduce import paper
 from spotlessgs.experiments.reproduce.config import (
-    CEILING_STAGE, INPUTS_STAGE, NOISY_VARIANT, RESIDUAL_VARIANT, ROBOT_VARIANT, ReproduceConfig, dataset_id,
+    CEILING_STAGE, INPUTS_STAGE, NOISY_VARIANT, RESIDUAL_VARIANT, RGBD_VARIANT, ROBOT_VARIANT, ReproduceConfig,
+    dataset_id,
     train_stage,
 )
 from spotlessgs.experiments.reproduce.figures import qualitative_grid, speed_error_plot
@@ -54,7 +55,7 @@ def collect(out: Path, config: ReproduceConfig) -> dict[str, Any]:
         entry.update(ceiling=ceiling.get("metrics", {}), ceiling_uniform=ceiling.get("uniform", {}))
         if variant == NOISY_VARIANT:
             entry["sensor_noise"] = read_marker(out, f"noise/{ds}")["result"]
-        if variant == ROBOT_VARIANT:
+        if variant in (ROBOT_VARIANT, RGBD_VARIANT):
             entry["robot_camera"] = read_marker(out, f"robot/{ds}")["result"]
         for method in config.methods_for(variant):
             marker = read_marker(out, f"train/{ds}/{method}")
@@ -109,7 +110,10 @@ def render_markdown(config: ReproduceConfig, tables: list[Table], notes: list[Ag
         + (f" Robot-camera copies (`<room>-{ROBOT_VARIANT}`: {config.robot_lens} lens "
            f"{list(config.robot_distortion)}, auto-exposure, vignetting, sensor noise {list(config.robot_noise)}, "
            f"sparse start triangulated on its images): {', '.join(config.robot_methods)}."
-           if config.robot_camera else ""),
+           if config.robot_camera else "")
+        + (f" The same with an RGB-D camera (`<room>-{RGBD_VARIANT}`: depth σ = {config.robot_depth_noise:g} · z² m, "
+           f"the start back-projected from its depth images): {', '.join(config.rgbd_methods)}."
+           if config.rgbd_datasets() else ""),
         "",
         f"Paper figures are from the {paper.SOURCE} (Table III: its real-world sequence); they come from other data "
         "(and a GPU), so compare orderings, "

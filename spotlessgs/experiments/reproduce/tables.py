@@ -356,6 +356,17 @@ def robot_pairs(collected: dict) -> list[tuple[str, dict[str, Any], dict[str, An
             if "robot_camera" in ds and (ds["room"], "uneven") in by_room]
 
 
+def _robot_start(camera: dict[str, Any]) -> str:
+    """How a robot copy's training starts, from its stage's summary (``camera``)."""
+    points, depth = camera.get("points"), camera.get("depth_camera")
+    if not isinstance(points, dict):
+        return "no depth-derived point cloud: the start is random points (no point could be made)"
+    if isinstance(depth, dict):
+        return (f"an RGB-D camera's depth images (σ = {depth.get('noise')} · z² m): the start is "
+                f"{points['points']} points back-projected from them, with normals")
+    return f"no depth-derived point cloud: the start is {points['points']} points triangulated on its images with the poses"
+
+
 def robot_table(collected: dict) -> Table:
     """Each method on the robot-camera copy against the same method on the ideal input of the room."""
     columns = ["Dataset", "Method", "PSNR (aligned), ideal input", "PSNR (aligned), robot camera", "Loss (dB)",
@@ -389,9 +400,7 @@ def robot_table(collected: dict) -> Table:
             f"{ds_name}: the ideal input's renders through a robot camera: {effects.get('lens')} lens "
             f"{list(effects.get('distortion', ()))}, auto-exposure (gains 1-{effects.get('max_gain')}), vignetting "
             f"{effects.get('vignetting')} at the corners, sensor noise (shot {camera.get('shot')}, read "
-            f"{camera.get('read')}); no depth-derived point cloud: the start is "
-            + (f"{camera['points']['points']} points triangulated on its images with the poses"
-               if isinstance(camera.get("points"), dict) else "random points (no point could be triangulated)")
+            f"{camera.get('read')}); " + _robot_start(camera)
             + ". The ideal input: the same room and poses, pinhole, fixed exposure, no noise, the dense point cloud "
               "with normals.")
     table.notes.append("Loss = ideal − robot (positive: the robot camera costs that much). Flicker: mean |log| "

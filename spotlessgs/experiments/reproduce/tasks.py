@@ -29,7 +29,7 @@ from evaluation.runner import (
 )
 from evaluation.sfm import SfmConfig, run_sfm
 from simulator.render_pipeline import ExecutionOptions, RenderConfig, render_dataset
-from simulator.sensor_noise import CameraEffects, SensorNoise, add_sensor_noise_to_dataset
+from simulator.sensor_noise import CameraEffects, DepthCamera, SensorNoise, add_sensor_noise_to_dataset
 from spotlessgs.baselines2d import enhance_folder
 from spotlessgs.baselines2d.cyclegan.config import preset as cyclegan_config
 from spotlessgs.baselines2d.cyclegan.train import train_cyclegan
@@ -42,7 +42,7 @@ from spotlessgs.io.dataset import read_dataset as read_dataset_description
 from spotlessgs.io.errors import InputError
 from spotlessgs.io.json_files import read_json
 from spotlessgs.io.provenance import provenance
-from spotlessgs.prepare import SUMMARY_FILE, add_sfm_points
+from spotlessgs.prepare import SUMMARY_FILE, add_depth_points, add_sfm_points
 from spotlessgs.run import AUTO, Run, RunSpec, given_overrides, train
 from spotlessgs.training.checkpoint import existing_checkpoint, load_checkpoint
 from spotlessgs.training.selection import SelectionConfig
@@ -115,20 +115,29 @@ def add_noise_copy(data_dir: str, out_dir: str, shot: float, read: float, seed: 
 
 
 def robot_camera_copy(data_dir: str, out_dir: str, shot: float, read: float, sensitivity: float, lens: str,
-                      distortion: Sequence[float], matcher: str, seed: int, threads: int) -> dict[str, Any]:
+                      distortion: Sequence[float], matcher: str, seed: int, threads: int,
+                      depth_noise: float | None = None) -> dict[str, Any]:
     """Write (or resume) the robot-camera copy of a finished dataset: its renders through ``lens``, with
     auto-exposure, vignetting and sensor noise and without the depth-derived point cloud
     (simulator.sensor_noise.add_sensor_noise_to_dataset), then sparse points triangulated on the copy's images with
     its poses (spotlessgs.prepare.add_sfm_points). When none can be triangulated the summary says so and the
-    trainer starts from random points in the frusta (it warns too)."""
+    trainer starts from random points in the frusta (it warns too). With ``depth_noise`` (σ at 1 m, metres) the
+    copy also has an RGB-D camera's depth images (simulator.sensor_noise.DepthCamera), and its start is those
+    back-projected (spotlessgs.prepare.add_depth_points) instead."""
     effects = CameraEffects(sensitivity=sensitivity, lens=lens, distortion=tuple(distortion))
+    depth_camera = None if depth_noise is None else DepthCamera(noise=depth_noise)
     written = add_sensor_noise_to_dataset(data_dir, out_dir, SensorNoise(shot=shot, read=read), seed=seed,
-                                          effects=effects, point_cloud=False)
+                                          effects=effects, point_cloud=False, depth_camera=depth_camera)
     summary: dict[str, Any] = {"source": data_dir, "shot": shot, "read": read, "written": written,
                                "camera_effects": asdict(effects)}
+    if depth_camera is not None:
+        summary["depth_camera"] = asdict(depth_camera)
     if read_dataset_description(out_dir).ply_path is None:
         try:
-            add_sfm_points(out_dir, matcher=matcher, threads=1, seed=seed)
+            if depth_camera is None:
+                add_sfm_points(out_dir, matcher=matcher, threads=1, seed=seed)
+            else:
+                add_depth_points(out_dir, seed=seed)
         except InputError as exc:
             summary["points_error"] = str(exc)
     points_file = Path(out_dir) / SUMMARY_FILE
