@@ -26,7 +26,7 @@ from spotlessgs.io.lens import camera_points
 from spotlessgs.io.ply import read_point_cloud
 from spotlessgs.io.transforms import DatasetError, FrameRecord, read_transforms, write_transforms
 from spotlessgs.prepare import DEPTH_POINTS_FILE, SUMMARY_FILE, add_depth_points
-from spotlessgs.prepare.depth_points import depth_normals
+from spotlessgs.prepare.depth_points import depth_surface, neighbour_mean_normals
 from spotlessgs.training.config import TrainConfig
 from spotlessgs.training.trainer import start_is_trusted
 
@@ -113,11 +113,14 @@ def test_depth_normals_of_a_tilted_plane_face_the_camera(lens):
     camera = Intrinsics(60.0, 60.0, 40.0, 30.0, 80, 60, *(LENS if lens == "opencv" else ("pinhole", ())))
     normal = np.array([0.3, -0.2, -1.0]) / np.linalg.norm([0.3, -0.2, -1.0])  # towards the camera
     depth = _plane_depth(camera, normal, -2.0)
-    normals = depth_normals(depth, camera)
+    surface = depth_surface(depth, camera)
+    normals = surface.normals
     inner = normals[4:-4, 4:-4]
     assert np.isfinite(inner).all()
     assert np.degrees(np.arccos(np.clip(inner @ normal, -1, 1))).max() < 0.1  # the window bends a curved z(u, v)
     assert np.isnan(normals[0]).all() and np.isnan(normals[:, -1]).all()  # no central difference at the border
+    np.testing.assert_array_equal(np.isnan(surface.depth), np.isnan(normals).any(-1))
+    assert np.nanmax(np.abs(surface.depth - depth) / depth) < 1e-3  # the average of a gently curved z(u, v)
 
 
 def test_depth_normals_leave_out_depth_edges_and_unmeasured_pixels():
@@ -125,12 +128,34 @@ def test_depth_normals_leave_out_depth_edges_and_unmeasured_pixels():
     depth = np.full((60, 80), 2.0)
     depth[:, 40:] = 3.0  # a step: an object's edge
     depth[10, 10] = np.nan
-    normals = depth_normals(depth, camera)
+    normals = depth_surface(depth, camera).normals
     unknown = np.isnan(normals).any(-1)
     assert unknown[:, 36:44].all()  # the jump between columns 39 and 40, widened by the window (5 + 2)
-    assert not unknown[1:-1, 34].any() and not unknown[1:-1, 45].any()
+    assert not unknown[3:-3, 34].any() and not unknown[3:-3, 45].any()  # the border: no full window
     assert unknown[7:14, 7:14].all() and not unknown[6, 6] and not unknown[14, 14]  # around the missing pixel
     np.testing.assert_allclose(normals[30, 20], [0.0, 0.0, -1.0], atol=1e-9)
+
+
+def test_the_averaged_depth_has_a_fifth_of_the_noise_of_a_5_by_5_window():
+    camera = Intrinsics(60.0, 60.0, 40.0, 30.0, 80, 60)
+    rng = np.random.default_rng(3)
+    noisy = 2.0 + 0.01 * rng.standard_normal((60, 60 + 20))
+    surface = depth_surface(noisy, camera)
+    residual = surface.depth[5:-5, 5:-5] - 2.0
+    assert residual.std() == pytest.approx(0.01 / 5, rel=0.25)  # 25 independent samples per pixel
+
+
+def test_neighbour_mean_normals_denoise_a_plane_and_do_not_cancel_across_its_faces():
+    rng = np.random.default_rng(4)
+    xyz = np.concatenate([rng.uniform(-1, 1, (2000, 2)), np.zeros((2000, 1))], 1)
+    noisy = np.array([0.0, 0.0, 1.0]) + 0.2 * rng.standard_normal((2000, 3))
+    noisy /= np.linalg.norm(noisy, axis=1, keepdims=True)
+    noisy[::2] *= -1  # half of them on the other face
+    smoothed = neighbour_mean_normals(xyz, noisy, 16)
+    before, after = (np.degrees(np.arccos(np.abs(n[:, 2]))) for n in (noisy, smoothed))
+    assert np.median(after) < np.median(before) / 3
+    np.testing.assert_array_equal(np.sign(smoothed[:, 2]), np.sign(noisy[:, 2]))  # each keeps its side
+    np.testing.assert_allclose(np.linalg.norm(smoothed, axis=1), 1.0)
 
 
 # ---- the simulator's depth camera -----------------------------------------------------------------------------------

@@ -2,10 +2,13 @@
 
 A robot with a depth camera (RealSense, Azure Kinect, a stereo pair) records a depth image registered to each colour
 frame (the dataset's ``depth_file_path`` s: :mod:`spotlessgs.io.depth_images`). Back-projecting the training frames'
-depth through the camera's lens with their poses gives a dense cloud: averaged on a voxel grid (which also averages
-the sensor's noise), at most ``max_points`` points, coloured from the frames, without normals (the trainer estimates
-them from the dense cloud, facing the cameras). The trainer trusts such a start's geometry
-(``TrainConfig.trust_start_geometry``: dense, not sparse): on the simulated robot camera it is what the lamp's
+depth through the camera's lens with their poses gives a dense cloud. A depth camera is noisy along the ray (about
+1 cm at 2 m), and a voxel grid finer than that noise does not average it out: each depth image is first averaged over
+a small window, as RGB-D fusion smooths it (:func:`depth_surface`; pixels at a depth edge, where a depth camera's
+flying pixels lie, give no point), and its normals are taken from the averaged depth. The points are then averaged on
+a voxel grid, at most ``max_points`` kept, coloured from the frames, and each normal is averaged with its
+neighbours' (:func:`neighbour_mean_normals`). The trainer trusts such a start's geometry
+(``TrainConfig.trust_start_geometry``: dense, with normals): on the simulated robot camera it is what the lamp's
 bounce light needs (docs/results.md, "An RGB-D start").
 
     DATA/depth_points.ply          the voxel-averaged points
@@ -18,7 +21,7 @@ from __future__ import annotations
 import json
 from collections.abc import Callable
 from pathlib import Path
-from typing import Any
+from typing import Any, NamedTuple
 
 import numpy as np
 
@@ -46,8 +49,13 @@ VOXEL_PER_METRE = 0.005
 MIN_FRAME_SAMPLES = 20_000
 #: The window (pixels) over which a depth image is averaged before its normals are taken.
 NORMAL_WINDOW = 5
-#: Neighbouring depths further apart than this share of the nearer one are an edge: no normal within the window.
-EDGE_JUMP = 0.03
+#: Neighbouring depths further apart than this share of the nearer one are an edge: no point within the window. Well
+#: above a depth camera's noise (σ = 0.0025 z² is 1.5 % at 6 m, the difference of two pixels √2 that): at 3 % the
+#: noise itself made edges, and the simulated robot's start lost its far walls (49 % of the room's surface further
+#: than 3 cm from any point, against 17 % at 10 %; docs/results.md, "An RGB-D start").
+EDGE_JUMP = 0.1
+#: The nearest points whose normals each point's normal is averaged with.
+NORMAL_NEIGHBOURS = 16
 
 
 def has_depth_images(dataset: DatasetDescription) -> bool:
@@ -101,8 +109,9 @@ def add_depth_points(
         valid = np.isfinite(depth)
         measured += int(valid.sum())
         depths.append(depth[valid][:: max(int(valid.sum()) // 1000, 1)])
-        normals = depth_normals(depth, camera) @ dataset.c2w_opencv[k][:3, :3].T  # camera → world
-        clouds.append(backproject_depth(depth, _srgb_uint8(dataset, k), np.nan_to_num(normals), camera,
+        surface = depth_surface(depth, camera)
+        normals = surface.normals @ dataset.c2w_opencv[k][:3, :3].T  # camera → world
+        clouds.append(backproject_depth(surface.depth, _srgb_uint8(dataset, k), np.nan_to_num(normals), camera,
                                         dataset.c2w_opengl[k], max_points=per_frame, rng=rng))
     if measured == 0:
         raise InputError(f"{data}: no depth image of the {len(train)} training frames has a measured pixel")
@@ -115,7 +124,7 @@ def add_depth_points(
     if len(cloud.xyz) == 0:
         raise InputError(f"{data}: the depth images of the {len(train)} training frames give no point with a normal "
                          "(every measured pixel lies at a depth edge)")
-    write_point_cloud(data / DEPTH_POINTS_FILE, cloud.xyz, cloud.rgb, cloud.normals)
+    write_point_cloud(data / DEPTH_POINTS_FILE, cloud.xyz, cloud.rgb, neighbour_mean_normals(cloud.xyz, cloud.normals))
     record = json.loads(transforms.read_text(encoding="utf-8"))
     record["ply_file_path"] = DEPTH_POINTS_FILE
     write_json(transforms, record)
@@ -125,22 +134,35 @@ def add_depth_points(
     return summary
 
 
-def depth_normals(depth: np.ndarray, camera: Intrinsics, window: int = NORMAL_WINDOW,
-                  edge_jump: float = EDGE_JUMP) -> np.ndarray:
-    """(H, W, 3) unit normals in the camera frame (OpenCV axes), facing the camera, of a depth image (H, W) in metres
-    (NaN: no measurement) seen through ``camera``'s lens: the cross product of the central differences of the
-    camera-frame points of the depth averaged over ``window`` × ``window`` pixels (its measured pixels only). NaN
-    where a measured neighbour of the window (or a missing one) lies at a depth edge (neighbours further apart than
-    ``edge_jump`` of the nearer depth), and where a difference is missing."""
+class DepthSurface(NamedTuple):
+    """A depth image smoothed for back-projection (:func:`depth_surface`).
+
+    Attributes:
+        depth: (H, W) metres, averaged over the window; NaN where unmeasured or at a depth edge.
+        normals: (H, W, 3) unit camera-frame normals (OpenCV axes) facing the camera; NaN where ``depth`` is.
+    """
+
+    depth: np.ndarray
+    normals: np.ndarray
+
+
+def depth_surface(depth: np.ndarray, camera: Intrinsics, window: int = NORMAL_WINDOW,
+                  edge_jump: float = EDGE_JUMP) -> DepthSurface:
+    """A depth image (H, W) in metres (NaN: no measurement) seen through ``camera``'s lens, averaged over ``window``
+    × ``window`` pixels (a depth camera's noise along the ray drops by about the window's width on a flat surface),
+    and its normals: the cross product of the central differences of the averaged depth's camera-frame points. Both
+    NaN where the window is not fully measured (the image's border, holes: a one-sided mean bends a slope), where a
+    pixel of the window lies at a depth edge (neighbours further apart than ``edge_jump`` of the nearer depth, where
+    averaging would join two surfaces), and where a difference is missing."""
     from scipy.ndimage import maximum_filter, uniform_filter
 
     measured = np.isfinite(depth)
     weight = uniform_filter(measured.astype(np.float64), window, mode="constant")
     total = uniform_filter(np.where(measured, depth, 0.0), window, mode="constant")
-    with np.errstate(invalid="ignore", divide="ignore"):
-        smooth = np.where(measured, total / weight, np.nan)
+    with np.errstate(invalid="ignore", divide="ignore"):  # only full windows: a one-sided mean bends a slope
+        smooth = np.where(weight > 1.0 - 1e-9, total / weight, np.nan)
     points = camera_points(camera, np.nan_to_num(smooth))
-    points[~measured] = np.nan
+    points[np.isnan(smooth)] = np.nan
     dx, dy = np.full_like(points, np.nan), np.full_like(points, np.nan)
     dx[:, 1:-1] = points[:, 2:] - points[:, :-2]
     dy[1:-1] = points[2:] - points[:-2]
@@ -160,7 +182,23 @@ def depth_normals(depth: np.ndarray, camera: Intrinsics, window: int = NORMAL_WI
     edge[1:] |= vertical
     edge[:-1] |= vertical
     normals[maximum_filter(edge, size=window + 2)] = np.nan
-    return normals
+    unknown = np.isnan(normals).any(-1)
+    normals[unknown] = np.nan
+    return DepthSurface(np.where(unknown, np.nan, smooth), normals)
+
+
+def neighbour_mean_normals(xyz: np.ndarray, normals: np.ndarray, neighbours: int = NORMAL_NEIGHBOURS) -> np.ndarray:
+    """(N, 3) each unit normal (N, 3) of the points ``xyz`` (N, 3) averaged with those of its ``neighbours`` nearest
+    points (itself included), each turned to its side first (a surface's two faces do not cancel), normalised."""
+    from scipy.spatial import cKDTree
+
+    if len(xyz) < 2:
+        return normals
+    _, idx = cKDTree(xyz).query(xyz, k=min(neighbours, len(xyz)))
+    around = normals[idx]  # (N, k, 3)
+    side = np.where((around * normals[:, None]).sum(-1, keepdims=True) < 0, -1.0, 1.0)
+    mean = (around * side).sum(1)
+    return mean / np.linalg.norm(mean, axis=1, keepdims=True)
 
 
 def _srgb_uint8(dataset: DatasetDescription, k: int) -> np.ndarray:
