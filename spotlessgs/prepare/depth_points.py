@@ -18,7 +18,6 @@ bounce light needs (docs/results.md, "An RGB-D start").
 
 from __future__ import annotations
 
-import json
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any, NamedTuple
@@ -26,7 +25,6 @@ from typing import Any, NamedTuple
 import numpy as np
 
 from simulator.pointcloud import backproject_depth, merge_point_clouds
-from spotlessgs.io.atomic import write_json
 from spotlessgs.io.cameras import Intrinsics
 from spotlessgs.io.colorspace import linear_to_srgb
 from spotlessgs.io.dataset import read_dataset
@@ -34,11 +32,10 @@ from spotlessgs.io.depth_images import read_depth_image
 from spotlessgs.io.errors import InputError
 from spotlessgs.io.images import read_image
 from spotlessgs.io.lens import camera_points
-from spotlessgs.io.ply import write_point_cloud
 from spotlessgs.io.provenance import provenance
 from spotlessgs.io.seeding import numpy_rng
 from spotlessgs.io.transforms import DatasetDescription
-from spotlessgs.prepare.images import SUMMARY_FILE
+from spotlessgs.prepare.points import adopt_start_cloud
 
 DEPTH_POINTS_FILE = "depth_points.ply"
 #: The most points of the start (the simulator's dense clouds have as many).
@@ -124,13 +121,8 @@ def add_depth_points(
     if len(cloud.xyz) == 0:
         raise InputError(f"{data}: the depth images of the {len(train)} training frames give no point with a normal "
                          "(every measured pixel lies at a depth edge)")
-    write_point_cloud(data / DEPTH_POINTS_FILE, cloud.xyz, cloud.rgb, neighbour_mean_normals(cloud.xyz, cloud.normals))
-    record = json.loads(transforms.read_text(encoding="utf-8"))
-    record["ply_file_path"] = DEPTH_POINTS_FILE
-    write_json(transforms, record)
-    summary_path = data / SUMMARY_FILE
-    whole = json.loads(summary_path.read_text(encoding="utf-8")) if summary_path.is_file() else {}
-    write_json(summary_path, {**whole, "points": summary})
+    adopt_start_cloud(data, DEPTH_POINTS_FILE, cloud.xyz, cloud.rgb, neighbour_mean_normals(cloud.xyz, cloud.normals),
+                      summary)
     return summary
 
 

@@ -93,12 +93,21 @@ def add_sfm_points(
     if result.points3d == 0:
         raise InputError(f"{data}: no point could be triangulated from {len(names)} training frames with their poses "
                          "(too dark, too few matches, or poses that disagree with the images)")
-    write_point_cloud(data / POINTS_FILE, model.points_xyz, model.points_rgb)
+    adopt_start_cloud(data, POINTS_FILE, model.points_xyz, model.points_rgb, None, summary)
+    return summary
+
+
+def adopt_start_cloud(data: Path, file: str, xyz: np.ndarray, rgb: np.ndarray, normals: np.ndarray | None,
+                      summary: dict[str, Any]) -> None:
+    """Make a point cloud the initial one of the posed dataset ``data``: write it to ``data/file`` (positions (N, 3),
+    uint8 colours (N, 3), normals (N, 3) or None), point ``transforms.json``'s ``ply_file_path`` at it (rewritten
+    atomically, nothing else changes) and record ``summary`` as ``prepare.json``'s ``points``."""
+    write_point_cloud(data / file, xyz, rgb, normals)
+    transforms = data / "transforms.json"
     record = json.loads(transforms.read_text(encoding="utf-8"))
-    record["ply_file_path"] = POINTS_FILE
+    record["ply_file_path"] = file
     write_json(transforms, record)
     summary_path = data / SUMMARY_FILE
     whole = json.loads(summary_path.read_text(encoding="utf-8")) if summary_path.is_file() else {}
     write_json(summary_path, {**whole, "points": summary})
-    return summary
 
