@@ -17,7 +17,8 @@ from spotlessgs.models.gaussians import GaussianParams
 from spotlessgs.models.lamp_bounce import (
     MIN_ALPHA, LampBounce, _clamped_cosine_irradiance, _incident_moments, one_bounce_irradiance,
 )
-from spotlessgs.models.relightable import RelightableScene, frustum_mask
+from spotlessgs.models.relightable import RelightableScene
+from spotlessgs.rasterizer import may_touch_image
 from spotlessgs.rasterizer import rasterize
 from spotlessgs.models.shading import MODEL_VARIANTS, build_appearance_models
 
@@ -219,7 +220,7 @@ def test_the_irradiance_computed_in_the_renders_own_pass_equals_a_pass_of_its_ow
         scene.appearance.lf_light.coeffs.normal_(0.0, 0.3, generator=torch.Generator().manual_seed(2))
     out = scene.render(camera, split_lights=split_lights)
     with torch.no_grad():
-        mask = frustum_mask(g.means, g.scales, camera.viewmat, camera.K, camera.width, camera.height)
+        mask = may_touch_image(g.means, g.scales, camera.viewmat, camera.K, camera.width, camera.height)
         spot = scene.colours(camera.c2w, mask=mask, split_lights=True)[:, :3]
         alone = rasterize(g.means, g.quats, g.scales, g.opacities, torch.cat([spot, scene.camera_normals(camera.c2w)], 1),
                           camera.viewmat, camera.K, camera.width, camera.height)

@@ -1,4 +1,4 @@
-"""RelightableScene's render shades only the Gaussians that may touch the view (frustum_mask); the others get zero
+"""RelightableScene's render shades only the Gaussians that may touch the view (rasterizer.may_touch_image); the others get zero
 colour. Shading every Gaussian gives the same image: the mask leaves out only what the rasterizer never draws."""
 
 from __future__ import annotations
@@ -12,7 +12,8 @@ import torch
 from spotlessgs.io.camera_batch import Cameras
 from spotlessgs.io.cameras import Intrinsics
 from spotlessgs.models.gaussians import GaussianParams
-from spotlessgs.models.relightable import RelightableScene, frustum_mask
+from spotlessgs.models.relightable import RelightableScene
+from spotlessgs.rasterizer import may_touch_image
 from spotlessgs.rasterizer import rasterize
 
 
@@ -33,7 +34,7 @@ def test_shading_only_the_frustums_gaussians_changes_no_pixel(variant):
                                 [-math.sin(0.3), 0.0, math.cos(0.3)]])
     camera = Cameras(c2w, Intrinsics(50.0, 50.0, width / 2, height / 2, width, height))
     scene = RelightableScene.create(variant, g, seed=0)
-    mask = frustum_mask(g.means, g.scales, camera.viewmat, camera.K, width, height)
+    mask = may_touch_image(g.means, g.scales, camera.viewmat, camera.K, width, height)
     assert 0 < int(mask.sum()) < n  # some are left out
     with torch.no_grad():
         masked = scene.render(camera).image

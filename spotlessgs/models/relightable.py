@@ -22,19 +22,6 @@ from spotlessgs.models.shading import (AppearanceModels, ModelConfig, build_appe
 from spotlessgs.rasterizer import RasterOutput, may_touch_image, rasterize
 
 
-def frustum_mask(
-    means: torch.Tensor, scales: torch.Tensor, viewmat: torch.Tensor, K: torch.Tensor, width: int, height: int,
-) -> torch.Tensor:
-    """(N,) bool: the Gaussians the rasterizer may draw in this view, conservatively (rasterizer.may_touch_image):
-    the others get zero colour and are culled by the rasterizer.
-
-    Args:
-        means: (N, 3) world positions; scales: (N, 3) standard deviations (m); viewmat: (4, 4) world-to-camera
-        (OpenCV); K: (3, 3); width, height: image size (px).
-    """
-    return may_touch_image(means, scales, viewmat, K, width, height)
-
-
 @dataclasses.dataclass(frozen=True)
 class SceneRender(RasterOutput):
     """What :meth:`RelightableScene.render` returns: the rasterizer's output and, for a variant with the lamp's
@@ -121,7 +108,7 @@ class RelightableScene(nn.Module):
         g = self.gaussians
         scales = g.scales
         K, width, height = camera.K, camera.width, camera.height
-        mask = frustum_mask(g.means, scales, camera.viewmat, K, width, height)
+        mask = may_touch_image(g.means, scales, camera.viewmat, K, width, height)  # the rest: zero colour
         lit_by_lamp = relight_l0 is None
         if self.has_spot_shadows and lit_by_lamp and shadow_map is None:
             shadow_map = self.shadow_map(camera, backend, num_threads)
