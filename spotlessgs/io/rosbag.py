@@ -230,30 +230,35 @@ def read_bag(bag: str | Path, image_topic: str, camera_info_topic: str | None = 
 
 def _matched_depths(reader, conns, stamps: list[int], where: str) -> list[np.ndarray]:
     """The depth image (:func:`decode_depth`) nearest in time to each of ``stamps`` (ns), of the messages of
-    ``conns``: their stamps first, then only the matched messages decoded. InputError naming ``where`` and the
-    frame's stamp where none lies within DEPTH_SYNC_NS."""
-    depth_stamps = np.array(sorted(_stamp_ns(reader.deserialize(raw, c.msgtype), t)
-                                   for c, t, raw in reader.messages(connections=conns)), dtype=np.int64)
-    if len(depth_stamps) == 0:
-        raise InputError(f"{where}: the topic has no message")
-    wanted: dict[int, list[int]] = {}
-    for k, stamp in enumerate(stamps):
-        i = int(np.searchsorted(depth_stamps, stamp))
-        around = depth_stamps[max(i - 1, 0): i + 1]  # the stamps just before and after
-        nearest = int(around[np.argmin(np.abs(around - stamp))])
-        if abs(nearest - stamp) > DEPTH_SYNC_NS:
-            raise InputError(f"{where}: no depth image within {DEPTH_SYNC_NS / 1e6:.0f} ms of the frame at {stamp} ns "
-                             f"(nearest {(nearest - stamp) / 1e6:+.1f} ms)")
-        wanted.setdefault(nearest, []).append(k)
-    depths: list[np.ndarray | None] = [None] * len(stamps)
+    ``conns``, in one pass over them: each frame keeps the nearest message within DEPTH_SYNC_NS seen so far, and only
+    the kept messages are decoded. InputError naming ``where`` and the frame's stamp where none lies within
+    DEPTH_SYNC_NS."""
+    order = np.argsort(np.asarray(stamps, dtype=np.int64), kind="stable")
+    sorted_stamps = np.asarray(stamps, dtype=np.int64)[order]
+    nearest: dict[int, tuple[int, int, object]] = {}  # frame -> (|Δt|, the message's stamp, the message)
+    depth_stamps = []
     for conn, t, raw in reader.messages(connections=conns):
         msg = reader.deserialize(raw, conn.msgtype)
-        frames = wanted.pop(_stamp_ns(msg, t), None)
-        if frames is not None:
-            depth = decode_depth(msg, f"{where} at {_stamp_ns(msg, t)} ns")
-            for k in frames:
-                depths[k] = depth
-    return depths  # type: ignore[return-value]
+        stamp = _stamp_ns(msg, t)
+        depth_stamps.append(stamp)
+        lo = int(np.searchsorted(sorted_stamps, stamp - DEPTH_SYNC_NS, side="left"))
+        hi = int(np.searchsorted(sorted_stamps, stamp + DEPTH_SYNC_NS, side="right"))
+        for k in order[lo:hi].tolist():
+            gap = abs(stamp - stamps[k])
+            if k not in nearest or gap < nearest[k][0]:
+                nearest[k] = (gap, stamp, msg)
+    if not depth_stamps:
+        raise InputError(f"{where}: the topic has no message")
+    for k, stamp in enumerate(stamps):
+        if k not in nearest:
+            closest = min(depth_stamps, key=lambda s: abs(s - stamp))
+            raise InputError(f"{where}: no depth image within {DEPTH_SYNC_NS / 1e6:.0f} ms of the frame at {stamp} ns "
+                             f"(nearest {(closest - stamp) / 1e6:+.1f} ms)")
+    decoded: dict[int, np.ndarray] = {}  # by the message's stamp: frames that share a message decode it once
+    for _gap, stamp, msg in nearest.values():
+        if stamp not in decoded:
+            decoded[stamp] = decode_depth(msg, f"{where} at {stamp} ns")
+    return [decoded[nearest[k][1]] for k in range(len(stamps))]
 
 
 def _interpolate(records, stamp: int) -> np.ndarray | None:
