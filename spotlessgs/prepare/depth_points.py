@@ -115,12 +115,12 @@ def add_depth_points(
     voxel = VOXEL_PER_METRE * float(np.median(np.concatenate(depths)))
     step(f"merging {measured} depth pixels on a {100 * voxel:.1f} cm voxel grid")
     cloud = merge_point_clouds(clouds, voxel_size=voxel, max_points=max_points, rng=rng)
-    summary = {"file": DEPTH_POINTS_FILE, "source": "depth images", "points": len(cloud.xyz), "frames": len(train),
-               "depth_pixels": measured, "voxel_m": voxel, "depth_unit_scale_factor": dataset.depth_scale,
-               "max_points": max_points, "provenance": provenance(seed=seed)}
     if len(cloud.xyz) == 0:
         raise InputError(f"{data}: the depth images of the {len(train)} training frames give no point with a normal "
                          "(every measured pixel lies at a depth edge)")
+    summary = {"file": DEPTH_POINTS_FILE, "source": "depth images", "points": len(cloud.xyz), "frames": len(train),
+               "depth_pixels": measured, "voxel_m": voxel, "depth_unit_scale_factor": dataset.depth_scale,
+               "max_points": max_points, "provenance": provenance(seed=seed)}
     adopt_start_cloud(data, DEPTH_POINTS_FILE, cloud.xyz, cloud.rgb, neighbour_mean_normals(cloud.xyz, cloud.normals),
                       summary)
     return summary
