@@ -18,8 +18,7 @@ from spotlessgs.models.lamp_bounce import (
     MIN_ALPHA, LampBounce, _clamped_cosine_irradiance, _incident_moments, one_bounce_irradiance,
 )
 from spotlessgs.models.relightable import RelightableScene
-from spotlessgs.rasterizer import may_touch_image
-from spotlessgs.rasterizer import rasterize
+from spotlessgs.rasterizer import may_touch_image, rasterize
 from spotlessgs.models.shading import MODEL_VARIANTS, build_appearance_models
 
 

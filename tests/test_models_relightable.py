@@ -13,8 +13,7 @@ from spotlessgs.io.camera_batch import Cameras
 from spotlessgs.io.cameras import Intrinsics
 from spotlessgs.models.gaussians import GaussianParams
 from spotlessgs.models.relightable import RelightableScene
-from spotlessgs.rasterizer import may_touch_image
-from spotlessgs.rasterizer import rasterize
+from spotlessgs.rasterizer import may_touch_image, rasterize
 
 
 @pytest.mark.parametrize("variant", ["3dgs", "darkgs"])

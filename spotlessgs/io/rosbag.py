@@ -233,8 +233,9 @@ def _matched_depths(reader, conns, stamps: list[int], where: str) -> list[np.nda
     ``conns``, in one pass over them: each frame keeps the nearest message within DEPTH_SYNC_NS seen so far, and only
     the kept messages are decoded. InputError naming ``where`` and the frame's stamp where none lies within
     DEPTH_SYNC_NS."""
-    order = np.argsort(np.asarray(stamps, dtype=np.int64), kind="stable")
-    sorted_stamps = np.asarray(stamps, dtype=np.int64)[order]
+    frame_stamps = np.asarray(stamps, dtype=np.int64)
+    order = np.argsort(frame_stamps, kind="stable")
+    sorted_stamps = frame_stamps[order]
     nearest: dict[int, tuple[int, int, object]] = {}  # frame -> (|Δt|, the message's stamp, the message)
     depth_stamps = []
     for conn, t, raw in reader.messages(connections=conns):
