@@ -7,8 +7,9 @@ distorted lens they are resampled into the training's pinhole working camera by 
 view the model's shading normals (as shading turns them, towards the camera) are composited like a colour and
 normalised; at the pixels the model covers (accumulated opacity above MIN_ALPHA) that have a true normal, the angle
 between the two (either sign of the true normal) is taken. The same for the normals of the surface the model's depth
-map traces (the rasterizer's compositing-weighted depth, back-projected; central differences): how well the learned
-geometry itself, not its shading normals, follows the true surfaces. Prints the median and quartiles of each angle
+map traces (the rasterizer's compositing-weighted depth, back-projected, its normals as an RGB-D start's:
+``prepare.depth_points.surface_normals``): how well the learned geometry itself, not its shading normals, follows the
+true surfaces. Prints the median and quartiles of each angle
 over all counted pixels, and the share of pixels within 10° and 20°. docs/results.md ("A depth-normal consistency
 term for sparse starts") quotes it.
 """
@@ -23,7 +24,8 @@ import torch
 
 from spotlessgs.io.cameras import Intrinsics
 from spotlessgs.io.exr import read_frame_exr
-from spotlessgs.io.lens import remap_nearest, undistort_maps, working_camera
+from spotlessgs.io.lens import camera_points, remap_nearest, undistort_maps, working_camera
+from spotlessgs.prepare.depth_points import surface_normals
 from spotlessgs.rasterizer import rasterize
 from spotlessgs.training.trainer import load_run
 
@@ -44,23 +46,9 @@ def true_normals_in_view(exr_path: Path, native: Intrinsics, height: int, width:
     return normals
 
 
-def depth_map_normals(depth: torch.Tensor, K: torch.Tensor) -> torch.Tensor:
-    """(H - 2, W - 2, 3) unit camera-frame normals (OpenCV axes) of the surface that a planar depth map (H, W) traces,
-    at its inner pixels: the cross product of the central differences of the back-projected pixel centres (x + 0.5,
-    y + 0.5; intrinsics ``K`` (3, 3)), turned to face the camera."""
-    h, w = depth.shape
-    v, u = torch.meshgrid(torch.arange(h, dtype=depth.dtype) + 0.5, torch.arange(w, dtype=depth.dtype) + 0.5,
-                          indexing="ij")
-    rays = torch.stack([(u - K[0, 2]) / K[0, 0], (v - K[1, 2]) / K[1, 1], torch.ones_like(u)], -1)
-    points = depth[..., None] * rays
-    normals = torch.nn.functional.normalize(torch.cross(points[1:-1, 2:] - points[1:-1, :-2],
-                                                        points[2:, 1:-1] - points[:-2, 1:-1], dim=-1), dim=-1)
-    facing_away = (normals * points[1:-1, 1:-1]).sum(-1, keepdim=True) > 0
-    return torch.where(facing_away, -normals, normals)
-
-
 def _angles(normals: np.ndarray, true: np.ndarray, keep: np.ndarray) -> np.ndarray:
-    """(M,) degrees between unit ``normals`` and ``true`` (H, W, 3) at the ``keep`` (H, W) pixels, either sign."""
+    """(M,) degrees between unit ``normals`` and ``true`` (H, W, 3) at the ``keep`` (H, W) pixels, either sign (NaN
+    where ``normals`` is)."""
     return np.degrees(np.arccos(np.abs((normals[keep] * true[keep]).sum(-1)).clip(0.0, 1.0)))
 
 
@@ -76,18 +64,17 @@ def normal_angles(run: str) -> tuple[np.ndarray, np.ndarray]:
             if exr is None:
                 raise SystemExit(f"{views.dataset.source}: frame {index} has no EXR (no true normals)")
             camera = views.cameras[index]
-            c2w = camera.c2w
-            world = scene.camera_normals(c2w) @ c2w[:3, :3].T.to(g.means)
-            out = rasterize(g.means, g.quats, g.scales, g.opacities, world, camera.viewmat, camera.K, camera.width,
-                            camera.height)
-            model = torch.nn.functional.normalize(out.image, dim=-1).numpy()
-            true = true_normals_in_view(exr, views.dataset.cameras[index], camera.height, camera.width)
+            out = rasterize(g.means, g.quats, g.scales, g.opacities, scene.camera_normals(camera.c2w),
+                            camera.viewmat, camera.K, camera.width, camera.height)
+            model = torch.nn.functional.normalize(out.image, dim=-1).numpy()  # camera frame
+            world = true_normals_in_view(exr, views.dataset.cameras[index], camera.height, camera.width)
+            true = world @ camera.c2w[:3, :3].double().numpy()  # into the camera frame
             keep = (out.alpha.numpy() > MIN_ALPHA) & (np.linalg.norm(true, axis=-1) > 0.5)
             if views.unseen is not None:
                 keep &= ~views.unseen[index].numpy()
             angles.append(_angles(model, true, keep))
-            from_depth = (depth_map_normals(out.depth, camera.K) @ c2w[:3, :3].T.to(g.means)).numpy()
-            depth_angles.append(_angles(from_depth, true[1:-1, 1:-1], keep[1:-1, 1:-1]))
+            from_depth = surface_normals(camera_points(views.cameras.camera(index), out.depth.numpy()))
+            depth_angles.append(_angles(from_depth, true, keep & np.isfinite(from_depth).all(-1)))
     return np.concatenate(angles), np.concatenate(depth_angles)
 
 

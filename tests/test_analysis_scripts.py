@@ -235,21 +235,26 @@ def test_surface_labels_and_each_surfaces_share_of_the_error():
 
 def test_depth_map_normals_of_a_tilted_plane_and_angles_of_either_sign():
     """The depth map of a plane n·X = d seen by a pinhole camera gives back n (turned to face the camera) at every inner
-    pixel; the angle between normals ignores their sign."""
+    pixel (NaN on the border), as normal_error.py computes a model's depth map's normals; the angle between normals
+    ignores their sign."""
+    from spotlessgs.prepare.depth_points import surface_normals
+
     module = load_script("normal_error")
-    K = torch.tensor([[60.0, 0.0, 20.5], [0.0, 55.0, 14.0], [0.0, 0.0, 1.0]], dtype=torch.float64)
-    n = torch.nn.functional.normalize(torch.tensor([0.3, -0.5, -1.0], dtype=torch.float64), dim=0)  # faces the camera
-    v, u = torch.meshgrid(torch.arange(30, dtype=torch.float64) + 0.5, torch.arange(40, dtype=torch.float64) + 0.5,
-                          indexing="ij")
-    rays = torch.stack([(u - K[0, 2]) / K[0, 0], (v - K[1, 2]) / K[1, 1], torch.ones_like(u)], -1)
+    camera = Intrinsics(60.0, 55.0, 20.5, 14.0, 40, 30)
+    n = np.array([0.3, -0.5, -1.0]) / np.linalg.norm([0.3, -0.5, -1.0])  # faces the camera
+    u, v = np.meshgrid(np.arange(40) + 0.5, np.arange(30) + 0.5)
+    rays = np.stack([(u - camera.cx) / camera.fx, (v - camera.cy) / camera.fy, np.ones_like(u)], -1)
     depth = -2.0 / (rays @ n)  # n·X = -2 with X = z · ray: the plane lies in front of the camera
     assert bool((depth > 0).all())
-    normals = module.depth_map_normals(depth, K)
-    assert normals.shape == (28, 38, 3)
-    torch.testing.assert_close(normals, n.expand(28, 38, 3), atol=1e-9, rtol=0)
-    flipped = module.depth_map_normals(depth, K) * -1.0
+    normals = surface_normals(camera_points(camera, depth))
+    assert normals.shape == (30, 40, 3)
+    np.testing.assert_allclose(normals[1:-1, 1:-1], np.broadcast_to(n, (28, 38, 3)), atol=1e-9, rtol=0)
+    border = np.ones((30, 40), bool)
+    border[1:-1, 1:-1] = False
+    assert np.isnan(normals[border]).all()
+    inner = normals[1:-1, 1:-1]
     keep = np.ones((28, 38), bool)
-    assert np.allclose(module._angles(normals.numpy(), flipped.numpy(), keep), 0.0, atol=1e-4)
+    assert np.allclose(module._angles(inner, -inner, keep), 0.0, atol=1e-4)
     side = np.zeros((1, 1, 3))
     side[..., 0] = 1.0
     up = np.zeros((1, 1, 3))

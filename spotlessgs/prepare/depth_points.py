@@ -138,11 +138,25 @@ class DepthSurface(NamedTuple):
     normals: np.ndarray
 
 
+def surface_normals(points: np.ndarray) -> np.ndarray:
+    """(H, W, 3) unit normals, facing the camera, of the surface that camera-frame points (H, W, 3) trace (a depth map
+    back-projected: io.lens.camera_points): the cross product of their central differences along the image's rows
+    and columns. NaN on the image's border and next to a NaN point."""
+    dx, dy = np.full_like(points, np.nan), np.full_like(points, np.nan)
+    dx[:, 1:-1] = points[:, 2:] - points[:, :-2]
+    dy[1:-1] = points[2:] - points[:-2]
+    with np.errstate(invalid="ignore", divide="ignore"):
+        normals = np.cross(dx, dy)
+        normals /= np.linalg.norm(normals, axis=-1, keepdims=True)
+    normals[(normals * points).sum(-1) > 0] *= -1.0  # towards the camera
+    return normals
+
+
 def depth_surface(depth: np.ndarray, camera: Intrinsics, window: int = NORMAL_WINDOW,
                   edge_jump: float = EDGE_JUMP) -> DepthSurface:
     """A depth image (H, W) in metres (NaN: no measurement) seen through ``camera``'s lens, averaged over ``window``
     × ``window`` pixels (a depth camera's noise along the ray drops by about the window's width on a flat surface),
-    and its normals: the cross product of the central differences of the averaged depth's camera-frame points. Both
+    and its normals (:func:`surface_normals` of the averaged depth's camera-frame points). Both
     NaN where the window is not fully measured (the image's border, holes: a one-sided mean bends a slope), where a
     pixel of the window lies at a depth edge (neighbours further apart than ``edge_jump`` of the nearer depth, where
     averaging would join two surfaces), and where a difference is missing."""
@@ -155,13 +169,7 @@ def depth_surface(depth: np.ndarray, camera: Intrinsics, window: int = NORMAL_WI
         smooth = np.where(weight > 1.0 - 1e-9, total / weight, np.nan)
     points = camera_points(camera, np.nan_to_num(smooth))
     points[np.isnan(smooth)] = np.nan
-    dx, dy = np.full_like(points, np.nan), np.full_like(points, np.nan)
-    dx[:, 1:-1] = points[:, 2:] - points[:, :-2]
-    dy[1:-1] = points[2:] - points[:-2]
-    with np.errstate(invalid="ignore", divide="ignore"):
-        normals = np.cross(dx, dy)
-        normals /= np.linalg.norm(normals, axis=-1, keepdims=True)
-    normals[(normals * points).sum(-1) > 0] *= -1.0  # towards the camera
+    normals = surface_normals(points)
     far = np.where(measured, depth, np.inf)  # a missing depth counts as an edge
 
     def apart(a: np.ndarray, b: np.ndarray) -> np.ndarray:
