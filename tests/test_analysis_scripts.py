@@ -260,3 +260,48 @@ def test_depth_map_normals_of_a_tilted_plane_and_angles_of_either_sign():
     up = np.zeros((1, 1, 3))
     up[..., 2] = 1.0
     assert np.allclose(module._angles(side, up, np.ones((1, 1), bool)), 90.0)
+
+
+def test_relight_radiance_sweep_relights_at_each_l0_and_scores_both_ground_truths(tmp_path_factory):
+    """relight_radiance_sweep.py on tiny trained runs: a constant ambient (DarkGS) relights to one image up to a gain,
+    so every L0 scores the same; the SH light's run relit with L0 = 0 (its low-frequency light alone) scores
+    differently from L0 = 1, and its L0 = 1 row is what `spotless relight --l0 1 1 1` scores; a dataset whose uniform
+    ground truth is a copy of its lamps-on one gets equal scores against both, one without it none."""
+    import json
+    import shutil
+
+    from click.testing import CliRunner
+
+    from conftest import synthetic_box_dataset
+    from evaluation.runner import score_test_views
+    from spotlessgs.cli import main
+    from spotlessgs.training.config import preset
+    from spotlessgs.training.trainer import train
+
+    module = load_script("relight_radiance_sweep")
+    data = synthetic_box_dataset(tmp_path_factory, "sweep-data", seed=3)
+    root = data.parent
+    config = preset("tiny", iterations=30, image_width=40, num_threads=1, densify_from=1000, log_every=10,
+                    checkpoint_every=1000, init_points=200, max_gaussians=300, brdf_hidden=8)
+    for model in ("darkgs", "darkgs+sh"):
+        train(data, root / model, model, config, seed=0, progress=False)
+    levels = [0.0, 0.3, 1.0]
+
+    darkgs = module.sweep(root / "darkgs", levels, root / "sweep-darkgs")
+    assert [r["l0"] for r in darkgs] == levels and all(r["uniform"] is None for r in darkgs)
+    assert max(r["lamps"] for r in darkgs) - min(r["lamps"] for r in darkgs) < 0.05  # 8-bit rounding only
+
+    sh = module.sweep(root / "darkgs+sh", levels, root / "sweep-sh")
+    assert abs(sh[0]["lamps"] - sh[2]["lamps"]) > 1.0
+    res = CliRunner().invoke(main, ["relight", str(root / "darkgs+sh"), "-q", "--device", "cpu", "--views", "test",
+                                    "--l0", "1", "1", "1", "--out", str(root / "cli-relit")])
+    assert res.exit_code == 0, res.output
+    assert sh[2]["lamps"] == pytest.approx(score_test_views(data, root / "cli-relit", 1)["psnr_aligned"], abs=1e-9)
+
+    shutil.copytree(data / "gt", data / "gt_uniform")
+    transforms = json.loads((data / "transforms.json").read_text())
+    transforms["spotless"]["renderer"] = {"ground_truths": {"lamps": "gt", "uniform": "gt_uniform"}}
+    (data / "transforms.json").write_text(json.dumps(transforms))
+    both = module.sweep(root / "darkgs+sh", levels, root / "sweep-both")
+    assert [r["uniform"] for r in both] == pytest.approx([r["lamps"] for r in both], abs=1e-9)
+    assert [r["lamps"] for r in both] == pytest.approx([r["lamps"] for r in sh], abs=1e-9)

@@ -1,0 +1,104 @@
+"""How the relighting radiance L0 trades the two ground truths: a run's test views relit at several fixed L0.
+
+    python3 scripts/relight_radiance_sweep.py RUN [RUN ...] [--l0 0.05 0.1 ...] [--plot FILE.png] [--threads N]
+
+A relit view is R·L0 + R·L_lf (docs/method.md §8): the reflectance under an even light L0 plus the learned
+low-frequency (SH, room) light. Exposure alignment removes one overall gain, not the share of the room's light in the
+image, and L0 sets that share. ``spotless relight`` chooses L0 for exposure only (about 1 % of pixels at 1). For each
+run and each L0 (white, linear), the run's test views are relit into a temporary folder (``Run.relight``, what
+``spotless relight RUN --views test --l0 L L L`` writes) and scored as the reproduction scores them
+(``evaluation.runner.score_test_views``: exposure-aligned PSNR, mean over the test views) against the dataset's
+lamps-on ground truth and, where the dataset has one, its uniform one. Prints a line per run and L0, and the L0 that
+``spotless relight`` chose for the run (``RUN/relit.json``, when it was relit); ``--plot`` draws the lamps-on score
+against the uniform one, a curve per run, L0 marked along it. A model whose low-frequency light is a constant (DarkGS)
+relights to the same image at every L0 up to a gain. docs/results.md ("The relighting radiance L0 and the
+residual-light room") quotes it.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import tempfile
+from pathlib import Path
+
+from evaluation.runner import score_test_views
+from spotlessgs.io.dataset import available_ground_truths, read_dataset
+from spotlessgs.run import Run
+
+#: The L0 values of the sweep by default (white, linear; ``spotless relight`` chose 0.72–0.88 on the
+#: residual-light room).
+DEFAULT_L0 = (0.05, 0.1, 0.2, 0.3, 0.4, 0.6, 0.8, 1.2)
+
+
+def sweep(run_dir: str | Path, l0_values: list[float], work: Path, threads: int = 1) -> list[dict]:
+    """Rows ``{"l0", "lamps", "uniform"}`` (aligned PSNR, dB; ``uniform`` None without that ground truth) of the run's
+    test views relit at each L0, the relit views kept under ``work``."""
+    run = Run.load(run_dir)
+    data = run.data_dir
+    has_uniform = "uniform" in available_ground_truths(read_dataset(data))
+    rows = []
+    for level in l0_values:
+        out = work / f"l0-{level:g}"
+        run.relight("test", out, l0=[level] * 3, progress=False, device="cpu")
+        rows.append({"l0": level,
+                     "lamps": score_test_views(data, out, threads, "lamps")["psnr_aligned"],
+                     "uniform": score_test_views(data, out, threads, "uniform")["psnr_aligned"] if has_uniform else None})
+    return rows
+
+
+def chosen_l0(run_dir: str | Path) -> float | None:
+    """The white L0 ``spotless relight`` last chose for the run's own ``RUN/relit`` (None when not relit)."""
+    path = Path(run_dir) / "relit.json"
+    return float(json.loads(path.read_text())["l0"][0]) if path.is_file() else None
+
+
+def plot(curves: dict[str, list[dict]], path: Path) -> None:
+    """Lamps-on against uniform PSNR, one curve per run with its L0 values written at the points."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(figsize=(6.4, 4.8))
+    for name, rows in curves.items():
+        rows = [r for r in rows if r["uniform"] is not None]
+        ax.plot([r["uniform"] for r in rows], [r["lamps"] for r in rows], marker="o", label=name)
+        for r in rows:
+            ax.annotate(f"{r['l0']:g}", (r["uniform"], r["lamps"]), fontsize=7, xytext=(3, 3), textcoords="offset points")
+    ax.set_xlabel("aligned PSNR against the uniform ground truth (dB)")
+    ax.set_ylabel("aligned PSNR against the lamps-on ground truth (dB)")
+    ax.set_title("relit test views at fixed L0 (written at the points)")
+    ax.grid(alpha=0.3)
+    ax.legend(fontsize=8)
+    fig.tight_layout()
+    fig.savefig(path, dpi=120)
+    plt.close(fig)
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("runs", nargs="+", help="trained run folders")
+    parser.add_argument("--l0", type=float, nargs="+", default=list(DEFAULT_L0), help="white L0 values (linear)")
+    parser.add_argument("--plot", type=Path, help="write the trade-off figure here (PNG)")
+    parser.add_argument("--threads", type=int, default=1, help="threads for scoring")
+    args = parser.parse_args()
+    if any(not level >= 0 for level in args.l0):
+        parser.error(f"--l0 values must be non-negative, got {args.l0}")
+    curves = {}
+    for run_dir in args.runs:
+        with tempfile.TemporaryDirectory() as tmp:
+            rows = sweep(run_dir, args.l0, Path(tmp), args.threads)
+        curves[run_dir] = rows
+        chosen = chosen_l0(run_dir)
+        print(f"{run_dir}: spotless relight chose L0 = {chosen:.3f}" if chosen is not None else f"{run_dir}:")
+        for r in rows:
+            uniform = f"{r['uniform']:.2f}" if r["uniform"] is not None else "-"
+            print(f"  L0 {r['l0']:<5g} lamps-on {r['lamps']:.2f} dB  uniform {uniform} dB")
+    if args.plot:
+        plot(curves, args.plot)
+        print(f"wrote {args.plot}")
+
+
+if __name__ == "__main__":
+    main()
