@@ -117,10 +117,11 @@ class TrainConfig:
     falloff_gamma: float = 1.0
     learn_falloff: bool = True
     # The spotlight's angular profile: "mlp" (the paper's) or "monotone" (a non-increasing piecewise-linear profile,
-    # ModelConfig.rid_model), which learns at lr_rid_profile. Monotone with spot_shadows places the bedroom's lamp
-    # within 3 cm (2.2 cm on three seeds, 5.1 with the MLP) at the same relit scores; not the default: it relit the
-    # saturated bedroom about 0.8 dB worse against the uniform ground truth with the fixed radiance unit below (the
-    # albedo's cap; docs/results.md, "A piecewise-linear angular profile", "The albedo's cap and the light's unit").
+    # ModelConfig.rid_model), which learns at lr_rid_profile. On a trusted dense start monotone places the bedroom's
+    # lamp within 3 cm (1.8-2.6 cm on three seeds, 9.8 with the MLP) at the same relit scores; not the default: the
+    # residual-light room loses 0.17 dB against the lamps-on ground truth and the glossy room's lamp lands 11.4 cm off
+    # (3.3 with the MLP) (docs/results.md, "The lamp on a trusted start"). Before the trusted start it relit the
+    # saturated bedroom about 0.8 dB worse against the uniform ground truth ("The albedo's cap and the light's unit").
     rid_model: str = "mlp"
     # The unit of the spotlight's radiance (training.light_unit): "fixed" (the research code's) or "median_depth" (a
     # factor (τ0 + z²)^γ0 on the spotlight, z the scene's median depth in the training views: the light starts as
