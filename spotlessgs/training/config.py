@@ -278,8 +278,8 @@ class TrainConfig:
     # Budget: at each densification step, prune the least-contributing Gaussians whose summed contribution (alpha ·
     # transmittance summed over pixels of the contribution views) is at most this fraction of all Gaussians' total.
     # Measured on the 36-frame quick bedroom / storage room (relit aligned PSNR vs the default strategy, mean of 3
-    # seeds, README): 0.03 -40% / -37% Gaussians at -0.19 / -0.05 dB; 0.02 on the bedroom -31% at -0.24 dB (seed-to-
-    # seed noise ~0.1 dB is as large as the difference).
+    # seeds, docs/results.md "Model selection and Gaussian budget"): 0.03 -40% / -37% Gaussians at -0.19 / -0.05 dB;
+    # 0.02 on the bedroom -31% at -0.24 dB (seed-to-seed noise ~0.1 dB is as large as the difference).
     budget_prune_fraction: float = 0.03
     # Budget: number of fitted views (evenly spaced) over which contributions are summed.
     budget_contribution_views: int = 16
