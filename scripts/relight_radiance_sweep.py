@@ -1,6 +1,7 @@
 """How the relighting radiance L0 trades the two ground truths: a run's test views relit at several fixed L0.
 
-    python3 scripts/relight_radiance_sweep.py RUN [RUN ...] [--l0 0.05 0.1 ...] [--plot FILE.png] [--threads N]
+    python3 scripts/relight_radiance_sweep.py RUN [RUN ...] [--l0 0.05 0.1 ...] [--plot FILE.png [--labels NAME ...]]
+        [--threads N]
 
 A relit view is R·L0 + R·L_lf (docs/method.md §8): the reflectance under an even light L0 plus the learned
 low-frequency (SH, room) light. Exposure alignment removes one overall gain, not the share of the room's light in the
@@ -10,7 +11,7 @@ run and each L0 (white, linear), the run's test views are relit into a temporary
 (``evaluation.runner.score_test_views``: exposure-aligned PSNR, mean over the test views) against the dataset's
 lamps-on ground truth and, where the dataset has one, its uniform one. Prints a line per run and L0, and the L0 that
 ``spotless relight`` chose for the run (``RUN/relit.json``, when it was relit); ``--plot`` draws the lamps-on score
-against the uniform one, a curve per run, L0 marked along it. A model whose low-frequency light is a constant (DarkGS)
+against the uniform one, a curve per run (named by ``--labels``, else by its folder), L0 marked along it. A model whose low-frequency light is a constant (DarkGS)
 relights to the same image at every L0 up to a gain. docs/results.md ("The relighting radiance L0 and the
 residual-light room") quotes it.
 """
@@ -64,8 +65,12 @@ def plot(curves: dict[str, list[dict]], path: Path) -> None:
     for name, rows in curves.items():
         rows = [r for r in rows if r["uniform"] is not None]
         ax.plot([r["uniform"] for r in rows], [r["lamps"] for r in rows], marker="o", label=name)
-        for r in rows:
-            ax.annotate(f"{r['l0']:g}", (r["uniform"], r["lamps"]), fontsize=7, xytext=(3, 3), textcoords="offset points")
+        last = None
+        for r in rows:  # points within 0.05 dB of the last one written (a constant ambient's) are left unwritten
+            if last is None or max(abs(r["uniform"] - last[0]), abs(r["lamps"] - last[1])) > 0.05:
+                ax.annotate(f"{r['l0']:g}", (r["uniform"], r["lamps"]), fontsize=7, xytext=(3, 3),
+                            textcoords="offset points")
+                last = (r["uniform"], r["lamps"])
     ax.set_xlabel("aligned PSNR against the uniform ground truth (dB)")
     ax.set_ylabel("aligned PSNR against the lamps-on ground truth (dB)")
     ax.set_title("relit test views at fixed L0 (written at the points)")
@@ -81,15 +86,19 @@ def main() -> None:
     parser.add_argument("runs", nargs="+", help="trained run folders")
     parser.add_argument("--l0", type=float, nargs="+", default=list(DEFAULT_L0), help="white L0 values (linear)")
     parser.add_argument("--plot", type=Path, help="write the trade-off figure here (PNG)")
+    parser.add_argument("--labels", nargs="+", help="the runs' names in the figure, one per run (default: folders)")
     parser.add_argument("--threads", type=int, default=1, help="threads for scoring")
     args = parser.parse_args()
     if any(not level >= 0 for level in args.l0):
         parser.error(f"--l0 values must be non-negative, got {args.l0}")
+    labels = args.labels or [Path(run_dir).name for run_dir in args.runs]
+    if len(labels) != len(args.runs):
+        parser.error(f"--labels gives {len(labels)} names for {len(args.runs)} runs")
     curves = {}
-    for run_dir in args.runs:
+    for run_dir, label in zip(args.runs, labels):
         with tempfile.TemporaryDirectory() as tmp:
             rows = sweep(run_dir, args.l0, Path(tmp), args.threads)
-        curves[run_dir] = rows
+        curves[label] = rows
         chosen = chosen_l0(run_dir)
         print(f"{run_dir}: spotless relight chose L0 = {chosen:.3f}" if chosen is not None else f"{run_dir}:")
         for r in rows:
