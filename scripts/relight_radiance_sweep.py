@@ -25,6 +25,7 @@ from pathlib import Path
 
 from evaluation.runner import score_test_views
 from spotlessgs.io.dataset import available_ground_truths, read_dataset
+from spotlessgs.io.errors import InputError
 from spotlessgs.run import Run
 
 #: The L0 values of the sweep by default (white, linear; ``spotless relight`` chose 0.72–0.88 on the
@@ -97,7 +98,10 @@ def main() -> None:
     curves = {}
     for run_dir, label in zip(args.runs, labels):
         with tempfile.TemporaryDirectory() as tmp:
-            rows = sweep(run_dir, args.l0, Path(tmp), args.threads)
+            try:
+                rows = sweep(run_dir, args.l0, Path(tmp), args.threads)
+            except (FileNotFoundError, InputError) as err:  # not a run, a damaged one, or its dataset moved
+                raise SystemExit(f"error: {err}") from None
         curves[label] = rows
         chosen = chosen_l0(run_dir)
         print(f"{run_dir}: spotless relight chose L0 = {chosen:.3f}" if chosen is not None else f"{run_dir}:")

@@ -262,11 +262,12 @@ def test_depth_map_normals_of_a_tilted_plane_and_angles_of_either_sign():
     assert np.allclose(module._angles(side, up, np.ones((1, 1), bool)), 90.0)
 
 
-def test_relight_radiance_sweep_relights_at_each_l0_and_scores_both_ground_truths(tmp_path_factory):
+def test_relight_radiance_sweep_relights_at_each_l0_and_scores_both_ground_truths(tmp_path_factory, monkeypatch):
     """relight_radiance_sweep.py on tiny trained runs: a constant ambient (DarkGS) relights to one image up to a gain,
     so every L0 scores the same; the SH light's run relit with L0 = 0 (its low-frequency light alone) scores
     differently from L0 = 1, and its L0 = 1 row is what `spotless relight --l0 1 1 1` scores; a dataset whose uniform
-    ground truth is a copy of its lamps-on one gets equal scores against both, one without it none."""
+    ground truth is a copy of its lamps-on one gets equal scores against both, one without it none; a folder that is
+    no run stops the script with one line naming it."""
     import json
     import shutil
 
@@ -305,3 +306,7 @@ def test_relight_radiance_sweep_relights_at_each_l0_and_scores_both_ground_truth
     both = module.sweep(root / "darkgs+sh", levels, root / "sweep-both")
     assert [r["uniform"] for r in both] == pytest.approx([r["lamps"] for r in both], abs=1e-9)
     assert [r["lamps"] for r in both] == pytest.approx([r["lamps"] for r in sh], abs=1e-9)
+
+    monkeypatch.setattr("sys.argv", ["relight_radiance_sweep.py", str(root / "sweep-sh")])
+    with pytest.raises(SystemExit, match=r"^error: .*sweep-sh: not a training run"):
+        module.main()
