@@ -11,21 +11,21 @@ run and each L0 (white, linear), the run's test views are relit into a temporary
 (``evaluation.runner.score_test_views``: exposure-aligned PSNR, mean over the test views) against the dataset's
 lamps-on ground truth and, where the dataset has one, its uniform one. Prints a line per run and L0, and the L0 that
 ``spotless relight`` chose for the run (``RUN/relit.json``, when it was relit); ``--plot`` draws the lamps-on score
-against the uniform one, a curve per run (named by ``--labels``, else by its folder), L0 marked along it. A model whose low-frequency light is a constant (DarkGS)
-relights to the same image at every L0 up to a gain. docs/results.md ("The relighting radiance L0 and the
-residual-light room") quotes it.
+against the uniform one, a curve per run (named by ``--labels``, else by its folder), L0 written along it. A model
+whose low-frequency light is a constant (DarkGS) relights to the same image at every L0 up to a gain.
+docs/results.md ("The relighting radiance L0 and the residual-light room's targets") quotes it.
 """
 
 from __future__ import annotations
 
 import argparse
-import json
 import tempfile
 from pathlib import Path
 
 from evaluation.runner import score_test_views
 from spotlessgs.io.dataset import available_ground_truths, read_dataset
 from spotlessgs.io.errors import InputError
+from spotlessgs.io.json_files import read_json
 from spotlessgs.run import Run
 
 #: The L0 values of the sweep by default (white, linear; ``spotless relight`` chose 0.72–0.88 on the
@@ -50,9 +50,18 @@ def sweep(run_dir: str | Path, l0_values: list[float], work: Path, threads: int 
 
 
 def chosen_l0(run_dir: str | Path) -> float | None:
-    """The white L0 ``spotless relight`` last chose for the run's own ``RUN/relit`` (None when not relit)."""
+    """The white L0 ``spotless relight`` last chose for the run's own ``RUN/relit`` (None when not relit).
+
+    Raises:
+        InputError: ``RUN/relit.json`` is damaged or gives no L0 (names the file).
+    """
     path = Path(run_dir) / "relit.json"
-    return float(json.loads(path.read_text())["l0"][0]) if path.is_file() else None
+    if not path.is_file():
+        return None
+    l0 = read_json(path, "relit summary", required=("l0",))["l0"]
+    if not (isinstance(l0, list) and len(l0) == 3 and all(isinstance(v, (int, float)) for v in l0)):
+        raise InputError(f"{path}: l0 must be three numbers, got {l0!r}")
+    return float(l0[0])
 
 
 def plot(curves: dict[str, list[dict]], path: Path) -> None:
@@ -100,10 +109,10 @@ def main() -> None:
         with tempfile.TemporaryDirectory() as tmp:
             try:
                 rows = sweep(run_dir, args.l0, Path(tmp), args.threads)
+                chosen = chosen_l0(run_dir)
             except (FileNotFoundError, InputError) as err:  # not a run, a damaged one, or its dataset moved
                 raise SystemExit(f"error: {err}") from None
         curves[label] = rows
-        chosen = chosen_l0(run_dir)
         print(f"{run_dir}: spotless relight chose L0 = {chosen:.3f}" if chosen is not None else f"{run_dir}:")
         for r in rows:
             uniform = f"{r['uniform']:.2f}" if r["uniform"] is not None else "-"

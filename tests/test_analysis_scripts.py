@@ -267,7 +267,7 @@ def test_relight_radiance_sweep_relights_at_each_l0_and_scores_both_ground_truth
     so every L0 scores the same; the SH light's run relit with L0 = 0 (its low-frequency light alone) scores
     differently from L0 = 1, and its L0 = 1 row is what `spotless relight --l0 1 1 1` scores; a dataset whose uniform
     ground truth is a copy of its lamps-on one gets equal scores against both, one without it none; a folder that is
-    no run stops the script with one line naming it."""
+    no run, or a run whose relit.json is damaged, stops the script with one line naming it."""
     import json
     import shutil
 
@@ -309,4 +309,9 @@ def test_relight_radiance_sweep_relights_at_each_l0_and_scores_both_ground_truth
 
     monkeypatch.setattr("sys.argv", ["relight_radiance_sweep.py", str(root / "sweep-sh")])
     with pytest.raises(SystemExit, match=r"^error: .*sweep-sh: not a training run"):
+        module.main()
+    assert module.chosen_l0(root / "darkgs") is None  # never relit into RUN/relit
+    (root / "darkgs" / "relit.json").write_text('{"l0": "auto"}')
+    monkeypatch.setattr("sys.argv", ["relight_radiance_sweep.py", str(root / "darkgs"), "--l0", "0.5"])
+    with pytest.raises(SystemExit, match=r"^error: .*relit.json: l0 must be three numbers"):
         module.main()
