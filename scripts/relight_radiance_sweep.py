@@ -6,12 +6,12 @@
 A relit view is R·L0 + R·L_lf (docs/method.md §8): the reflectance under an even light L0 plus the learned
 low-frequency (SH, room) light. Exposure alignment removes one overall gain, not the share of the room's light in the
 image, and L0 sets that share. ``spotless relight`` chooses L0 for exposure only (about 1 % of pixels at 1). For each
-run and each L0 (white, linear), the run's test views are relit into a temporary folder (``Run.relight``, what
+run and each L0 (white, linear), the run's test views are relit into a temporary folder (``Run.score_views``: what
 ``spotless relight RUN --views test --l0 L L L`` writes) and scored as the reproduction scores them
 (``evaluation.runner.score_test_views``: exposure-aligned PSNR, mean over the test views) against the dataset's
 lamps-on ground truth and, where the dataset has one, its uniform one. Prints a line per run and L0, and the L0 that
 ``spotless relight`` chose for the run (``RUN/relit.json``, when it was relit); ``--plot`` draws the lamps-on score
-against the uniform one, a curve per run (named by ``--labels``, else by its folder), L0 written along it. A model
+against the uniform one, a curve per run (named by ``--labels``, else by its path), L0 written along it. A model
 whose low-frequency light is a constant (DarkGS) relights to the same image at every L0 up to a gain.
 docs/results.md ("The relighting radiance L0 and the residual-light room's targets") quotes it.
 """
@@ -19,12 +19,13 @@ docs/results.md ("The relighting radiance L0 and the residual-light room's targe
 from __future__ import annotations
 
 import argparse
+import math
 import tempfile
 from pathlib import Path
 
 from evaluation.runner import score_test_views
 from spotlessgs.io.dataset import available_ground_truths, read_dataset
-from spotlessgs.io.errors import InputError
+from spotlessgs.io.errors import FolderLockedError, InputError
 from spotlessgs.io.json_files import read_json
 from spotlessgs.run import Run
 
@@ -35,31 +36,41 @@ DEFAULT_L0 = (0.05, 0.1, 0.2, 0.3, 0.4, 0.6, 0.8, 1.2)
 
 def sweep(run_dir: str | Path, l0_values: list[float], work: Path, threads: int = 1) -> list[dict]:
     """Rows ``{"l0", "lamps", "uniform"}`` (aligned PSNR, dB; ``uniform`` None without that ground truth) of the run's
-    test views relit at each L0, the relit views kept under ``work``."""
+    test views relit at each L0, the relit views kept under ``work`` (``work/l0-<L0>``).
+
+    Raises:
+        InputError: the run's dataset has no lamps-on ground truth (names it), or is damaged or gone.
+    """
     run = Run.load(run_dir)
     data = run.data_dir
-    has_uniform = "uniform" in available_ground_truths(read_dataset(data))
+    truths = available_ground_truths(read_dataset(data))
+    if "lamps" not in truths:
+        raise InputError(f"{data}: the dataset has no ground truth to score against")
     rows = []
     for level in l0_values:
         out = work / f"l0-{level:g}"
-        run.relight("test", out, l0=[level] * 3, progress=False, device="cpu")
-        rows.append({"l0": level,
-                     "lamps": score_test_views(data, out, threads, "lamps")["psnr_aligned"],
-                     "uniform": score_test_views(data, out, threads, "uniform")["psnr_aligned"] if has_uniform else None})
+        lamps = run.score_views(out, "test", threads, l0=[level] * 3, device="cpu")["psnr_aligned"]
+        uniform = score_test_views(data, out, threads, "uniform")["psnr_aligned"] if "uniform" in truths else None
+        rows.append({"l0": level, "lamps": lamps, "uniform": uniform})
     return rows
 
 
 def chosen_l0(run_dir: str | Path) -> float | None:
-    """The white L0 ``spotless relight`` last chose for the run's own ``RUN/relit`` (None when not relit).
+    """The white L0 that ``spotless relight`` chose for the run's own ``RUN/relit`` with the low-frequency light, or
+    None (not relit there, relit at a given L0 or without that light, or a 3DGS run, which has none).
 
     Raises:
-        InputError: ``RUN/relit.json`` is damaged or gives no L0 (names the file).
+        InputError: ``RUN/relit.json`` is damaged or its automatic L0 is not three numbers (names the file).
     """
     path = Path(run_dir) / "relit.json"
     if not path.is_file():
         return None
-    l0 = read_json(path, "relit summary", required=("l0",))["l0"]
-    if not (isinstance(l0, list) and len(l0) == 3 and all(isinstance(v, (int, float)) for v in l0)):
+    summary = read_json(path, "relit summary", required=("l0",))
+    l0 = summary["l0"]
+    if summary.get("l0_mode") != "auto" or summary.get("low_frequency") is False or l0 is None:
+        return None
+    if not (isinstance(l0, list) and len(l0) == 3
+            and all(isinstance(v, (int, float)) and not isinstance(v, bool) for v in l0)):
         raise InputError(f"{path}: l0 must be three numbers, got {l0!r}")
     return float(l0[0])
 
@@ -99,19 +110,21 @@ def main() -> None:
     parser.add_argument("--labels", nargs="+", help="the runs' names in the figure, one per run (default: folders)")
     parser.add_argument("--threads", type=int, default=1, help="threads for scoring")
     args = parser.parse_args()
-    if any(not level >= 0 for level in args.l0):
-        parser.error(f"--l0 values must be non-negative, got {args.l0}")
-    labels = args.labels or [Path(run_dir).name for run_dir in args.runs]
+    if any(not (math.isfinite(level) and level >= 0) for level in args.l0):
+        parser.error(f"--l0 values must be finite and non-negative, got {args.l0}")
+    labels = args.labels or list(args.runs)
     if len(labels) != len(args.runs):
         parser.error(f"--labels gives {len(labels)} names for {len(args.runs)} runs")
+    if len(set(labels)) != len(labels):
+        parser.error(f"the runs' names must differ (one curve each), got {labels}")
     curves = {}
     for run_dir, label in zip(args.runs, labels):
         with tempfile.TemporaryDirectory() as tmp:
             try:
-                rows = sweep(run_dir, args.l0, Path(tmp), args.threads)
                 chosen = chosen_l0(run_dir)
-            except (FileNotFoundError, InputError) as err:  # not a run, a damaged one, or its dataset moved
-                raise SystemExit(f"error: {err}") from None
+                rows = sweep(run_dir, args.l0, Path(tmp), args.threads)
+            except (FileNotFoundError, InputError, FolderLockedError) as err:  # not a run, a damaged one, its
+                raise SystemExit(f"error: {err}") from None                     # dataset moved, or in use
         curves[label] = rows
         print(f"{run_dir}: spotless relight chose L0 = {chosen:.3f}" if chosen is not None else f"{run_dir}:")
         for r in rows:

@@ -265,9 +265,10 @@ def test_depth_map_normals_of_a_tilted_plane_and_angles_of_either_sign():
 def test_relight_radiance_sweep_relights_at_each_l0_and_scores_both_ground_truths(tmp_path_factory, monkeypatch):
     """relight_radiance_sweep.py on tiny trained runs: a constant ambient (DarkGS) relights to one image up to a gain,
     so every L0 scores the same; the SH light's run relit with L0 = 0 (its low-frequency light alone) scores
-    differently from L0 = 1, and its L0 = 1 row is what `spotless relight --l0 1 1 1` scores; a dataset whose uniform
-    ground truth is a copy of its lamps-on one gets equal scores against both, one without it none; a folder that is
-    no run, or a run whose relit.json is damaged, stops the script with one line naming it."""
+    differently from L0 = 1, and its rows are what `spotless relight --l0 L L L` scores; a dataset with a uniform
+    ground truth (here the spotlit inputs) is scored against it too, one without it not; the L0 `spotless relight`
+    chose is read only from an automatic relighting; a folder that is no run, or a run whose relit.json is damaged,
+    stops the script with one line naming it."""
     import json
     import shutil
 
@@ -278,6 +279,10 @@ def test_relight_radiance_sweep_relights_at_each_l0_and_scores_both_ground_truth
     from spotlessgs.cli import main
     from spotlessgs.training.config import preset
     from spotlessgs.training.trainer import train
+
+    def relight(run: Path, *options: str) -> None:
+        res = CliRunner().invoke(main, ["relight", str(run), "-q", "--device", "cpu", *options])
+        assert res.exit_code == 0, res.output
 
     module = load_script("relight_radiance_sweep")
     data = synthetic_box_dataset(tmp_path_factory, "sweep-data", seed=3)
@@ -294,24 +299,36 @@ def test_relight_radiance_sweep_relights_at_each_l0_and_scores_both_ground_truth
 
     sh = module.sweep(root / "darkgs+sh", levels, root / "sweep-sh")
     assert abs(sh[0]["lamps"] - sh[2]["lamps"]) > 1.0
-    res = CliRunner().invoke(main, ["relight", str(root / "darkgs+sh"), "-q", "--device", "cpu", "--views", "test",
-                                    "--l0", "1", "1", "1", "--out", str(root / "cli-relit")])
-    assert res.exit_code == 0, res.output
-    assert sh[2]["lamps"] == pytest.approx(score_test_views(data, root / "cli-relit", 1)["psnr_aligned"], abs=1e-9)
+    for row, level in ((sh[0], "0"), (sh[2], "1")):
+        relight(root / "darkgs+sh", "--views", "test", "--l0", level, level, level, "--out", str(root / f"cli-{level}"))
+        assert row["lamps"] == pytest.approx(score_test_views(data, root / f"cli-{level}", 1)["psnr_aligned"], abs=1e-9)
 
-    shutil.copytree(data / "gt", data / "gt_uniform")
+    shutil.copytree(data / "images", data / "gt_uniform")  # the spotlit inputs as a second ground truth, far off
     transforms = json.loads((data / "transforms.json").read_text())
     transforms["spotless"]["renderer"] = {"ground_truths": {"lamps": "gt", "uniform": "gt_uniform"}}
     (data / "transforms.json").write_text(json.dumps(transforms))
     both = module.sweep(root / "darkgs+sh", levels, root / "sweep-both")
-    assert [r["uniform"] for r in both] == pytest.approx([r["lamps"] for r in both], abs=1e-9)
     assert [r["lamps"] for r in both] == pytest.approx([r["lamps"] for r in sh], abs=1e-9)
+    for row, level in zip(both, levels):
+        folder = root / "sweep-both" / f"l0-{level:g}"
+        assert row["uniform"] == pytest.approx(score_test_views(data, folder, 1, "uniform")["psnr_aligned"], abs=1e-9)
+        assert abs(row["uniform"] - row["lamps"]) > 0.5
+
+    assert module.chosen_l0(root / "darkgs+sh") is None  # never relit into RUN/relit
+    relight(root / "darkgs+sh")
+    auto = json.loads((root / "darkgs+sh" / "relit.json").read_text())["l0"][0]
+    assert auto > 0 and module.chosen_l0(root / "darkgs+sh") == auto
+    relight(root / "darkgs+sh", "--l0", "1", "1", "1")
+    assert module.chosen_l0(root / "darkgs+sh") is None  # a given L0 is not a choice
 
     monkeypatch.setattr("sys.argv", ["relight_radiance_sweep.py", str(root / "sweep-sh")])
     with pytest.raises(SystemExit, match=r"^error: .*sweep-sh: not a training run"):
         module.main()
-    assert module.chosen_l0(root / "darkgs") is None  # never relit into RUN/relit
-    (root / "darkgs" / "relit.json").write_text('{"l0": "auto"}')
+    (root / "darkgs" / "relit.json").write_text('{"l0": "auto", "l0_mode": "auto"}')
     monkeypatch.setattr("sys.argv", ["relight_radiance_sweep.py", str(root / "darkgs"), "--l0", "0.5"])
     with pytest.raises(SystemExit, match=r"^error: .*relit.json: l0 must be three numbers"):
         module.main()
+    monkeypatch.setattr("sys.argv", ["relight_radiance_sweep.py", str(root / "darkgs"), str(root / "darkgs")])
+    with pytest.raises(SystemExit) as stopped:  # two curves of one name
+        module.main()
+    assert stopped.value.code == 2
