@@ -442,11 +442,11 @@ def test_train_model_auto_writes_the_decision_prints_the_table_and_trains_the_ch
 
 def test_a_trusted_start_keeps_the_learned_brdf_by_rule_and_the_base_holds_the_start_normals(box_room, tmp_path):
     """``trusted_start_reflectance="learned"`` (the default): on a start the trainer trusts, no reflectance phase; the
-    shared base holds the start's normals, the light phase trains the learned BRDF from it (trusted: normals held, the
-    lamp's bounce on, unclamped); elsewhere, and with ``"compare"``, the BRDFs compete as before."""
+    shared base holds the start's normals and models the lamp and the room light as the candidates do, the light phase
+    trains the learned BRDF from it (trusted: normals held, the lamp's bounce on, unclamped); elsewhere, and with ``"compare"``, the BRDFs compete as before."""
     from spotlessgs.training.selection import select_model, trusted_start
     from spotlessgs.training.trainer import model_config as trainer_model_config
-    from spotlessgs.training.trainer import trusts_start_geometry
+    from spotlessgs.training.trainer import TRUSTED_START_SETTINGS, trusts_start_geometry
 
     cfg = _tiny(iterations=300, image_width=32, trust_start_geometry="on")
     assert trusted_start(cfg, box_room)
@@ -461,14 +461,19 @@ def test_a_trusted_start_keeps_the_learned_brdf_by_rule_and_the_base_holds_the_s
                                                                         ("auto-sh3-mlp", "light")]
     assert decision["chosen_model"]["brdf"] == "mlp"
     assert "the learned BRDF by rule" in format_selection_table(decision)
-    for candidate, degree in zip(decision["candidates"], (0, 3)):  # trusted: the lamp bounce's gain counted too
+    for candidate, degree in zip(decision["candidates"], (0, 3)):  # trusted: the bounce's gain, the monotone profile
         untrusted = trainer_model_config(candidate_model(degree, "mlp"), cfg)
-        assert candidate["appearance_parameters"] == appearance_parameters(untrusted, cfg.brdf_hidden) + 1
+        trusted = trainer_model_config(candidate_model(degree, "mlp"), cfg.replace(**TRUSTED_START_SETTINGS))
+        assert candidate["appearance_parameters"] == appearance_parameters(trusted, cfg.brdf_hidden)
+        assert candidate["appearance_parameters"] != appearance_parameters(untrusted, cfg.brdf_hidden)
 
     def train_settings(folder):
         return json.loads((out / "selection" / folder / "config.json").read_text())["train"]
 
     assert train_settings("base")["lr_normals"] == 0.0  # the Lambertian base is not trusted: held by the rule
+    # ... with the candidates' lamp profile and room-light shading, since their light starts from the base's
+    assert (train_settings("base")["rid_model"], train_settings("base")["low_frequency_shading"]) == ("monotone",
+                                                                                                      "irradiance")
     for degree in (0, 3):  # trusted by the trainer's own policy (normals held, bounce, unclamped: test_training)
         name = f"auto-sh{degree}-mlp-light"
         assert json.loads((out / "selection" / name / "run.json").read_text())["init_from"] == \
@@ -490,8 +495,13 @@ def test_a_trusted_start_keeps_the_learned_brdf_by_rule_and_the_base_holds_the_s
         compared = select_model(box_room, tmp_path / folder, config, 0, selection)
         assert compared["reflectance"] == "compared"
         assert [c["phase"] for c in compared["candidates"]] == ["reflectance"] * 2 + ["light"] * 2
-    assert json.loads((tmp_path / "untrusted" / "selection" / "base" / "config.json").read_text())["train"][
-        "lr_normals"] == cfg.lr_normals > 0
+    untrusted_base = json.loads((tmp_path / "untrusted" / "selection" / "base" / "config.json").read_text())["train"]
+    assert untrusted_base["lr_normals"] == cfg.lr_normals > 0
+    assert (untrusted_base["rid_model"], untrusted_base["low_frequency_shading"]) == ("mlp", "spot_cosine")
+    # compared on a trusted start: the Lambertian candidate starts from the same base, with its light
+    compared_lambert = json.loads((tmp_path / "compared" / "selection" / "auto-sh0-lambert" / "config.json")
+                                  .read_text())["train"]
+    assert (compared_lambert["rid_model"], compared_lambert["low_frequency_shading"]) == ("monotone", "irradiance")
 
 
 def test_selection_options_need_model_auto(box_room, tmp_path):

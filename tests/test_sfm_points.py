@@ -158,17 +158,17 @@ def test_only_a_dense_start_with_normals_is_trusted_with_its_geometry(room, tmp_
     data = tmp_path / "data"
     shutil.copytree(root, data)
     auto = preset("quick").replace(trust_start_geometry="auto")
-    trusted = auto.replace(lr_normals=0.0, lamp_bounce=True, brdf_upper_clamp=False)
+    trusted = auto.replace(lr_normals=0.0, lamp_bounce=True, brdf_upper_clamp=False, rid_model="monotone",
+                           low_frequency_shading="irradiance")
     assert start_geometry_settings(auto, load_training_views(data), "spotless") == auto  # no cloud: a random start
     points = add_sfm_points(data)["points"]
     views = load_training_views(data)
     assert start_geometry_settings(auto, views, "spotless") == auto  # a sparse SfM start: normals learned, no bounce
     on = auto.replace(trust_start_geometry="on")
-    assert start_geometry_settings(on, views, "spotless") == on.replace(lr_normals=0.0, lamp_bounce=True,
-                                                                        brdf_upper_clamp=False)
+    assert start_geometry_settings(on, views, "spotless") == trusted.replace(trust_start_geometry="on")
     small = auto.replace(init_points=points, max_gaussians=points)  # the same cloud is dense for a smaller limit
-    assert start_geometry_settings(small, views, "spotless") == small.replace(lr_normals=0.0, lamp_bounce=True,
-                                                                              brdf_upper_clamp=False)
+    assert start_geometry_settings(small, views, "spotless") == trusted.replace(init_points=points,
+                                                                                max_gaussians=points)
     # ... unless it has no normals and gets none estimated
     assert start_geometry_settings(small.replace(estimate_normals=False), views, "spotless").lamp_bounce is False
     assert start_geometry_settings(trusted, views, "spotless") == trusted  # applying it twice changes nothing more

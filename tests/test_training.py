@@ -323,6 +323,66 @@ def test_resume_with_spot_shadows_reuses_the_checkpointed_maps(bedroom, tmp_path
     torch.testing.assert_close(b["appearance"]["lamp_bounce.log_gain"], a["appearance"]["lamp_bounce.log_gain"])
 
 
+def test_recorded_model_settings_complete_an_older_record_from_the_saved_config():
+    """A checkpoint's model settings as recorded; what an older record lacks, as the run's saved config set it (a
+    checkpoint without any record: the bounce as its modules show); a record of the wrong form names the file."""
+    from pathlib import Path
+
+    from spotlessgs.io.errors import InputError
+    from spotlessgs.training.config import TrainConfig
+    from spotlessgs.training.trainer import recorded_model_settings
+
+    saved = TrainConfig()
+    where = Path("run/checkpoints/last.safetensors")
+    full = {"lamp_bounce": True, "brdf_upper_clamp": False, "spot_shadows": True, "rid_model": "monotone",
+            "low_frequency_shading": "irradiance"}
+    assert recorded_model_settings({"model_settings": full, "appearance": {}}, saved, where) == full
+    of_2026_11_27 = {"model_settings": {"lamp_bounce": True, "brdf_upper_clamp": False}, "appearance": {}}
+    assert recorded_model_settings(of_2026_11_27, saved, where) == {**full, "spot_shadows": False, "rid_model": "mlp",
+                                                                    "low_frequency_shading": "spot_cosine"}
+    unrecorded = {"appearance": {"lamp_bounce.log_gain": 0.0, "light.rid.0.weight": 0.0}}
+    assert recorded_model_settings(unrecorded, saved.replace(rid_model="monotone"), where) == {
+        "lamp_bounce": True, "brdf_upper_clamp": True, "spot_shadows": False, "rid_model": "monotone",
+        "low_frequency_shading": "spot_cosine"}
+    assert recorded_model_settings({"appearance": {}}, saved, where)["lamp_bounce"] is False
+    with pytest.raises(InputError, match=r"last.safetensors: model_settings must give rid_model as one of "
+                                         r"\"mlp\", \"monotone\", got 'cubic'"):
+        recorded_model_settings({"model_settings": {**full, "rid_model": "cubic"}}, saved, where)
+    with pytest.raises(InputError, match="spot_shadows as one of true, false, got 1"):
+        recorded_model_settings({"model_settings": {**full, "spot_shadows": 1}}, saved, where)
+    with pytest.raises(InputError, match="model_settings must be a table"):
+        recorded_model_settings({"model_settings": ["lamp_bounce"]}, saved, where)
+
+
+def test_a_trusted_run_begun_by_the_previous_version_resumes_with_its_own_lamp_model(bedroom, tmp_path):
+    """A run that the previous version began on a trusted start (its record: the bounce and the clamp; its lamp: the
+    MLP profile, the paper's shading of the room light) resumes with this version, whose trust adds the monotone
+    profile and the irradiance shading: the model keeps the structure and shading its checkpoint records."""
+    from spotlessgs.models.angular_profile import MonotoneProfile
+    from spotlessgs.training.checkpoint import load_checkpoint, save_checkpoint
+    from spotlessgs.training.trainer import load_run, train
+
+    cfg = _tiny(iterations=30, image_width=40, densify_from=1000, checkpoint_every=15, trust_start_geometry="auto")
+    as_trusted_then = cfg.replace(trust_start_geometry="off", lr_normals=0.0, lamp_bounce=True, brdf_upper_clamp=False)
+    train(bedroom, tmp_path / "run", "spotless", as_trusted_then, seed=1, progress=False, stop_after=15)
+    path = tmp_path / "run" / "config.json"
+    written = json.loads(path.read_text())
+    written["train"] = {**written["train"], "trust_start_geometry": "auto", "lr_normals": cfg.lr_normals,
+                        "lamp_bounce": False, "brdf_upper_clamp": True}  # as that version wrote it: the settings given
+    path.write_text(json.dumps(written))
+    ckpt = load_checkpoint(tmp_path / "run")
+    save_checkpoint(tmp_path / "run", {**ckpt, "model_settings": {"lamp_bounce": True, "brdf_upper_clamp": False}})
+    result = train(bedroom, tmp_path / "run", "spotless", cfg, seed=1, progress=False, resume=True)
+    assert result.steps == 30
+    assert load_checkpoint(tmp_path / "run")["model_settings"] == {"lamp_bounce": True, "brdf_upper_clamp": False,
+                                                                   "spot_shadows": False, "rid_model": "mlp",
+                                                                   "low_frequency_shading": "spot_cosine"}
+    scene, _views, config, _info = load_run(tmp_path / "run")
+    assert not isinstance(scene.appearance.light.rid, MonotoneProfile)
+    assert config.low_frequency_shading == scene.config.low_frequency_shading == "spot_cosine"
+    assert scene.appearance.lamp_bounce is not None and config.lr_normals == 0.0
+
+
 @pytest.mark.blender
 def test_a_run_from_before_a_setting_existed_resumes_with_its_default(bedroom, tmp_path):
     """A run whose config.json predates a TrainConfig field and a ModelConfig switch (both absent from the file)
@@ -863,10 +923,12 @@ def test_the_start_point_cloud_is_read_once_at_start_up(bedroom, monkeypatch):
 
 def test_a_trusted_dense_start_keeps_its_normals_and_trains_the_bounce(bedroom, tmp_path):
     """trust_start_geometry=auto on the simulator's dense cloud: the normals stay the start's, the bounce's gain
-    learns, the BRDF is unclamped, and the run loads as it trained (its checkpoint records the model's settings),
-    also after its dataset's cloud changed, and from a checkpoint that predates the record."""
+    learns, the BRDF is unclamped, the lamp's profile is monotone, the room light is shaded as relit, and the run loads
+    as it trained (its checkpoint records the model's settings), also after its dataset's cloud changed, and from a
+    checkpoint that predates the record."""
     from spotlessgs.io.errors import InputError
     from spotlessgs.io.ply import read_point_cloud, write_point_cloud
+    from spotlessgs.models.angular_profile import MonotoneProfile
     from spotlessgs.training.checkpoint import load_checkpoint, save_checkpoint
     from spotlessgs.training.data import load_training_views
     from spotlessgs.training.trainer import build_scene, load_run, start_geometry_settings, train
@@ -876,7 +938,8 @@ def test_a_trusted_dense_start_keeps_its_normals_and_trains_the_bounce(bedroom, 
     train(bedroom, tmp_path / "lambert", "darkgs+sh", cfg, seed=3, progress=False)  # Lambertian: not trusted
     assert "lamp_bounce.log_gain" not in load_checkpoint(tmp_path / "lambert")["appearance"]
     saved = load_checkpoint(tmp_path / "run")
-    assert saved["model_settings"] == {"lamp_bounce": True, "brdf_upper_clamp": False}
+    assert saved["model_settings"] == {"lamp_bounce": True, "brdf_upper_clamp": False, "spot_shadows": False,
+                                       "rid_model": "monotone", "low_frequency_shading": "irradiance"}
     views = load_training_views(bedroom, cfg.image_width)
     start = build_scene(views, "spotless", start_geometry_settings(cfg, views, "spotless"), 3)
     torch.testing.assert_close(saved["gaussians"]["normals_raw"], start.gaussians.params["normals_raw"], rtol=0, atol=0)
@@ -892,14 +955,21 @@ def test_a_trusted_dense_start_keeps_its_normals_and_trains_the_bounce(bedroom, 
     cloud = read_point_cloud(moved / "points3d.ply")
     write_point_cloud(moved / "points3d.ply", cloud.xyz[:20], cloud.rgb[:20])
     assert start_geometry_settings(cfg, load_training_views(moved, cfg.image_width), "spotless") == cfg
-    scene, _views, _config, _info = load_run(tmp_path / "run", data_dir=moved)
+    scene, _views, config, _info = load_run(tmp_path / "run", data_dir=moved)
     assert float(scene.appearance.lamp_bounce.log_gain.detach()) == float(saved["appearance"]["lamp_bounce.log_gain"])
     assert scene.appearance.brdf.upper_clamp is False
-    # a checkpoint without the record (before 2026-11-27): the bounce as its modules show, the clamp as configured
-    older = {k: v for k, v in saved.items() if k not in ("version", "model_settings")}
-    save_checkpoint(tmp_path / "run", older)
-    scene, _views, _config, _info = load_run(tmp_path / "run", data_dir=moved)
+    assert isinstance(scene.appearance.light.rid, MonotoneProfile)
+    assert config.low_frequency_shading == scene.config.low_frequency_shading == "irradiance"
+    # a checkpoint without the record (before 2026-11-27), of a run that trusted nothing: the bounce as its modules
+    # show, the clamp and the profile as configured
+    cfg_off = cfg.replace(trust_start_geometry="off", lamp_bounce=True)
+    train(bedroom, tmp_path / "old", "spotless", cfg_off, seed=3, progress=False)
+    older = {k: v for k, v in load_checkpoint(tmp_path / "old").items() if k not in ("version", "model_settings")}
+    save_checkpoint(tmp_path / "old", older)
+    scene, _views, _config, _info = load_run(tmp_path / "old", data_dir=moved)
     assert scene.appearance.lamp_bounce is not None and scene.appearance.brdf.upper_clamp is True
-    save_checkpoint(tmp_path / "run", {**older, "model_settings": {"lamp_bounce": "yes", "brdf_upper_clamp": False}})
-    with pytest.raises(InputError, match="last.safetensors: model_settings must give lamp_bounce"):
-        load_run(tmp_path / "run")
+    assert not isinstance(scene.appearance.light.rid, MonotoneProfile)
+    save_checkpoint(tmp_path / "old", {**older, "model_settings": {"lamp_bounce": "yes", "brdf_upper_clamp": False}})
+    with pytest.raises(InputError, match="last.safetensors: model_settings must give lamp_bounce as one of true, "
+                                         "false, got 'yes'"):
+        load_run(tmp_path / "old")

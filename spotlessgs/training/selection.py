@@ -406,8 +406,14 @@ def select_model(
     base_dir = selection_dir / "base"
     base_model = dataclasses.replace(candidate_model(0, "lambert"), name="auto-base")
     base_config = proxy_config(config, selection, selection.base_fraction)
+    trusted = trusted_start(config, data_dir)
+    if trusted:  # every proxy's light modelled as a trusted SpotlessGS's, since each starts from the base's
+        base_config, proxy, reflectance_proxy = (schedule.replace(**trainer.TRUSTED_START_LIGHT)
+                                                 for schedule in (base_config, proxy, reflectance_proxy))
+        log.info("model selection: a trusted start: every proxy with the lamp's monotone profile and the room light "
+                 "shaded as relit")
     # the learned BRDF by rule on a trusted start, whose normals the base then holds too
-    learned_by_rule = selection.trusted_start_reflectance == "learned" and trusted_start(config, data_dir)
+    learned_by_rule = selection.trusted_start_reflectance == "learned" and trusted
     if learned_by_rule:
         base_config = base_config.replace(lr_normals=trainer.TRUSTED_START_SETTINGS["lr_normals"])
         log.info("model selection: a trusted start: the learned BRDF, the start's normals held")
