@@ -61,7 +61,9 @@ def main(verbose: bool) -> None:
                    "auto: on for real cameras' datasets, off for our simulator's fixed-exposure renders.")
 @click.option("--low-frequency-shading", type=click.Choice(["spot_cosine", "irradiance"]), default=None,
               help="How the SH / ambient light shades the spotlit images: spot_cosine (the paper's equation, default) "
-                   "or irradiance (by the directional albedo, as relighting shades it).")
+                   "or irradiance (by the directional albedo, as relighting shades it); SpotlessGS on a dense start "
+                   "with normals uses irradiance (trust_start_geometry; --set trust_start_geometry=off keeps this "
+                   "choice).")
 @click.option("--refine-poses", is_flag=True,
               help="Learn a small correction of every training view's camera pose beside the scene (poses from VIO "
                    "or SfM a few cm off); test views are then aligned to their spotlit inputs (model frozen) before "

@@ -443,7 +443,8 @@ def test_train_model_auto_writes_the_decision_prints_the_table_and_trains_the_ch
 def test_a_trusted_start_keeps_the_learned_brdf_by_rule_and_the_base_holds_the_start_normals(box_room, tmp_path):
     """``trusted_start_reflectance="learned"`` (the default): on a start the trainer trusts, no reflectance phase; the
     shared base holds the start's normals and models the lamp and the room light as the candidates do, the light phase
-    trains the learned BRDF from it (trusted: normals held, the lamp's bounce on, unclamped); elsewhere, and with ``"compare"``, the BRDFs compete as before."""
+    trains the learned BRDF from it (trusted: normals held, the lamp's bounce on, unclamped); elsewhere, and with
+    ``"compare"``, the BRDFs compete as before."""
     from spotlessgs.training.selection import select_model, trusted_start
     from spotlessgs.training.trainer import model_config as trainer_model_config
     from spotlessgs.training.trainer import TRUSTED_START_SETTINGS, trusts_start_geometry
@@ -502,6 +503,26 @@ def test_a_trusted_start_keeps_the_learned_brdf_by_rule_and_the_base_holds_the_s
     compared_lambert = json.loads((tmp_path / "compared" / "selection" / "auto-sh0-lambert" / "config.json")
                                   .read_text())["train"]
     assert (compared_lambert["rid_model"], compared_lambert["low_frequency_shading"]) == ("monotone", "irradiance")
+
+
+def test_train_auto_trains_the_chosen_model_with_the_light_model_of_its_proxies(box_room, tmp_path, monkeypatch):
+    """On a trusted start every proxy has the trusted light model (TRUSTED_START_LIGHT), so the chosen model trains
+    with it too, a Lambertian one as well (which trust_start_geometry itself leaves alone); elsewhere as given."""
+    from spotlessgs.training import selection
+    from spotlessgs.training.data import load_training_views
+    from spotlessgs.training.trainer import start_geometry_settings
+
+    chosen = candidate_model(3, "lambert")
+    trained = []
+    monkeypatch.setattr(selection, "select_model", lambda *a, **k: {"chosen_model": dataclasses.asdict(chosen)})
+    monkeypatch.setattr(selection.trainer, "train", lambda data, run, model, config, **k: trained.append(config))
+    cfg = _tiny(iterations=300, image_width=32, trust_start_geometry="on")
+    assert start_geometry_settings(cfg, load_training_views(box_room, 32), chosen) == cfg  # not trusted itself
+    selection.train_auto(box_room, tmp_path / "trusted", cfg)
+    assert trained[-1] == cfg.replace(rid_model="monotone", low_frequency_shading="irradiance") != cfg
+    untrusted = cfg.replace(trust_start_geometry="off")
+    selection.train_auto(box_room, tmp_path / "untrusted", untrusted)
+    assert trained[-1] == untrusted
 
 
 def test_selection_options_need_model_auto(box_room, tmp_path):

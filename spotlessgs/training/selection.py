@@ -70,7 +70,7 @@ from spotlessgs.io.json_files import read_json, require_keys
 from spotlessgs.io.paths import refuse_overlap
 from spotlessgs.models.shading import ModelConfig, build_appearance_models
 from spotlessgs.training import trainer  # called as trainer.train: patching spotlessgs.training.trainer reaches here
-from spotlessgs.training.checkpoint import load_checkpoint
+from spotlessgs.training.checkpoint import checkpoint_path, load_checkpoint
 from spotlessgs.training.config import TrainConfig, with_defaults
 from spotlessgs.training.light_need import dark_level, low_frequency_share
 from spotlessgs.training.validation import block_size, evenly_spaced
@@ -78,7 +78,9 @@ from spotlessgs.training.validation import block_size, evenly_spaced
 log = logging.getLogger(__name__)
 
 SELECTION_FILE = "model_selection.json"
-SELECTION_VERSION = 5
+#: 6 since 66edae3: a trusted start's proxies have the monotone profile and the irradiance shading
+#: (trainer.TRUSTED_START_LIGHT).
+SELECTION_VERSION = 6
 BRDFS = ("lambert", "mlp")
 
 
@@ -346,7 +348,8 @@ def _score(data_dir: Path, proxy_dir: Path, model: ModelConfig, config: TrainCon
     if result.validation_psnr is None:
         raise RuntimeError(f"{proxy_dir}: the proxy run of {model.name} has no validation PSNR")
     # the model as the run trained it: a trusted start adds the lamp bounce's gain (the checkpoint's model_settings)
-    trained = config.replace(**load_checkpoint(proxy_dir).get("model_settings", {}))
+    trained = config.replace(**trainer.recorded_model_settings(load_checkpoint(proxy_dir), config,
+                                                               checkpoint_path(proxy_dir)))
     return CandidateResult(model.name, model.sh_degree, model.brdf, float(result.validation_psnr),
                            float(result.ms_per_step), int(result.steps),
                            appearance_parameters(trainer.model_config(model, trained), config.brdf_hidden), phase,
@@ -536,6 +539,8 @@ def train_auto(
         except TypeError as exc:  # an unknown or missing field: a decision of another version
             raise InputError(f"{Path(run_dir) / SELECTION_FILE}: the chosen model does not fit this version "
                              f"({exc})") from None
+        if trusted_start(config, data_dir):  # the chosen model with the light model its proxy had, also a Lambertian
+            config = config.replace(**trainer.TRUSTED_START_LIGHT)  # one, which trust_start_geometry leaves alone
         result = trainer.train(data_dir, run_dir, model, config, seed=seed, resume=resume, light_prior=light_prior,
                                progress=progress, stop_after=stop_after)
     return decision, result

@@ -123,8 +123,9 @@ SPARSE_START_SHARE = 0.25
 #: trusted start's model selection (each proxy's lamp and SH light start from the shared base's): the monotone angular
 #: profile, and the low-frequency light shading the spotlit images as relighting shades it (the irradiance shading).
 #: Together they put the bedroom's lamp within 3 cm of the truth (1.6-2.9 cm on three seeds; 9.8 with the MLP profile)
-#: at the defaults' relit scores, where either alone costs a room more than 0.1 dB (docs/results.md, "The irradiance
-#: shading on a trusted start" and "The lamp by default on a trusted start").
+#: with six of seven datasets' relit scores within 0.1 dB on the mean of three seeds (the glossy room -0.15 dB against
+#: the uniform ground truth, its lamp 8-14 cm off instead of 2-4); either alone costs a room more (docs/results.md,
+#: "The irradiance shading on a trusted start" and "The lamp by default on a trusted start").
 TRUSTED_START_LIGHT: dict[str, object] = {"rid_model": "monotone", "low_frequency_shading": "irradiance"}
 #: What ``trust_start_geometry`` sets (:func:`start_geometry_settings`): the start's normals held, the lamp's bounce
 #: light from the model's geometry, the learned BRDF without its f̃ ≤ 1 clamp (held normals cannot turn a smooth
@@ -546,10 +547,7 @@ def _train_locked(data_dir: Path, run_dir: Path, variant: str | ModelConfig, con
     judge_from = config.densify_from  # the budget judges growth from the preset's start, also after a sparse start
     config = sparse_start_schedule(config, views)  # derived from the dataset: the same on a resume
     ckpt = load_checkpoint(run_dir) if resume and has_checkpoint else None
-    # likewise; a resumed model keeps the structure its checkpoint records (a newer version may trust otherwise)
-    trusted = start_geometry_settings(config, views, variant)
-    config = trusted if ckpt is None else dataclasses.replace(
-        trusted, **recorded_model_settings(ckpt, config, ckpt_file))
+    config = trained_settings(config, views, variant, ckpt, ckpt_file)  # likewise
     extent = views.scene_extent()
     images, saturated = views.images.to(device), views.saturated.to(device)
     held_out = None  # (V, H, W) bool pixel blocks never fitted (validation_blocks > 0)
@@ -915,9 +913,9 @@ def load_pose_correction(run_dir: str | Path, num_views: int, device: str | torc
 
 def recorded_model_settings(ckpt: dict, saved: TrainConfig, where: Path) -> dict[str, object]:
     """The :data:`RECORDED_MODEL_SETTINGS` a checkpoint ``ckpt`` (read from ``where``) trained with. A checkpoint from
-    before 2026-11-27 has no record: the bounce as its modules show; one from before 2026-11-28 records the bounce and
-    the clamp only. What it lacks is as the run's saved config ``saved`` set it (trust_start_geometry did not change
-    it then). Raises InputError for a record of the wrong form."""
+    before 2026-11-27 has no record: the bounce as its modules show; one written before 66edae3 (2026-11-28) records
+    the bounce and the clamp only. What it lacks is as the run's saved config ``saved`` set it (trust_start_geometry
+    did not change it then). Raises InputError for a record of the wrong form."""
     settings = ckpt.get("model_settings")
     if settings is None:
         settings = {"lamp_bounce": any(name.startswith("lamp_bounce.") for name in ckpt["appearance"])}
@@ -932,6 +930,18 @@ def recorded_model_settings(ckpt: dict, saved: TrainConfig, where: Path) -> dict
     return settings
 
 
+def trained_settings(config: TrainConfig, views: TrainingViews, variant: str | ModelConfig, ckpt: dict | None,
+                     where: Path) -> TrainConfig:
+    """``config`` as a run of ``variant`` on ``views`` trains with it: ``trust_start_geometry`` applied
+    (:func:`start_geometry_settings`), and, for a run with a checkpoint ``ckpt`` (read from ``where``), the model
+    settings that checkpoint records (:func:`recorded_model_settings`), which a newer version's trust may set
+    otherwise."""
+    trusted = start_geometry_settings(config, views, variant)
+    if ckpt is None:
+        return trusted
+    return dataclasses.replace(trusted, **recorded_model_settings(ckpt, config, where))
+
+
 def load_run(run_dir: str | Path, device: str = "auto", data_dir: str | Path | None = None,
              ) -> tuple[RelightableScene, TrainingViews, TrainConfig, dict]:
     """Load a finished (or interrupted) run: its model, its views at the training resolution, config and info.
@@ -944,10 +954,9 @@ def load_run(run_dir: str | Path, device: str = "auto", data_dir: str | Path | N
     saved = saved_train_config(run_dir / "config.json")
     views = load_training_views(resolve_data_dir(run_dir, info, data_dir), saved.image_width, saved.linear_input,
                                 saved.saturation_threshold)
-    config = start_geometry_settings(saved, views, run_variant(info))  # as the run trained
     ckpt = load_checkpoint(run_dir)
-    # the model's structure is the checkpoint's, even where the dataset's start cloud has changed since
-    config = dataclasses.replace(config, **recorded_model_settings(ckpt, saved, checkpoint_path(run_dir)))
+    # as the run trained: the model's structure is the checkpoint's, even where the dataset's start cloud has changed
+    config = trained_settings(saved, views, run_variant(info), ckpt, checkpoint_path(run_dir))
     scene = restore_scene(ckpt, info, config).to(resolve_device(device))
     scene.eval()
     return scene, views, config, info
