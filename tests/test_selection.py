@@ -20,7 +20,8 @@ from spotlessgs.training.config import TrainConfig, preset
 from spotlessgs.training.trainer import validation_steps
 from spotlessgs.training.validation import held_out_score, holdout_blocks
 from spotlessgs.training.selection import (
-    SELECTION_FILE, CandidateResult, SelectionConfig, appearance_parameters, candidate_model, choose, choose_light,
+    SELECTION_FILE, SELECTION_VERSION, CandidateResult, SelectionConfig, appearance_parameters, candidate_model, choose,
+    choose_light,
     cost_rank,
     format_selection_table, phase_tolerance, proxy_config, run_decisions, selection_config,
 )
@@ -433,9 +434,10 @@ def test_train_model_auto_writes_the_decision_prints_the_table_and_trains_the_ch
     (out / SELECTION_FILE).write_text(json.dumps(unrecorded))
     assert select_model(box_room, out, _tiny(iterations=300, image_width=32), 0, SelectionConfig(tolerance_db=0.3),
                         resume=True) == unrecorded
-    old = {**decision, "version": 4}  # a decision of an older selection: refused with what to do, not reused
+    old = {**decision, "version": SELECTION_VERSION - 1}  # an older selection's decision: refused with what to do
     (out / SELECTION_FILE).write_text(json.dumps(old))
-    with pytest.raises(ValueError, match="model selection version 4, this is version 5.*to decide again"):
+    with pytest.raises(ValueError, match=f"model selection version {SELECTION_VERSION - 1}, this is version "
+                                         f"{SELECTION_VERSION}.*to decide again"):
         select_model(box_room, out, _tiny(iterations=300, image_width=32), 0, SelectionConfig(tolerance_db=0.3),
                      resume=True)
 
