@@ -41,7 +41,7 @@ class SfmConfig:
     seed: int = 0  # random seed for COLMAP's RANSAC and mapping (deterministic runs)
     refine_intrinsics: bool = False  # let bundle adjustment refine known intrinsics (False keeps them fixed)
     all_models: bool = True  # pool the statistics of every sub-model the mapper builds (False: the largest only)
-    verbose: bool = False  # let COLMAP log its INFO messages to stderr (False: warnings and errors only)
+    verbose: bool = False  # let COLMAP log its INFO messages to stderr (False: errors only)
     camera_model: str = "SIMPLE_RADIAL"  # the COLMAP camera model estimated when the intrinsics are not given
 
     def __post_init__(self) -> None:
@@ -186,7 +186,7 @@ def run_sfm(
     image_dir, names = Path(image_dir), list(image_names)
     work, database = _new_work_folder(image_dir, names, work_dir, intrinsics, "SfM")
     step = progress or (lambda _s: None)
-    with _colmap_logging(pycolmap, config, quiet_level=1):
+    with _colmap_logging(pycolmap, config):
         return _pipeline(pycolmap, image_dir, names, work, database, config, intrinsics, step)
 
 
@@ -209,12 +209,14 @@ def _new_work_folder(image_dir: Path, names: list[str], work_dir: str | os.PathL
 
 
 @contextlib.contextmanager
-def _colmap_logging(pycolmap, config: SfmConfig, quiet_level: int) -> Iterator[None]:
-    """COLMAP's random seed set from ``config``, and its log level INFO when ``config.verbose``, else
-    ``quiet_level`` (1: warnings and errors, 2: errors), restored afterwards."""
+def _colmap_logging(pycolmap, config: SfmConfig) -> Iterator[None]:
+    """COLMAP's random seed set from ``config``, and its log level INFO when ``config.verbose``, else errors only,
+    restored afterwards. Not warnings: the triangulator logs every image, and bundle adjustment logs each step its
+    solver retries ("Linear solver failure ... Cholesky", 48 lines in one demo run); what the reconstruction became
+    (registered images, sub-models, errors) is reported from its result."""
     pycolmap.set_random_seed(config.seed)
     old_level = pycolmap.logging.minloglevel
-    pycolmap.logging.minloglevel = 0 if config.verbose else quiet_level
+    pycolmap.logging.minloglevel = 0 if config.verbose else 2
     try:
         yield
     finally:
@@ -321,7 +323,7 @@ def triangulate_known_poses(
                          f"{c2w.shape}")
     work, database = _new_work_folder(image_dir, names, work_dir, intrinsics, "triangulation")
     step = progress or (lambda _s: None)
-    with _colmap_logging(pycolmap, config, quiet_level=2):  # the triangulator logs every image at INFO level
+    with _colmap_logging(pycolmap, config):
         _features_and_matches(pycolmap, image_dir, names, database, config, intrinsics, step)
         known = pycolmap.Reconstruction()
         pose_of = dict(zip(names, c2w))
