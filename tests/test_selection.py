@@ -509,7 +509,8 @@ def test_a_trusted_start_keeps_the_learned_brdf_by_rule_and_the_base_holds_the_s
 
 def test_train_auto_trains_the_chosen_model_with_the_light_model_of_its_proxies(box_room, tmp_path, monkeypatch):
     """On a trusted start every proxy has the trusted light model (TRUSTED_START_LIGHT), so the chosen model trains
-    with it too, a Lambertian one as well (which trust_start_geometry itself leaves alone); elsewhere as given."""
+    with it too, a Lambertian one as well (which trust_start_geometry itself leaves alone); elsewhere the profile
+    SpotlessGS resolves ``rid_model`` to (monotone for "auto"), or the one given."""
     from spotlessgs.training import selection
     from spotlessgs.training.data import load_training_views
     from spotlessgs.training.trainer import start_geometry_settings
@@ -525,6 +526,9 @@ def test_train_auto_trains_the_chosen_model_with_the_light_model_of_its_proxies(
     untrusted = cfg.replace(trust_start_geometry="off")
     selection.train_auto(box_room, tmp_path / "untrusted", untrusted)
     assert trained[-1] == untrusted
+    auto = untrusted.replace(rid_model="auto")  # SpotlessGS's profile, also for a Lambertian one (alone: the MLP)
+    selection.train_auto(box_room, tmp_path / "auto", auto)
+    assert trained[-1] == auto.replace(rid_model="monotone")
 
 
 def test_selection_options_need_model_auto(box_room, tmp_path):

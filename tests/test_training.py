@@ -332,7 +332,7 @@ def test_recorded_model_settings_complete_an_older_record_from_the_saved_config(
     from spotlessgs.training.config import TrainConfig
     from spotlessgs.training.trainer import recorded_model_settings
 
-    saved = TrainConfig()
+    saved = TrainConfig(rid_model="mlp")  # as the versions that wrote records without the profile saved it
     where = Path("run/checkpoints/last.safetensors")
     full = {"lamp_bounce": True, "brdf_upper_clamp": False, "spot_shadows": True, "rid_model": "monotone",
             "low_frequency_shading": "irradiance"}
@@ -354,6 +354,51 @@ def test_recorded_model_settings_complete_an_older_record_from_the_saved_config(
         recorded_model_settings({"model_settings": ["lamp_bounce"]}, saved, where)
 
 
+
+def test_the_angular_profile_auto_is_monotone_for_spotlessgs_only():
+    """rid_model "auto" resolves to the monotone profile for a model with an SH light and a learned BRDF, on any start,
+    and to the paper's MLP for the DarkGS variants; a profile given is kept; a run saved before the setting existed
+    trained with the MLP profile."""
+    from spotlessgs.training.config import TrainConfig, with_defaults
+    from spotlessgs.training.selection import candidate_model
+    from spotlessgs.training.trainer import model_config
+
+    assert TrainConfig().rid_model == "mlp"
+    auto = TrainConfig(rid_model="auto")
+    resolved = {name: model_config(name, auto).rid_model for name in ("spotless", "darkgs", "darkgs+sh",
+                                                                       "darkgs+brdf", "darkgs-calibrated")}
+    assert resolved == {"spotless": "monotone", "darkgs": "mlp", "darkgs+sh": "mlp", "darkgs+brdf": "mlp",
+                        "darkgs-calibrated": "mlp"}
+    assert model_config(candidate_model(0, "mlp"), auto).rid_model == "monotone"  # what counts: the model's parts
+    assert model_config(candidate_model(3, "lambert"), auto).rid_model == "mlp"
+    assert model_config("spotless", auto.replace(rid_model="mlp")).rid_model == "mlp"
+    assert model_config("darkgs", auto.replace(rid_model="monotone")).rid_model == "monotone"
+    assert with_defaults(TrainConfig, {})["rid_model"] == "mlp"
+
+
+def test_a_run_begun_with_the_mlp_profile_resumes_with_it_under_auto(tmp_path_factory):
+    """A SpotlessGS run on a start that is not trusted, begun with rid_model "mlp" (in its settings and its
+    checkpoint's record), resumes under "auto" with the profile it began with; a fresh run under "auto" has the
+    monotone one."""
+    from conftest import synthetic_box_dataset
+
+    from spotlessgs.models.angular_profile import MonotoneProfile
+    from spotlessgs.training.checkpoint import load_checkpoint
+    from spotlessgs.training.trainer import load_run, train
+
+    data = synthetic_box_dataset(tmp_path_factory, "auto-profile", seed=5)
+    run = tmp_path_factory.mktemp("auto-profile-run") / "run"
+    cfg = _tiny(iterations=20, image_width=40, densify_from=1000, checkpoint_every=10, num_threads=1, rid_model="auto")
+    train(data, run, "spotless", cfg.replace(rid_model="mlp"), seed=0, progress=False, stop_after=10)
+    assert load_checkpoint(run)["model_settings"]["rid_model"] == "mlp"
+    result = train(data, run, "spotless", cfg, seed=0, progress=False, resume=True)
+    assert result.steps == 20 and load_checkpoint(run)["model_settings"]["rid_model"] == "mlp"
+    scene, _views, _config, _info = load_run(run, device="cpu")
+    assert not isinstance(scene.appearance.light.rid, MonotoneProfile)
+    fresh = tmp_path_factory.mktemp("auto-profile-fresh") / "run"
+    train(data, fresh, "spotless", cfg, seed=0, progress=False)
+    assert isinstance(load_run(fresh, device="cpu")[0].appearance.light.rid, MonotoneProfile)
+
 @pytest.mark.blender
 def test_a_trusted_run_begun_by_the_previous_version_resumes_with_its_own_lamp_model(bedroom, tmp_path):
     """A run that the previous version began on a trusted start (its record: the bounce and the clamp; its lamp: the
@@ -364,12 +409,14 @@ def test_a_trusted_run_begun_by_the_previous_version_resumes_with_its_own_lamp_m
     from spotlessgs.training.trainer import load_run, train
 
     cfg = _tiny(iterations=30, image_width=40, densify_from=1000, checkpoint_every=15, trust_start_geometry="auto")
-    as_trusted_then = cfg.replace(trust_start_geometry="off", lr_normals=0.0, lamp_bounce=True, brdf_upper_clamp=False)
+    as_trusted_then = cfg.replace(trust_start_geometry="off", lr_normals=0.0, lamp_bounce=True, brdf_upper_clamp=False,
+                                  rid_model="mlp")
     train(bedroom, tmp_path / "run", "spotless", as_trusted_then, seed=1, progress=False, stop_after=15)
     path = tmp_path / "run" / "config.json"
     written = json.loads(path.read_text())
     written["train"] = {**written["train"], "trust_start_geometry": "auto", "lr_normals": cfg.lr_normals,
-                        "lamp_bounce": False, "brdf_upper_clamp": True}  # as that version wrote it: the settings given
+                        "lamp_bounce": False, "brdf_upper_clamp": True, "rid_model": "mlp"}  # as that version wrote
+    # it: the settings given, its default profile
     path.write_text(json.dumps(written))
     ckpt = load_checkpoint(tmp_path / "run")
     save_checkpoint(tmp_path / "run", {**ckpt, "model_settings": {"lamp_bounce": True, "brdf_upper_clamp": False}})
@@ -963,7 +1010,7 @@ def test_a_trusted_dense_start_keeps_its_normals_and_trains_the_bounce(bedroom, 
     assert config.low_frequency_shading == scene.config.low_frequency_shading == "irradiance"
     # a checkpoint without the record (before 2026-11-27), of a run that trusted nothing: the bounce as its modules
     # show, the clamp and the profile as configured
-    cfg_off = cfg.replace(trust_start_geometry="off", lamp_bounce=True)
+    cfg_off = cfg.replace(trust_start_geometry="off", lamp_bounce=True, rid_model="mlp")  # that version's profile
     train(bedroom, tmp_path / "old", "spotless", cfg_off, seed=3, progress=False)
     older = {k: v for k, v in load_checkpoint(tmp_path / "old").items() if k not in ("version", "model_settings")}
     save_checkpoint(tmp_path / "old", older)

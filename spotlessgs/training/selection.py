@@ -195,6 +195,16 @@ def trusted_start(config: TrainConfig, data_dir: str | Path) -> bool:
     return trainer.start_is_trusted(config, load_initial_points(read_dataset(data_dir)))
 
 
+def proxy_light(config: TrainConfig, trusted: bool) -> dict[str, object]:
+    """The light model of every proxy run of a selection (each proxy's lamp and SH light start from the shared base's,
+    so all have one), and of the chosen model's run: SpotlessGS's, whatever the candidate's SH degree and BRDF. On a
+    ``trusted`` start :data:`~spotlessgs.training.trainer.TRUSTED_START_LIGHT`, elsewhere the angular profile
+    SpotlessGS resolves ``config.rid_model`` to (:func:`~spotlessgs.training.trainer.resolved_rid_model`)."""
+    if trusted:
+        return dict(trainer.TRUSTED_START_LIGHT)
+    return {"rid_model": trainer.resolved_rid_model(config, "spotless")}
+
+
 def candidate_model(sh_degree: int, brdf: str) -> ModelConfig:
     """The spotlight model with an SH light of ``sh_degree`` and the ``brdf`` (``lambert`` or ``mlp``)."""
     if brdf not in BRDFS:
@@ -410,11 +420,11 @@ def select_model(
     base_model = dataclasses.replace(candidate_model(0, "lambert"), name="auto-base")
     base_config = proxy_config(config, selection, selection.base_fraction)
     trusted = trusted_start(config, data_dir)
-    if trusted:  # every proxy's light modelled as a trusted SpotlessGS's, since each starts from the base's
-        base_config, proxy, reflectance_proxy = (schedule.replace(**trainer.TRUSTED_START_LIGHT)
-                                                 for schedule in (base_config, proxy, reflectance_proxy))
-        log.info("model selection: a trusted start: every proxy with the lamp's monotone profile and the room light "
-                 "shaded as relit")
+    light = proxy_light(config, trusted)
+    base_config, proxy, reflectance_proxy = (schedule.replace(**light)
+                                             for schedule in (base_config, proxy, reflectance_proxy))
+    log.info("model selection: every proxy with SpotlessGS's light model (%s)",
+             ", ".join(f"{name}={value}" for name, value in light.items()))
     # the learned BRDF by rule on a trusted start, whose normals the base then holds too
     learned_by_rule = selection.trusted_start_reflectance == "learned" and trusted
     if learned_by_rule:
@@ -539,8 +549,9 @@ def train_auto(
         except TypeError as exc:  # an unknown or missing field: a decision of another version
             raise InputError(f"{Path(run_dir) / SELECTION_FILE}: the chosen model does not fit this version "
                              f"({exc})") from None
-        if trusted_start(config, data_dir):  # the chosen model with the light model its proxy had, also a Lambertian
-            config = config.replace(**trainer.TRUSTED_START_LIGHT)  # one, which trust_start_geometry leaves alone
+        # the chosen model with the light model its proxy had, also a Lambertian one (which resolves "auto" to the
+        # MLP profile and which trust_start_geometry leaves alone)
+        config = config.replace(**proxy_light(config, trusted_start(config, data_dir)))
         result = trainer.train(data_dir, run_dir, model, config, seed=seed, resume=resume, light_prior=light_prior,
                                progress=progress, stop_after=stop_after)
     return decision, result

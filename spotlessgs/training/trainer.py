@@ -94,11 +94,22 @@ MODEL_SETTINGS: tuple[str, ...] = tuple(sorted({f.name for f in dataclasses.fiel
 def model_config(variant: str | ModelConfig, config: TrainConfig) -> ModelConfig:
     """The variant's ModelConfig (a preset name or a ModelConfig) with every field that ``config`` also has taken from
     it (:data:`MODEL_SETTINGS`: the CPU/GPU-dependent BRDF width, the low-frequency shading, the spotlight fall-off,
-    the BRDF's clamp)."""
+    the BRDF's clamp, the angular profile as :func:`resolved_rid_model` gives it)."""
     if not isinstance(variant, ModelConfig) and variant not in MODEL_VARIANTS:
         raise ValueError(f"unknown model {variant!r}; choose one of {sorted(MODEL_VARIANTS)}")
     base = variant if isinstance(variant, ModelConfig) else MODEL_VARIANTS[variant]
-    return dataclasses.replace(base, **{name: getattr(config, name) for name in MODEL_SETTINGS})
+    settings = {name: getattr(config, name) for name in MODEL_SETTINGS}
+    settings["rid_model"] = resolved_rid_model(config, base)
+    return dataclasses.replace(base, **settings)
+
+
+def resolved_rid_model(config: TrainConfig, variant: str | ModelConfig) -> str:
+    """The spotlight's angular profile a run of ``variant`` trains with: ``config.rid_model``, or for "auto" the
+    monotone profile for a model with an SH light and a learned BRDF (SpotlessGS: :func:`trusts_start_geometry`, on
+    any start) and the paper's MLP for the others (the DarkGS variants, whose rows it was not measured on)."""
+    if config.rid_model != "auto":
+        return config.rid_model
+    return "monotone" if trusts_start_geometry(variant) else "mlp"
 
 
 def resolve_device(name: str) -> torch.device:
@@ -523,6 +534,11 @@ def _train_locked(data_dir: Path, run_dir: Path, variant: str | ModelConfig, con
         old_run = dict(old["run"])
         if isinstance(old_run.get("model_config"), dict):
             old_run["model_config"] = with_defaults(ModelConfig, old_run["model_config"])
+        if config.rid_model == "auto" and isinstance(old["train"], dict):
+            # "auto" resumes a run with the angular profile it began with, also one that an older version began with
+            # the MLP profile where "auto" now resolves to the monotone one
+            config = dataclasses.replace(config, rid_model=with_defaults(TrainConfig, old["train"])["rid_model"])
+            resolved["train"] = dataclasses.asdict(config)
         differ = differing_train_settings(old["train"], resolved["train"]) + differing_settings(
             {k: v for k, v in old_run.items() if k not in moved}, {k: v for k, v in run_info.items() if k not in moved})
         if differ:
