@@ -98,7 +98,6 @@ def test_uninformative_images_register_nothing(tmp_path):
     assert result.summary({n: np.eye(4) for n in names})["trajectory"] is None
 
 
-
 @pytest.mark.parametrize("verbose, level", [(False, 2), (True, 0)])
 def test_colmap_logs_errors_only_unless_verbose_and_the_level_is_restored(tmp_path, monkeypatch, verbose, level):
     import pycolmap
@@ -107,8 +106,12 @@ def test_colmap_logs_errors_only_unless_verbose_and_the_level_is_restored(tmp_pa
 
     seen = []
     real_pipeline = sfm._pipeline
-    monkeypatch.setattr(sfm, "_pipeline", lambda *a, **k: (seen.append(pycolmap.logging.minloglevel),
-                                                           real_pipeline(*a, **k))[1])
+
+    def pipeline_noting_the_level(*args, **kwargs):
+        seen.append(pycolmap.logging.minloglevel)
+        return real_pipeline(*args, **kwargs)
+
+    monkeypatch.setattr(sfm, "_pipeline", pipeline_noting_the_level)
     names = []
     for k in range(2):
         names.append(f"{k}.png")
@@ -116,6 +119,7 @@ def test_colmap_logs_errors_only_unless_verbose_and_the_level_is_restored(tmp_pa
     before = pycolmap.logging.minloglevel
     run_sfm(tmp_path, names, tmp_path / "work", SfmConfig(verbose=verbose))
     assert seen == [level] and pycolmap.logging.minloglevel == before
+
 
 def test_errors(tmp_path):
     with pytest.raises(FileNotFoundError, match="no COLMAP model"):

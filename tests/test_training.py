@@ -354,7 +354,6 @@ def test_recorded_model_settings_complete_an_older_record_from_the_saved_config(
         recorded_model_settings({"model_settings": ["lamp_bounce"]}, saved, where)
 
 
-
 def test_the_angular_profile_auto_is_monotone_for_spotlessgs_only():
     """rid_model "auto" resolves to the monotone profile for a model with an SH light and a learned BRDF, on any start,
     and to the paper's MLP for the DarkGS variants; a profile given is kept; a run saved before the setting existed
@@ -398,6 +397,7 @@ def test_a_run_begun_with_the_mlp_profile_resumes_with_it_under_auto(tmp_path_fa
     fresh = tmp_path_factory.mktemp("auto-profile-fresh") / "run"
     train(data, fresh, "spotless", cfg, seed=0, progress=False)
     assert isinstance(load_run(fresh, device="cpu")[0].appearance.light.rid, MonotoneProfile)
+
 
 @pytest.mark.blender
 def test_a_trusted_run_begun_by_the_previous_version_resumes_with_its_own_lamp_model(bedroom, tmp_path):
