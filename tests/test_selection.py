@@ -500,7 +500,8 @@ def test_a_trusted_start_keeps_the_learned_brdf_by_rule_and_the_base_holds_the_s
         assert [c["phase"] for c in compared["candidates"]] == ["reflectance"] * 2 + ["light"] * 2
     untrusted_base = json.loads((tmp_path / "untrusted" / "selection" / "base" / "config.json").read_text())["train"]
     assert untrusted_base["lr_normals"] == cfg.lr_normals > 0
-    assert (untrusted_base["rid_model"], untrusted_base["low_frequency_shading"]) == ("mlp", "spot_cosine")
+    # the profile SpotlessGS resolves the default rid_model "auto" to
+    assert (untrusted_base["rid_model"], untrusted_base["low_frequency_shading"]) == ("monotone", "spot_cosine")
     # compared on a trusted start: the Lambertian candidate starts from the same base, with its light
     compared_lambert = json.loads((tmp_path / "compared" / "selection" / "auto-sh0-lambert" / "config.json")
                                   .read_text())["train"]
@@ -523,10 +524,11 @@ def test_train_auto_trains_the_chosen_model_with_the_light_model_of_its_proxies(
     assert start_geometry_settings(cfg, load_training_views(box_room, 32), chosen) == cfg  # not trusted itself
     selection.train_auto(box_room, tmp_path / "trusted", cfg)
     assert trained[-1] == cfg.replace(rid_model="monotone", low_frequency_shading="irradiance") != cfg
-    untrusted = cfg.replace(trust_start_geometry="off")
+    untrusted = cfg.replace(trust_start_geometry="off", rid_model="mlp")
     selection.train_auto(box_room, tmp_path / "untrusted", untrusted)
     assert trained[-1] == untrusted
     auto = untrusted.replace(rid_model="auto")  # SpotlessGS's profile, also for a Lambertian one (alone: the MLP)
+    assert cfg.rid_model == "auto"  # the default
     selection.train_auto(box_room, tmp_path / "auto", auto)
     assert trained[-1] == auto.replace(rid_model="monotone")
 

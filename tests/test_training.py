@@ -362,8 +362,8 @@ def test_the_angular_profile_auto_is_monotone_for_spotlessgs_only():
     from spotlessgs.training.selection import candidate_model
     from spotlessgs.training.trainer import model_config
 
-    assert TrainConfig().rid_model == "mlp"
-    auto = TrainConfig(rid_model="auto")
+    auto = TrainConfig()
+    assert auto.rid_model == "auto"
     resolved = {name: model_config(name, auto).rid_model for name in ("spotless", "darkgs", "darkgs+sh",
                                                                        "darkgs+brdf", "darkgs-calibrated")}
     assert resolved == {"spotless": "monotone", "darkgs": "mlp", "darkgs+sh": "mlp", "darkgs+brdf": "mlp",
@@ -390,6 +390,7 @@ def test_a_run_begun_with_the_mlp_profile_resumes_with_it_under_auto(tmp_path_fa
     cfg = _tiny(iterations=20, image_width=40, densify_from=1000, checkpoint_every=10, num_threads=1, rid_model="auto")
     train(data, run, "spotless", cfg.replace(rid_model="mlp"), seed=0, progress=False, stop_after=10)
     assert load_checkpoint(run)["model_settings"]["rid_model"] == "mlp"
+    assert load_checkpoint(run)["depth_spread_weight"] == cfg.depth_spread_weight > 0  # SpotlessGS: on any dataset
     result = train(data, run, "spotless", cfg, seed=0, progress=False, resume=True)
     assert result.steps == 20 and load_checkpoint(run)["model_settings"]["rid_model"] == "mlp"
     scene, _views, _config, _info = load_run(run, device="cpu")
@@ -522,8 +523,8 @@ def test_spot_shadows_train_reload_and_leave_relighting_alone(bedroom, tmp_path)
 
 @pytest.mark.blender
 def test_the_depth_spread_term_trains_and_is_saved_and_auto_leaves_simulator_renders_alone(bedroom, tmp_path):
-    """"on": the term changes a relightable model's training and is saved with the run; "auto" trains the simulator's
-    bedroom (no camera effects) exactly as without the term."""
+    """"on": the term changes a relightable model's training and is saved with the run; "auto" trains DarkGS on the
+    simulator's bedroom (no camera effects) exactly as without the term."""
     from spotlessgs.training.trainer import load_run, train
 
     cfg = _tiny(iterations=30, image_width=40, densify_from=1000, checkpoint_every=30, log_every=10)
@@ -579,7 +580,10 @@ def test_the_depth_spread_term_trains_on_every_kth_step_only(tmp_path_factory, t
     ({}, "spotless", "auto", 0.1),                                              # a real camera
     ({}, "darkgs", "auto", 0.1),
     ({}, "3dgs", "auto", 0.0),                                                  # no light to relight with
-    ({"scene_id": "bedroom"}, "spotless", "auto", 0.0),                         # our simulator's render
+    ({"scene_id": "bedroom"}, "spotless", "auto", 0.1),                         # our simulator's render: SpotlessGS
+    ({"scene_id": "bedroom"}, "darkgs", "auto", 0.0),                           # ... not the DarkGS variants
+    ({"scene_id": "bedroom"}, "darkgs+brdf", "auto", 0.0),
+    ({"scene_id": "bedroom"}, "darkgs+sh", "auto", 0.0),
     ({"scene_id": "bedroom", "camera_effects": {"noise": 1}}, "spotless", "auto", 0.1),  # ... imitating a camera
     ({"scene_id": "bedroom"}, "3dgs", "on", 0.1),                               # "on": every model, any data
     ({}, "spotless", "off", 0.0),
@@ -594,6 +598,27 @@ def test_when_the_depth_spread_term_trains(meta, variant, mode, expected):
     views = SimpleNamespace(dataset=SimpleNamespace(meta=meta))
     config = TrainConfig(depth_spread=mode, depth_spread_weight=0.1)
     assert depth_spread_weight_for(config, views, MODEL_VARIANTS[variant]) == expected
+
+
+def test_a_resume_trains_the_depth_spread_weight_its_checkpoint_records():
+    """On a resume the weight comes from the checkpoint; one written before the record resolves "auto" as its version
+    did (real cameras only: SpotlessGS on our simulator's render without the term); a damaged record is refused."""
+    from types import SimpleNamespace
+
+    from spotlessgs.io.errors import InputError
+    from spotlessgs.models.shading import MODEL_VARIANTS
+    from spotlessgs.training.config import TrainConfig
+    from spotlessgs.training.trainer import trained_depth_spread_weight
+
+    render, camera = (SimpleNamespace(dataset=SimpleNamespace(meta=meta)) for meta in ({"scene_id": "bedroom"}, {}))
+    config, spotless, where = TrainConfig(depth_spread_weight=0.4), MODEL_VARIANTS["spotless"], Path("last.safetensors")
+    assert trained_depth_spread_weight(config, render, spotless, None, where) == 0.4  # a fresh run
+    assert trained_depth_spread_weight(config, render, spotless, {"step": 5}, where) == 0.0  # before the record
+    assert trained_depth_spread_weight(config, camera, spotless, {"step": 5}, where) == 0.4
+    assert trained_depth_spread_weight(config, render, spotless, {"depth_spread_weight": 0.1}, where) == 0.1
+    for damaged in (-1.0, float("nan"), "0.4", True):
+        with pytest.raises(InputError, match="last.safetensors: depth_spread_weight must be a finite number"):
+            trained_depth_spread_weight(config, render, spotless, {"depth_spread_weight": damaged}, where)
 
 
 def test_a_run_from_before_the_depth_spread_switch_keeps_its_weight_for_every_model():

@@ -119,15 +119,13 @@ class TrainConfig:
     falloff_gamma: float = 1.0
     learn_falloff: bool = True
     # The spotlight's angular profile: "mlp" (the paper's) or "monotone" (a non-increasing piecewise-linear profile,
-    # ModelConfig.rid_model), which learns at lr_rid_profile; "auto" (trainer.resolved_rid_model): "monotone" for a
-    # model with an SH light and a learned BRDF (SpotlessGS), "mlp" for the others, on any start. On the robot copy's
-    # sparse start "auto" relit SpotlessGS −0.01 / +0.45 dB (lamps-on / uniform, three seeds) with the lamp 2.6 cm from
-    # the truth instead of 4.5: the candidate default, not yet in the reproductions (docs/results.md, "The lamp model on
-    # a sparse start ..."). A trusted start sets "monotone" with the irradiance shading (trust_start_geometry): the
-    # bedroom's lamp within 3 cm, 9.8 with the MLP. Alone on a trusted start it cost the residual-light room 0.17 dB
-    # against the lamps-on ground truth ("The lamp on a trusted start"); before the trusted start it relit the
-    # saturated bedroom about 0.8 dB worse against the uniform ground truth ("The albedo's cap and the light's unit").
-    rid_model: str = "mlp"
+    # ModelConfig.rid_model), which learns at lr_rid_profile; "auto" (the default; trainer.resolved_rid_model):
+    # "monotone" for a model with an SH light and a learned BRDF (SpotlessGS), "mlp" for the others, on any start. On
+    # the robot copy's sparse start "auto" relit SpotlessGS −0.01 / +0.45 dB (lamps-on / uniform, three seeds) with the
+    # lamp 2.6 cm from the truth instead of 4.5 (docs/results.md, "The lamp model on a sparse start ..."). A trusted
+    # start sets "monotone" with the irradiance shading (trust_start_geometry): the bedroom's lamp within 3 cm, 9.8 with
+    # the MLP. A run resumes with the profile it began with (runs saved before the setting existed: "mlp").
+    rid_model: str = "auto"
     # The unit of the spotlight's radiance (training.light_unit): "fixed" (the research code's) or "median_depth" (a
     # factor (τ0 + z²)^γ0 on the spotlight, z the scene's median depth in the training views: the light starts as
     # bright as the images ask, and the albedo below its cap). With rid_model=monotone it relit the saturated bedroom
@@ -203,9 +201,13 @@ class TrainConfig:
     # When the term trains (trainer.depth_spread_weight_for): "auto": for models with a light on datasets from real
     # cameras (no "spotless" block; their starts are sparse SfM points) or our simulator's copies that imitate one
     # (their block lists camera effects), where at 0.1 on every step every model with a light relit as well or better
-    # (the robot copy: SpotlessGS +0.18 / +1.17 dB, lamps-on / uniform ground truth, three seeds); off for 3DGS and
-    # for our simulator's renders, where it gains on the bedroom but loses up to 0.34 dB on the glossy room
-    # (docs/results.md, "The depth-spread term: on for real cameras"). "on": every model, 3DGS included; "off".
+    # (the robot copy: SpotlessGS +0.18 / +1.17 dB, lamps-on / uniform ground truth, three seeds; docs/results.md,
+    # "The depth-spread term: on for real cameras"), and for SpotlessGS (an SH light and a learned BRDF:
+    # trainer.trusts_start_geometry) on every dataset: on our simulator's dense starts it relit the bedroom and its
+    # copies −0.02 to +0.12 / +0.07 to +0.31 dB, the glossy storage room +0.04 / −0.06 (three seeds each; "The lamp
+    # model on a sparse start ..."); off for 3DGS, and for the DarkGS variants on our simulator's renders (up to
+    # −0.34 dB on the glossy room). A run resumes with the weight it began with (its checkpoint records it). "on":
+    # every model, 3DGS included; "off".
     depth_spread: str = "auto"
     # The term trains on every this-many-th step only (1: every step): its extra rasterized channels and their
     # backward are paid on those steps alone. On the robot copy (SpotlessGS, quick preset; idle A/B against the term

@@ -79,8 +79,9 @@ log = logging.getLogger(__name__)
 
 SELECTION_FILE = "model_selection.json"
 #: 6 since 66edae3: a trusted start's proxies have the monotone profile and the irradiance shading
-#: (trainer.TRUSTED_START_LIGHT).
-SELECTION_VERSION = 6
+#: (trainer.TRUSTED_START_LIGHT). 7 since 2026-12-07: every proxy has SpotlessGS's angular profile under the default
+#: rid_model "auto" (the monotone one), and SpotlessGS-type proxies train the depth-spread term on every dataset.
+SELECTION_VERSION = 7
 BRDFS = ("lambert", "mlp")
 
 

@@ -364,7 +364,7 @@ def densify_config(config: TrainConfig) -> DensifyConfig:
 def _payload(step: int, scene: RelightableScene, opts, strategy: DensifyStrategy,
              photometric: PhotometricCamera | None, poses: PoseCorrection | None = None,
              shadow_maps: ShadowMapCache | None = None, lamp_bounces: LampBounceCache | None = None,
-             ) -> dict[str, Any]:
+             depth_spread_weight: float = 0.0) -> dict[str, Any]:
     payload = {
         "step": step,
         "gaussians": {k: v.detach().clone() for k, v in scene.gaussians.params.items()},
@@ -372,6 +372,7 @@ def _payload(step: int, scene: RelightableScene, opts, strategy: DensifyStrategy
         "optimizers": {k: o.state_dict() for k, o in opts.items()},
         "strategy": strategy.state_dict(),
         "model_settings": {name: getattr(scene.config, name) for name in RECORDED_MODEL_SETTINGS},
+        "depth_spread_weight": depth_spread_weight,  # what a resume trains with (trained_depth_spread_weight)
     }
     if photometric is not None:
         payload["photometric"] = photometric.state_dict()
@@ -399,14 +400,36 @@ def photometric_enabled(config: TrainConfig, views: TrainingViews) -> bool:
     return from_a_real_camera(views)
 
 
-def depth_spread_weight_for(config: TrainConfig, views: TrainingViews, model: ModelConfig) -> float:
+def depth_spread_weight_for(config: TrainConfig, views: TrainingViews, model: ModelConfig,
+                            dense_starts: bool = True) -> float:
     """The weight the depth-spread term trains ``model`` with (0: not at all): ``config.depth_spread_weight`` when
-    ``config.depth_spread`` is "on", or "auto" for a model with a light on views :func:`from_a_real_camera`."""
+    ``config.depth_spread`` is "on", or "auto" for a model with a light on views :func:`from_a_real_camera` and for a
+    model with an SH light and a learned BRDF (:func:`trusts_start_geometry`: SpotlessGS) on any views.
+    ``dense_starts=False``: "auto" as versions before 2026-12-07 resolved it (real cameras only), for a checkpoint
+    that does not record its weight."""
     if config.depth_spread == "off":
         return 0.0
-    if config.depth_spread == "auto" and (model.light_model == "none" or not from_a_real_camera(views)):
-        return 0.0
-    return config.depth_spread_weight
+    if config.depth_spread == "on":
+        return config.depth_spread_weight
+    has_light = model.light_model != "none"
+    if (has_light and from_a_real_camera(views)) or (dense_starts and trusts_start_geometry(model)):
+        return config.depth_spread_weight
+    return 0.0
+
+
+def trained_depth_spread_weight(config: TrainConfig, views: TrainingViews, model: ModelConfig,
+                                ckpt: dict | None, where: Path) -> float:
+    """The depth-spread weight a run trains with: :func:`depth_spread_weight_for`, or on a resume the weight its
+    checkpoint ``ckpt`` (read from ``where``) records (a checkpoint without one: as its version resolved "auto").
+    Raises InputError for a recorded weight that is not a finite number >= 0."""
+    if ckpt is None:
+        return depth_spread_weight_for(config, views, model)
+    if "depth_spread_weight" not in ckpt:
+        return depth_spread_weight_for(config, views, model, dense_starts=False)
+    weight = ckpt["depth_spread_weight"]
+    if isinstance(weight, bool) or not isinstance(weight, (int, float)) or not (math.isfinite(weight) and weight >= 0):
+        raise InputError(f"{where}: depth_spread_weight must be a finite number >= 0, got {weight!r}")
+    return float(weight)
 
 
 def build_photometric(config: TrainConfig, views: TrainingViews, split: ViewSplit,
@@ -647,7 +670,7 @@ def _train_locked(data_dir: Path, run_dir: Path, variant: str | ModelConfig, con
     except OSError as exc:
         bar.close()
         raise (write_error(metrics_path, exc) or exc) from exc
-    depth_spread_weight = depth_spread_weight_for(config, views, scene.config)
+    depth_spread_weight = trained_depth_spread_weight(config, views, scene.config, ckpt, ckpt_file)
     up = (camera_up(cameras.c2w[list(views.train)])  # the normal prior's gravity axis
           if config.normal_gravity_weight > 0 else None)
     t0 = time.perf_counter()
@@ -724,7 +747,7 @@ def _train_locked(data_dir: Path, run_dir: Path, variant: str | ModelConfig, con
                 # this check, before every save, keeps any other one out of the checkpoint.
                 _check_finite(scene, step, ckpt_file, poses)
                 save_checkpoint(run_dir, _payload(s, scene, opts, strategy, photometric, poses, shadow_maps,
-                                                  lamp_bounces))
+                                                  lamp_bounces, depth_spread_weight))
             if stop.requested:  # Ctrl-C / SIGTERM: the step is finished and saved; `--resume` continues from it
                 log.warning("stopped at step %d; the checkpoint %s holds it (resume with --resume)", s, ckpt_file)
                 stop.raise_if_requested()
