@@ -12,10 +12,13 @@ from spotlessgs.experiments.run_settings import check_finished_row, refuse_other
 from spotlessgs.run import RunSpec
 
 
-def _finished_row(row_dir, spec: RunSpec, model: str = "spotless", drop: tuple[str, ...] = ()):
+def _finished_row(row_dir, spec: RunSpec, model: str = "spotless", drop: tuple[str, ...] = (),
+                  train_settings: dict | None = None):
     """A row folder as a benchmark leaves it: row.json and the run's config.json recording ``spec``'s settings
-    (without the TrainConfig fields ``drop``, as a run saved before they existed)."""
+    (without the TrainConfig fields ``drop``, as a run saved before they existed; ``train_settings`` as the run
+    resolved them)."""
     train = {k: v for k, v in dataclasses.asdict(spec.train_config()).items() if k not in drop}
+    train.update(train_settings or {})
     (row_dir / "run").mkdir(parents=True)
     (row_dir / "run" / "config.json").write_text(json.dumps({"train": train,
                                                              "run": {"model": model, "seed": spec.seed}}))
@@ -50,8 +53,15 @@ def test_a_run_saved_before_a_setting_compares_with_what_it_trained_with(tmp_pat
 
 
 def test_an_auto_run_is_compared_without_the_model_its_selection_chose(tmp_path):
+    """An ``auto`` run saves the settings its chosen model trained with: the proxies' light model, SpotlessGS's
+    angular profile (here no dataset, so an untrusted start: the monotone profile that rid_model "auto" resolves to,
+    where the spec asks for "auto")."""
     spec = RunSpec(data=tmp_path, model="auto", preset="tiny")
-    _finished_row(tmp_path / "row", spec, model="auto-sh3-lambert")
+    _finished_row(tmp_path / "row", spec, model="auto-sh3-lambert", train_settings={"rid_model": "monotone"})
+    assert spec.train_config().rid_model == "auto"
     assert settings_differences(tmp_path / "row" / "run", spec) == []
+    assert settings_differences(tmp_path / "row" / "run", RunSpec(data=tmp_path, model="auto", preset="tiny",
+                                                                   overrides=(("rid_model", "mlp"),))) == [
+        "rid_model: run 'monotone', now 'mlp'"]
     assert settings_differences(tmp_path / "row" / "run", RunSpec(data=tmp_path, model="auto", preset="tiny",
                                                                    seed=2)) == ["seed: run 0, now 2"]

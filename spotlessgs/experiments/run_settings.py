@@ -17,13 +17,17 @@ from spotlessgs.io.dataset_fingerprint import dataset_fingerprint, other_dataset
 from spotlessgs.io.json_files import read_json
 from spotlessgs.run import AUTO, RunSpec
 from spotlessgs.training.checkpoint import recorded_data_fingerprint
+from spotlessgs.training.config import TrainConfig
+from spotlessgs.training.selection import chosen_model_train_config, proxy_light
 from spotlessgs.training.trainer import differing_settings, differing_train_settings
 
 
 def settings_differences(run_dir: Path, spec: RunSpec) -> list[str]:
     """``name: run X, now Y`` for each training setting, and the model (unless ``spec`` asks for ``auto``) and seed,
     in which the run in ``run_dir`` (its ``config.json``) differs from ``spec``, and ``dataset: ...`` when it was
-    trained on other files than ``spec.data`` holds (:func:`dataset_difference`).
+    trained on other files than ``spec.data`` holds (:func:`dataset_difference`). An ``auto`` run is compared with
+    the settings its chosen model trains with (:func:`~spotlessgs.training.selection.chosen_model_train_config`: its
+    proxies' light model).
 
     Raises:
         InputError: ``config.json`` is missing or damaged (names the file).
@@ -33,9 +37,21 @@ def settings_differences(run_dir: Path, spec: RunSpec) -> list[str]:
     # a `--model auto` run holds the model its selection chose (that selection compares its own settings on a resume)
     keys = ("seed",) if spec.model == AUTO else ("model", "seed")
     wanted = {"model": spec.model, "seed": spec.seed}
-    return (differing_train_settings(saved["train"], dataclasses.asdict(spec.train_config()))
+    wanted_train = spec.train_config()
+    if spec.model == AUTO:
+        wanted_train = _auto_train_config(wanted_train, Path(spec.data))
+    return (differing_train_settings(saved["train"], dataclasses.asdict(wanted_train))
             + differing_settings({key: old_run.get(key) for key in keys}, {key: wanted[key] for key in keys})
             + dataset_difference(run_dir, spec.data))
+
+
+def _auto_train_config(config: TrainConfig, data: Path) -> TrainConfig:
+    """``config`` as an ``auto`` run's chosen model trains with it on the dataset ``data``; where ``data`` holds no
+    dataset (a benchmark's own copy, removed), as on a start that is not trusted."""
+    try:
+        return chosen_model_train_config(config, data)
+    except FileNotFoundError:
+        return config.replace(**proxy_light(config, trusted=False))
 
 
 def dataset_difference(run_dir: Path, data: Path) -> list[str]:

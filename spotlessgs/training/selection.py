@@ -206,6 +206,13 @@ def proxy_light(config: TrainConfig, trusted: bool) -> dict[str, object]:
     return {"rid_model": trainer.resolved_rid_model(config, "spotless")}
 
 
+def chosen_model_train_config(config: TrainConfig, data_dir: str | Path) -> TrainConfig:
+    """``config`` as the chosen model of a ``--model auto`` run on ``data_dir`` trains with it, and as its
+    ``config.json`` saves it: with the light model its proxies had (:func:`proxy_light`), also for a Lambertian model
+    (which alone resolves ``rid_model`` "auto" to the MLP profile and which trust_start_geometry leaves alone)."""
+    return config.replace(**proxy_light(config, trusted_start(config, data_dir)))
+
+
 def candidate_model(sh_degree: int, brdf: str) -> ModelConfig:
     """The spotlight model with an SH light of ``sh_degree`` and the ``brdf`` (``lambert`` or ``mlp``)."""
     if brdf not in BRDFS:
@@ -550,9 +557,7 @@ def train_auto(
         except TypeError as exc:  # an unknown or missing field: a decision of another version
             raise InputError(f"{Path(run_dir) / SELECTION_FILE}: the chosen model does not fit this version "
                              f"({exc})") from None
-        # the chosen model with the light model its proxy had, also a Lambertian one (which resolves "auto" to the
-        # MLP profile and which trust_start_geometry leaves alone)
-        config = config.replace(**proxy_light(config, trusted_start(config, data_dir)))
+        config = chosen_model_train_config(config, data_dir)
         result = trainer.train(data_dir, run_dir, model, config, seed=seed, resume=resume, light_prior=light_prior,
                                progress=progress, stop_after=stop_after)
     return decision, result
