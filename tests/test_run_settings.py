@@ -53,15 +53,14 @@ def test_a_run_saved_before_a_setting_compares_with_what_it_trained_with(tmp_pat
 
 
 def test_an_auto_run_is_compared_without_the_model_its_selection_chose(tmp_path):
-    """An ``auto`` run saves the settings its chosen model trained with: the proxies' light model, SpotlessGS's
-    angular profile (here no dataset, so an untrusted start: the monotone profile that rid_model "auto" resolves to,
-    where the spec asks for "auto")."""
+    """An ``auto`` run saves the settings its chosen model trained with: the proxies' light model (here no dataset,
+    so an untrusted start: the MLP profile that the spec's rid_model "auto" resolves to for them)."""
     spec = RunSpec(data=tmp_path, model="auto", preset="tiny")
-    _finished_row(tmp_path / "row", spec, model="auto-sh3-lambert", train_settings={"rid_model": "monotone"})
+    _finished_row(tmp_path / "row", spec, model="auto-sh3-mlp", train_settings={"rid_model": "mlp"})
     assert spec.train_config().rid_model == "auto"
     assert settings_differences(tmp_path / "row" / "run", spec) == []
     assert settings_differences(tmp_path / "row" / "run", RunSpec(data=tmp_path, model="auto", preset="tiny",
-                                                                   overrides=(("rid_model", "mlp"),))) == [
-        "rid_model: run 'monotone', now 'mlp'"]
+                                                                   overrides=(("rid_model", "monotone"),))) == [
+        "rid_model: run 'mlp', now 'monotone'"]
     assert settings_differences(tmp_path / "row" / "run", RunSpec(data=tmp_path, model="auto", preset="tiny",
                                                                    seed=2)) == ["seed: run 0, now 2"]

@@ -500,8 +500,8 @@ def test_a_trusted_start_keeps_the_learned_brdf_by_rule_and_the_base_holds_the_s
         assert [c["phase"] for c in compared["candidates"]] == ["reflectance"] * 2 + ["light"] * 2
     untrusted_base = json.loads((tmp_path / "untrusted" / "selection" / "base" / "config.json").read_text())["train"]
     assert untrusted_base["lr_normals"] == cfg.lr_normals > 0
-    # the profile SpotlessGS resolves the default rid_model "auto" to
-    assert (untrusted_base["rid_model"], untrusted_base["low_frequency_shading"]) == ("monotone", "spot_cosine")
+    # the default rid_model "auto" keeps the MLP profile for every proxy on a start that is not trusted
+    assert (untrusted_base["rid_model"], untrusted_base["low_frequency_shading"]) == ("mlp", "spot_cosine")
     # compared on a trusted start: the Lambertian candidate starts from the same base, with its light
     compared_lambert = json.loads((tmp_path / "compared" / "selection" / "auto-sh0-lambert" / "config.json")
                                   .read_text())["train"]
@@ -510,8 +510,8 @@ def test_a_trusted_start_keeps_the_learned_brdf_by_rule_and_the_base_holds_the_s
 
 def test_train_auto_trains_the_chosen_model_with_the_light_model_of_its_proxies(box_room, tmp_path, monkeypatch):
     """On a trusted start every proxy has the trusted light model (TRUSTED_START_LIGHT), so the chosen model trains
-    with it too, a Lambertian one as well (which trust_start_geometry itself leaves alone); elsewhere the profile
-    SpotlessGS resolves ``rid_model`` to (monotone for "auto"), or the one given."""
+    with it too, a Lambertian one as well (which trust_start_geometry itself leaves alone); elsewhere the angular
+    profile is the MLP one for the default ``rid_model`` "auto", or the one given."""
     from spotlessgs.training import selection
     from spotlessgs.training.data import load_training_views
     from spotlessgs.training.trainer import start_geometry_settings
@@ -527,10 +527,13 @@ def test_train_auto_trains_the_chosen_model_with_the_light_model_of_its_proxies(
     untrusted = cfg.replace(trust_start_geometry="off", rid_model="mlp")
     selection.train_auto(box_room, tmp_path / "untrusted", untrusted)
     assert trained[-1] == untrusted
-    auto = untrusted.replace(rid_model="auto")  # SpotlessGS's profile, also for a Lambertian one (alone: the MLP)
+    auto = untrusted.replace(rid_model="auto")  # the MLP profile on an untrusted start, also for an MLP BRDF
     assert cfg.rid_model == "auto"  # the default
     selection.train_auto(box_room, tmp_path / "auto", auto)
-    assert trained[-1] == auto.replace(rid_model="monotone")
+    assert trained[-1] == auto.replace(rid_model="mlp")
+    monotone = untrusted.replace(rid_model="monotone")  # a profile given is kept
+    selection.train_auto(box_room, tmp_path / "monotone", monotone)
+    assert trained[-1] == monotone
 
 
 def test_selection_options_need_model_auto(box_room, tmp_path):

@@ -124,7 +124,9 @@ class TrainConfig:
     # the robot copy's sparse start "auto" relit SpotlessGS −0.01 / +0.45 dB (lamps-on / uniform, three seeds) with the
     # lamp 2.6 cm from the truth instead of 4.5 (docs/results.md, "The lamp model on a sparse start ..."). A trusted
     # start sets "monotone" with the irradiance shading (trust_start_geometry): the bedroom's lamp within 3 cm, 9.8 with
-    # the MLP. A run resumes with the profile it began with (runs saved before the setting existed: "mlp").
+    # the MLP. `--model auto` keeps the MLP on a start it does not trust (selection.proxy_light): the monotone profile
+    # cost it 0.19 / 0.11 dB on the robot copy (three seeds). A run resumes with the profile it began with (runs saved
+    # before the setting existed: "mlp").
     rid_model: str = "auto"
     # The unit of the spotlight's radiance (training.light_unit): "fixed" (the research code's) or "median_depth" (a
     # factor (τ0 + z²)^γ0 on the spotlight, z the scene's median depth in the training views: the light starts as

@@ -79,8 +79,8 @@ log = logging.getLogger(__name__)
 
 SELECTION_FILE = "model_selection.json"
 #: 6 since 66edae3: a trusted start's proxies have the monotone profile and the irradiance shading
-#: (trainer.TRUSTED_START_LIGHT). 7 since 2026-12-07: every proxy has SpotlessGS's angular profile under the default
-#: rid_model "auto" (the monotone one), and SpotlessGS-type proxies train the depth-spread term on every dataset.
+#: (trainer.TRUSTED_START_LIGHT). 7 since 2026-12-07: SpotlessGS-type proxies (an MLP BRDF) train the depth-spread
+#: term on every dataset.
 SELECTION_VERSION = 7
 BRDFS = ("lambert", "mlp")
 
@@ -198,12 +198,14 @@ def trusted_start(config: TrainConfig, data_dir: str | Path) -> bool:
 
 def proxy_light(config: TrainConfig, trusted: bool) -> dict[str, object]:
     """The light model of every proxy run of a selection (each proxy's lamp and SH light start from the shared base's,
-    so all have one), and of the chosen model's run: SpotlessGS's, whatever the candidate's SH degree and BRDF. On a
-    ``trusted`` start :data:`~spotlessgs.training.trainer.TRUSTED_START_LIGHT`, elsewhere the angular profile
-    SpotlessGS resolves ``config.rid_model`` to (:func:`~spotlessgs.training.trainer.resolved_rid_model`)."""
+    so all have one), and of the chosen model's run, whatever the candidate's SH degree and BRDF. On a ``trusted``
+    start SpotlessGS's, :data:`~spotlessgs.training.trainer.TRUSTED_START_LIGHT`; elsewhere ``config.rid_model``,
+    with "auto" the paper's MLP profile: on the robot copy's sparse start the monotone one, SpotlessGS's there, cost
+    ``--model auto`` 0.19 / 0.11 dB (lamps-on / uniform ground truth, three seeds; docs/results.md, "SpotlessGS's lamp
+    profile and depth-spread term on every start")."""
     if trusted:
         return dict(trainer.TRUSTED_START_LIGHT)
-    return {"rid_model": trainer.resolved_rid_model(config, "spotless")}
+    return {"rid_model": "mlp" if config.rid_model == "auto" else config.rid_model}
 
 
 def chosen_model_train_config(config: TrainConfig, data_dir: str | Path) -> TrainConfig:
