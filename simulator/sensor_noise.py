@@ -252,6 +252,7 @@ def add_sensor_noise_to_dataset(data: str | Path, out: str | Path, noise: Sensor
         record["point_cloud"] = False
     if depth_camera is not None:
         record["depth_camera"] = asdict(depth_camera)
+    record = json.loads(json.dumps(record))  # as the file holds it (a lens's distortion tuple reads back as a list)
     record_path = out / NOISE_RECORD
     if record_path.is_file():
         old = json.loads(record_path.read_text())

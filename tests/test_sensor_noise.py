@@ -210,6 +210,9 @@ def test_the_uniform_ground_truth_travels_with_the_copy_and_through_a_lens(tmp_p
     lensed = tmp_path / "lens"
     effects = CameraEffects(lens="opencv", distortion=(-0.2, 0.03, 0.0, 0.0))
     add_sensor_noise_to_dataset(src, lensed, None, seed=0, effects=effects)
+    # made again with the same settings (an interrupted copy resumed): the record read back has the distortion as a
+    # JSON list, not the tuple the settings give, and is still the same; nothing is left to write
+    assert add_sensor_noise_to_dataset(src, lensed, None, seed=0, effects=effects) == 0
     camera = effects.camera(Intrinsics.from_fov(75.0, 64, 48))
     map_x, map_y, _valid = distort_maps(camera, Intrinsics.from_fov(75.0, 64, 48))
     for k in range(2):
