@@ -433,7 +433,7 @@ def select_model(
     light = proxy_light(config, trusted)
     base_config, proxy, reflectance_proxy = (schedule.replace(**light)
                                              for schedule in (base_config, proxy, reflectance_proxy))
-    log.info("model selection: every proxy with SpotlessGS's light model (%s)",
+    log.info("model selection: every proxy, and the chosen model, with one light model (%s)",
              ", ".join(f"{name}={value}" for name, value in light.items()))
     # the learned BRDF by rule on a trusted start, whose normals the base then holds too
     learned_by_rule = selection.trusted_start_reflectance == "learned" and trusted
