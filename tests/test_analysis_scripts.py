@@ -226,11 +226,41 @@ def test_surface_labels_and_each_surfaces_share_of_the_error():
     labels = module.surface_labels(normals / np.linalg.norm(normals, axis=-1, keepdims=True))
     assert labels.tolist() == [[0, 0, 1, 1], [2, 2, 2, 2]]
     error = np.array([[1.0, 3.0, 0.0, 0.0], [1.0, 1.0, 1.0, 1.0]])
-    shares = module.surface_shares(error, labels)
+    gt = np.full((2, 4, 3), 0.5)
+    aligned = gt.copy()
+    aligned[0, :2] = 0.6  # the floor relit brighter
+    aligned[1, 0] = 0.3  # one wall pixel darker
+    shares = module.region_shares(error, labels, module.SURFACES, aligned, gt)
     assert [name for name, *_ in shares] == ["floor", "ceiling", "walls and sides"]
-    assert [pixels for _, pixels, _, _ in shares] == pytest.approx([0.25, 0.25, 0.5])
-    assert [share for _, _, share, _ in shares] == pytest.approx([0.5, 0.0, 0.5])
-    assert [mse for *_, mse in shares] == pytest.approx([2.0, 0.0, 1.0])
+    assert [pixels for _, pixels, _, _, _ in shares] == pytest.approx([0.25, 0.25, 0.5])
+    assert [share for _, _, share, _, _ in shares] == pytest.approx([0.5, 0.0, 0.5])
+    assert [mse for *_, mse, _ in shares] == pytest.approx([2.0, 0.0, 1.0])
+    assert [ratio for *_, ratio in shares] == pytest.approx([1.2, 1.0, (0.3 + 3 * 0.5) / 4 / 0.5])
+
+
+def test_cone_labels_from_the_true_lamp_and_the_planar_depth():
+    """A pixel is inside the cone where the surface it sees lies within half the cone angle of the lamp's axis, measured
+    from the lamp's own position; no surface (infinite depth) is no region."""
+    from spotlessgs.io.cameras import Intrinsics
+    from spotlessgs.io.transforms import LightTruth
+    module = load_script("relit_error_by_material")
+    intrinsics = Intrinsics(fx=10.0, fy=10.0, cx=10.5, cy=10.5, width=21, height=21)  # pixel i sees x/z = (i - 10) / 10
+    depth = np.full((21, 21), 2.0)
+    depth[0, 0] = np.inf
+    at_camera = LightTruth(position_in_camera=np.zeros(3), rotation_in_camera=np.eye(3), cone_angle_deg=91.0,
+                           blend=0.1, power_w=1.0)
+    labels = module.cone_labels(depth, intrinsics, at_camera)
+    offsets = np.hypot(*np.mgrid[-10:11, -10:11]) / 10.0  # tan of the angle off the axis
+    expected = np.where(offsets < math.tan(math.radians(45.5)), 0, 1)
+    expected[0, 0] = -1
+    assert (labels == expected).all()
+    # the lamp 1 m to the right, along +z with a 20° cone: only what lies near x = 1 m is inside (at depth 2, column 15)
+    beside = LightTruth(position_in_camera=np.array([1.0, 0.0, 0.0]), rotation_in_camera=np.eye(3),
+                        cone_angle_deg=20.0, blend=0.1, power_w=1.0)
+    labels = module.cone_labels(depth, intrinsics, beside)
+    inside = np.argwhere(labels == 0)
+    assert labels[10, 15] == 0 and labels[10, 10] == 1
+    assert np.abs(inside - [10, 15]).max() <= 2
 
 
 def test_depth_map_normals_of_a_tilted_plane_and_angles_of_either_sign():
