@@ -24,16 +24,11 @@ import numpy as np
 
 from spotlessgs.io.dataset import read_dataset
 from spotlessgs.io.exr import read_frame_exr
+from spotlessgs.io.lens import camera_points
 from spotlessgs.models.light_observability import edge_parallax, shading_sensitivity
 
 #: Pixels within this angle of the lamp's axis count for the shading cue (inside the cone's flat part).
 AXIS_ANGLE_DEG = 12.0
-
-
-def _camera_points(depth: np.ndarray, fx: float, fy: float, cx: float, cy: float) -> np.ndarray:
-    """(H, W, 3) OpenCV camera-frame points of a planar depth map (H, W) (pixel centres at +0.5)."""
-    v, u = np.mgrid[: depth.shape[0], : depth.shape[1]] + 0.5
-    return np.stack([(u - cx) / fx * depth, (v - cy) / fy * depth, depth], axis=-1)
 
 
 def main() -> None:
@@ -52,7 +47,7 @@ def main() -> None:
         frame = read_frame_exr(dataset.exr_paths[index])
         camera = dataset.cameras[index]
         parallax.append(edge_parallax(frame.depth, camera.fx))
-        points = _camera_points(frame.depth, camera.fx, camera.fy, camera.cx, camera.cy)
+        points = camera_points(camera, frame.depth)
         # world normals -> OpenCV camera frame: n_c = R_cw^T n_w, R_cw = R_gl diag(1, -1, -1)
         rotation = dataset.c2w_opencv[index][:3, :3]
         normals = frame.normal @ rotation

@@ -17,7 +17,7 @@ docs/results.md ("The glossy room's metals") came from this command.
 and the rest (walls and the sides of objects), and prints per folder each part's share of the pixels and of the
 squared error, its mean squared error, and the mean aligned prediction over the ground truth's mean there (sRGB)
 (docs/results.md, "A bounce light from the model's geometry"). ``--by cone`` splits them by where the dataset's true
-lamp puts the surface the pixel sees (the EXR's planar depth, a pinhole camera): inside its cone (angle off its axis
+lamp puts the surface the pixel sees (the EXR's planar depth, through the camera's lens): inside its cone (angle off its axis
 below half the cone angle) or outside it, where the spotlit input holds only the lamp's bounce light; pixels that see
 no surface are left out (docs/results.md, "Where the glossy room's SpotlessGS loses against DarkGS").
 """
@@ -36,6 +36,7 @@ from spotlessgs.io.cameras import Intrinsics
 from spotlessgs.io.dataset import ground_truth_paths, read_dataset
 from spotlessgs.io.exr import read_frame_exr
 from spotlessgs.io.images import read_image
+from spotlessgs.io.lens import camera_points
 from spotlessgs.io.transforms import LightTruth
 
 #: Diffuse colour below this (the mean over channels, linear) and uniform ground truth above METAL_MIN_GT (sRGB): metal.
@@ -57,12 +58,9 @@ def surface_labels(normals: np.ndarray) -> np.ndarray:
 
 def cone_labels(depth: np.ndarray, intrinsics: Intrinsics, light: LightTruth) -> np.ndarray:
     """(H, W) int: 0 where the surface seen at a pixel lies inside the ``light``'s cone, 1 outside it, -1 where the
-    planar ``depth`` (H, W) is not finite (no surface). Pinhole back-projection with ``intrinsics``."""
-    rows, cols = np.mgrid[:depth.shape[0], :depth.shape[1]]
+    planar ``depth`` (H, W) is not finite (no surface). Back-projected through the lens of ``intrinsics``."""
     finite = np.isfinite(depth)
-    z = np.where(finite, depth, 1.0)
-    points = np.stack([(cols + 0.5 - intrinsics.cx) / intrinsics.fx * z,
-                       (rows + 0.5 - intrinsics.cy) / intrinsics.fy * z, z], axis=-1)  # camera frame (OpenCV)
+    points = camera_points(intrinsics, np.where(finite, depth, 1.0))  # (H, W, 3), camera frame (OpenCV)
     to_surface = points - light.position_in_camera
     axis = light.rotation_in_camera[:, 2]
     cosine = (to_surface @ axis) / np.linalg.norm(to_surface, axis=-1)
@@ -98,8 +96,8 @@ def main() -> None:
     dataset = read_dataset(args.data)
     uniform = ground_truth_paths(dataset, "uniform")
     views = list(dataset.split.test)
-    if args.by == "cone" and (dataset.light is None or not dataset.intrinsics.is_pinhole):
-        raise SystemExit(f"{dataset.source}: --by cone needs the true lamp and a pinhole camera")
+    if args.by == "cone" and dataset.light is None:
+        raise SystemExit(f"{dataset.source}: --by cone needs the true lamp (a spotless-sim render)")
     gts, metal, regions = [], [], []
     for index in views:
         if uniform[index] is None or dataset.exr_paths[index] is None:
@@ -111,7 +109,7 @@ def main() -> None:
             raise SystemExit(f"{dataset.exr_paths[index]}: no diffuse colour or normal pass (rendered before "
                              "2026-11-24)")
         metal.append((frame.albedo.mean(-1) < METAL_MAX_DIFFUSE) & (gt.mean(-1) > METAL_MIN_GT))
-        regions.append(cone_labels(frame.depth, dataset.intrinsics, dataset.light) if args.by == "cone"
+        regions.append(cone_labels(frame.depth, dataset.cameras[index], dataset.light) if args.by == "cone"
                        else surface_labels(frame.normal))
     gt_all = torch.from_numpy(np.stack(gts)).double()
     metal_all = np.stack(metal)
