@@ -335,21 +335,30 @@ def test_recorded_model_settings_complete_an_older_record_from_the_saved_config(
     saved = TrainConfig(rid_model="mlp")  # as the versions that wrote records without the profile saved it
     where = Path("run/checkpoints/last.safetensors")
     full = {"lamp_bounce": True, "brdf_upper_clamp": False, "spot_shadows": True, "rid_model": "monotone",
-            "low_frequency_shading": "irradiance"}
+            "low_frequency_shading": "irradiance", "bounce_light_degree": -1}
     assert recorded_model_settings({"model_settings": full, "appearance": {}}, saved, where) == full
+    # a record written before the camera-frame bounce left the trusted start: the degree its saved config holds
+    of_2026_12_06 = {"model_settings": {k: v for k, v in full.items() if k != "bounce_light_degree"}}
+    assert saved.bounce_light_degree == 2
+    assert recorded_model_settings(of_2026_12_06, saved, where) == {**full, "bounce_light_degree": 2}
     of_2026_11_27 = {"model_settings": {"lamp_bounce": True, "brdf_upper_clamp": False}, "appearance": {}}
     assert recorded_model_settings(of_2026_11_27, saved, where) == {**full, "spot_shadows": False, "rid_model": "mlp",
-                                                                    "low_frequency_shading": "spot_cosine"}
+                                                                    "low_frequency_shading": "spot_cosine",
+                                                                    "bounce_light_degree": 2}
     unrecorded = {"appearance": {"lamp_bounce.log_gain": 0.0}}
     assert recorded_model_settings(unrecorded, saved.replace(rid_model="monotone"), where) == {
         "lamp_bounce": True, "brdf_upper_clamp": True, "spot_shadows": False, "rid_model": "monotone",
-        "low_frequency_shading": "spot_cosine"}
+        "low_frequency_shading": "spot_cosine", "bounce_light_degree": 2}
     assert recorded_model_settings({"appearance": {}}, saved, where)["lamp_bounce"] is False
     with pytest.raises(InputError, match=r"last.safetensors: model_settings must give rid_model as one of "
                                          r"\"mlp\", \"monotone\", got 'cubic'"):
         recorded_model_settings({"model_settings": {**full, "rid_model": "cubic"}}, saved, where)
     with pytest.raises(InputError, match="spot_shadows as one of true, false, got 1"):
         recorded_model_settings({"model_settings": {**full, "spot_shadows": 1}}, saved, where)
+    with pytest.raises(InputError, match=r"bounce_light_degree as one of -1, 0, 1, 2, 3, got 4"):
+        recorded_model_settings({"model_settings": {**full, "bounce_light_degree": 4}}, saved, where)
+    with pytest.raises(InputError, match=r"bounce_light_degree as one of -1, 0, 1, 2, 3, got 2.0"):
+        recorded_model_settings({"model_settings": {**full, "bounce_light_degree": 2.0}}, saved, where)
     with pytest.raises(InputError, match="model_settings must be a table"):
         recorded_model_settings({"model_settings": ["lamp_bounce"]}, saved, where)
 
@@ -403,8 +412,9 @@ def test_a_run_begun_with_the_mlp_profile_resumes_with_it_under_auto(tmp_path_fa
 @pytest.mark.blender
 def test_a_trusted_run_begun_by_the_previous_version_resumes_with_its_own_lamp_model(bedroom, tmp_path):
     """A run that the previous version began on a trusted start (its record: the bounce and the clamp; its lamp: the
-    MLP profile, the paper's shading of the room light) resumes with this version, whose trust adds the monotone
-    profile and the irradiance shading: the model keeps the structure and shading its checkpoint records."""
+    MLP profile, the paper's shading of the room light, the camera-frame bounce SH) resumes with this version, whose
+    trust adds the monotone profile and the irradiance shading and drops the camera-frame light: the model keeps the
+    structure and shading its checkpoint records, and its saved config the rest."""
     from spotlessgs.models.angular_profile import MonotoneProfile
     from spotlessgs.training.checkpoint import load_checkpoint, save_checkpoint
     from spotlessgs.training.trainer import load_run, train
@@ -425,9 +435,11 @@ def test_a_trusted_run_begun_by_the_previous_version_resumes_with_its_own_lamp_m
     assert result.steps == 30
     assert load_checkpoint(tmp_path / "run")["model_settings"] == {"lamp_bounce": True, "brdf_upper_clamp": False,
                                                                    "spot_shadows": False, "rid_model": "mlp",
-                                                                   "low_frequency_shading": "spot_cosine"}
+                                                                   "low_frequency_shading": "spot_cosine",
+                                                                   "bounce_light_degree": 2}
     scene, _views, config, _info = load_run(tmp_path / "run")
     assert not isinstance(scene.appearance.light.rid, MonotoneProfile)
+    assert scene.appearance.bounce_light.degree == config.bounce_light_degree == 2  # its camera-frame light kept
     assert config.low_frequency_shading == scene.config.low_frequency_shading == "spot_cosine"
     assert scene.appearance.lamp_bounce is not None and config.lr_normals == 0.0
 
@@ -996,9 +1008,9 @@ def test_the_start_point_cloud_is_read_once_at_start_up(bedroom, monkeypatch):
 
 def test_a_trusted_dense_start_keeps_its_normals_and_trains_the_bounce(bedroom, tmp_path):
     """trust_start_geometry=auto on the simulator's dense cloud: the normals stay the start's, the bounce's gain
-    learns, the BRDF is unclamped, the lamp's profile is monotone, the room light is shaded as relit, and the run loads
-    as it trained (its checkpoint records the model's settings), also after its dataset's cloud changed, and from a
-    checkpoint that predates the record."""
+    learns and the camera-frame bounce SH is left out (a Lambertian model keeps it), the BRDF is unclamped, the lamp's
+    profile is monotone, the room light is shaded as relit, and the run loads as it trained (its checkpoint records
+    the model's settings), also after its dataset's cloud changed, and from a checkpoint that predates the record."""
     from spotlessgs.io.errors import InputError
     from spotlessgs.io.ply import read_point_cloud, write_point_cloud
     from spotlessgs.models.angular_profile import MonotoneProfile
@@ -1009,10 +1021,13 @@ def test_a_trusted_dense_start_keeps_its_normals_and_trains_the_bounce(bedroom, 
     cfg = _tiny(iterations=30, image_width=40, densify_from=1000, checkpoint_every=30, trust_start_geometry="auto")
     train(bedroom, tmp_path / "run", "spotless", cfg, seed=3, progress=False)
     train(bedroom, tmp_path / "lambert", "darkgs+sh", cfg, seed=3, progress=False)  # Lambertian: not trusted
-    assert "lamp_bounce.log_gain" not in load_checkpoint(tmp_path / "lambert")["appearance"]
+    lambert = load_checkpoint(tmp_path / "lambert")["appearance"]
+    assert "lamp_bounce.log_gain" not in lambert and "bounce_light.coeffs" in lambert  # its camera-frame bounce kept
     saved = load_checkpoint(tmp_path / "run")
     assert saved["model_settings"] == {"lamp_bounce": True, "brdf_upper_clamp": False, "spot_shadows": False,
-                                       "rid_model": "monotone", "low_frequency_shading": "irradiance"}
+                                       "rid_model": "monotone", "low_frequency_shading": "irradiance",
+                                       "bounce_light_degree": -1}
+    assert not any(name.startswith("bounce_light.") for name in saved["appearance"])  # the geometric bounce alone
     views = load_training_views(bedroom, cfg.image_width)
     start = build_scene(views, "spotless", start_geometry_settings(cfg, views, "spotless"), 3)
     torch.testing.assert_close(saved["gaussians"]["normals_raw"], start.gaussians.params["normals_raw"], rtol=0, atol=0)
@@ -1021,6 +1036,7 @@ def test_a_trusted_dense_start_keeps_its_normals_and_trains_the_bounce(bedroom, 
     scene, _views, config, _info = load_run(tmp_path / "run")
     assert scene.appearance.lamp_bounce is not None and config.lr_normals == 0.0
     assert scene.appearance.brdf.upper_clamp is False and config.brdf_upper_clamp is False
+    assert scene.appearance.bounce_light is None and config.bounce_light_degree == -1
     assert float(scene.appearance.lamp_bounce.log_gain.detach()) == float(saved["appearance"]["lamp_bounce.log_gain"])
     # the dataset moved and its point cloud became a sparse one: the run still loads as it trained
     moved = tmp_path / "moved"

@@ -80,8 +80,9 @@ log = logging.getLogger(__name__)
 SELECTION_FILE = "model_selection.json"
 #: 6 since 66edae3: a trusted start's proxies have the monotone profile and the irradiance shading
 #: (trainer.TRUSTED_START_LIGHT). 7 since 2026-12-07: SpotlessGS-type proxies (an MLP BRDF) train the depth-spread
-#: term on every dataset.
-SELECTION_VERSION = 7
+#: term on every dataset. 8 since 2026-12-07: a trusted start's SpotlessGS-type proxies and chosen model have no
+#: camera-frame bounce SH (trainer.TRUSTED_START_SETTINGS).
+SELECTION_VERSION = 8
 BRDFS = ("lambert", "mlp")
 
 

@@ -34,6 +34,7 @@ from spotlessgs.metrics import psnr_from_mse
 from spotlessgs.models.angular_profile import MonotoneProfile
 from spotlessgs.models.gaussians import GaussianParams
 from spotlessgs.models.light import RID_MODELS
+from spotlessgs.models.sh import MAX_SH_DEGREE
 from spotlessgs.models.photometric import PhotometricCamera
 from spotlessgs.models.pose import PoseCorrection, corrected_camera
 from spotlessgs.models.relightable import RelightableScene
@@ -141,15 +142,18 @@ TRUSTED_START_LIGHT: dict[str, object] = {"rid_model": "monotone", "low_frequenc
 #: What ``trust_start_geometry`` sets (:func:`start_geometry_settings`): the start's normals held, the lamp's bounce
 #: light from the model's geometry, the learned BRDF without its f̃ ≤ 1 clamp (held normals cannot turn a smooth
 #: metal's glint into the Lambertian shading of a surface that faces the lamp; the clamp flattens the lobe that can),
-#: and :data:`TRUSTED_START_LIGHT`.
+#: no camera-frame bounce SH beside the geometric bounce (it lit the glossy room's grazing side walls outside the
+#: lamp's cone: +0.63 dB against its uniform ground truth, every dense-start dataset within 0.1 dB on the mean of three
+#: seeds; docs/results.md, "Where the glossy room's SpotlessGS loses against DarkGS"), and :data:`TRUSTED_START_LIGHT`.
 TRUSTED_START_SETTINGS: dict[str, object] = {"lr_normals": 0.0, "lamp_bounce": True, "brdf_upper_clamp": False,
-                                             **TRUSTED_START_LIGHT}
+                                             "bounce_light_degree": -1, **TRUSTED_START_LIGHT}
 #: The model settings a checkpoint records, so that a finished run loads as it trained (:func:`load_run`), and the
 #: values each may take.
 RECORDED_MODEL_SETTINGS: dict[str, tuple[object, ...]] = {"lamp_bounce": (True, False),
                                                           "brdf_upper_clamp": (True, False),
                                                           "spot_shadows": (True, False), "rid_model": RID_MODELS,
-                                                          "low_frequency_shading": LOW_FREQUENCY_SHADINGS}
+                                                          "low_frequency_shading": LOW_FREQUENCY_SHADINGS,
+                                                          "bounce_light_degree": (-1, *range(MAX_SH_DEGREE + 1))}
 
 
 def initial_gaussian_limit(config: TrainConfig) -> int:
@@ -190,14 +194,16 @@ def start_is_trusted(config: TrainConfig, cloud: PointCloud | None) -> bool:
 def start_geometry_settings(config: TrainConfig, views: TrainingViews, variant: str | ModelConfig) -> TrainConfig:
     """``config`` for a run of ``variant`` with ``trust_start_geometry`` applied: where the start is trusted
     (:func:`start_is_trusted`), :data:`TRUSTED_START_SETTINGS` (the start's normals held, the lamp's bounce light from
-    the model's geometry on, the learned BRDF unclamped, the monotone profile, the irradiance shading), for a model
+    the model's geometry on and the camera-frame one off, the learned BRDF unclamped, the monotone profile, the
+    irradiance shading), for a model
     with an SH light and a learned BRDF only (:func:`trusts_start_geometry`); elsewhere ``config`` unchanged. Derived
     from the dataset: the same on a resume and when a finished run is loaded."""
     if not trusts_start_geometry(variant) or not start_is_trusted(config, views.start_points):
         return config
     if config.trust_start_geometry == "auto":
-        log.info("%s: a dense start: its normals held, the lamp's bounce light on, the BRDF unclamped, the lamp's "
-                 "profile monotone, the room light shaded as relit (trust_start_geometry=auto)", views.dataset.root)
+        log.info("%s: a dense start: its normals held, the lamp's bounce light from the geometry (no camera-frame "
+                 "SH), the BRDF unclamped, the lamp's profile monotone, the room light shaded as relit "
+                 "(trust_start_geometry=auto)", views.dataset.root)
     return dataclasses.replace(config, **TRUSTED_START_SETTINGS)
 
 
@@ -953,8 +959,9 @@ def load_pose_correction(run_dir: str | Path, num_views: int, device: str | torc
 def recorded_model_settings(ckpt: dict, saved: TrainConfig, where: Path) -> dict[str, object]:
     """The :data:`RECORDED_MODEL_SETTINGS` a checkpoint ``ckpt`` (read from ``where``) trained with. A checkpoint from
     before 2026-11-27 has no record: the bounce as its modules show; one written before 66edae3 (2026-11-28) records
-    the bounce and the clamp only. What it lacks is as the run's saved config ``saved`` set it (trust_start_geometry
-    did not change it then). Raises InputError for a record of the wrong form."""
+    the bounce and the clamp only, and one written before 2026-12-07 no ``bounce_light_degree``. What it lacks is as
+    the run's saved config ``saved`` set it (trust_start_geometry did not change it then). Raises InputError for a
+    record of the wrong form."""
     settings = ckpt.get("model_settings")
     if settings is None:
         settings = {"lamp_bounce": any(name.startswith("lamp_bounce.") for name in ckpt["appearance"])}
