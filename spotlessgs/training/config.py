@@ -142,14 +142,16 @@ class TrainConfig:
     brdf_burley_diffuse: bool = True
     # Degree of the lamp's bounce light, an SH of the camera-frame normal that is part of the SH light and left out of
     # relighting (ModelConfig.bounce_light_degree; -1: none, the paper's). Degree 2 relit the bedroom best (uniform
-    # ground truth: 23.79 / 24.41 / 24.22 dB for degrees 1 / 2 / 3, 23.18 without; docs/results.md).
+    # ground truth: 23.79 / 24.41 / 24.22 dB for degrees 1 / 2 / 3, 23.18 without; docs/results.md). A trusted start
+    # sets -1 (trust_start_geometry below): there the geometric bounce (lamp_bounce) takes its place.
     bounce_light_degree: int = 2
     # The lamp's bounce light computed from the model's own geometry (ModelConfig.lamp_bounce; models.lamp_bounce):
     # one bounce of the spotlit render in screen space, learned through one gain, left out of relighting.
     lamp_bounce: bool = False
     # Trust a dense start's geometry (training.trainer.start_geometry_settings): hold the start's normals (lr_normals
-    # 0), turn the lamp's bounce light from the model's geometry on (lamp_bounce) and take the learned BRDF's clamp
-    # f̃ ≤ 1 off (brdf_upper_clamp). The bounce needs normals that face the way the surfaces do (learned ones lean
+    # 0), turn the lamp's bounce light from the model's geometry on (lamp_bounce) and the camera-frame one off
+    # (bounce_light_degree -1: beside the geometric one it over-lit the glossy room outside the lamp's cone, 0.63 dB
+    # against the uniform ground truth) and take the learned BRDF's clamp f̃ ≤ 1 off (brdf_upper_clamp). The bounce needs normals that face the way the surfaces do (learned ones lean
     # towards the camera's height, and the bounce then costs 1.1-1.35 dB against the uniform ground truth); held
     # normals leave a smooth metal's glint to the BRDF's specular lobe, which the clamp flattens (with the clamp the
     # glossy storage room loses 0.8 dB against the uniform ground truth; unclamped it gains 1.36); and place the lamp
