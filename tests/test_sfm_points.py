@@ -158,8 +158,8 @@ def test_only_a_dense_start_with_normals_is_trusted_with_its_geometry(room, tmp_
     data = tmp_path / "data"
     shutil.copytree(root, data)
     auto = preset("quick").replace(trust_start_geometry="auto")
-    trusted = auto.replace(lr_normals=0.0, lamp_bounce=True, brdf_upper_clamp=False, rid_model="monotone",
-                           low_frequency_shading="irradiance")
+    trusted = auto.replace(lr_normals=0.0, lamp_bounce=True, brdf_upper_clamp=False, bounce_light_degree=-1,
+                           rid_model="monotone", low_frequency_shading="irradiance")
     assert start_geometry_settings(auto, load_training_views(data), "spotless") == auto  # no cloud: a random start
     points = add_sfm_points(data)["points"]
     views = load_training_views(data)
