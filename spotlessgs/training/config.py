@@ -151,8 +151,9 @@ class TrainConfig:
     # Trust a dense start's geometry (training.trainer.start_geometry_settings): hold the start's normals (lr_normals
     # 0), turn the lamp's bounce light from the model's geometry on (lamp_bounce) and the camera-frame one off
     # (bounce_light_degree -1: beside the geometric one it over-lit the glossy room outside the lamp's cone, 0.63 dB
-    # against the uniform ground truth) and take the learned BRDF's clamp f̃ ≤ 1 off (brdf_upper_clamp). The bounce needs normals that face the way the surfaces do (learned ones lean
-    # towards the camera's height, and the bounce then costs 1.1-1.35 dB against the uniform ground truth); held
+    # against the uniform ground truth) and take the learned BRDF's clamp f̃ ≤ 1 off (brdf_upper_clamp). The bounce
+    # needs normals that face the way the surfaces do (learned ones lean towards the camera's height, and the bounce
+    # then costs 1.1-1.35 dB against the uniform ground truth); held
     # normals leave a smooth metal's glint to the BRDF's specular lobe, which the clamp flattens (with the clamp the
     # glossy storage room loses 0.8 dB against the uniform ground truth; unclamped it gains 1.36); and place the lamp
     # with the monotone angular profile and the irradiance shading (rid_model, low_frequency_shading: the bedroom's

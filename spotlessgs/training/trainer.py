@@ -34,10 +34,10 @@ from spotlessgs.metrics import psnr_from_mse
 from spotlessgs.models.angular_profile import MonotoneProfile
 from spotlessgs.models.gaussians import GaussianParams
 from spotlessgs.models.light import RID_MODELS
-from spotlessgs.models.sh import MAX_SH_DEGREE
 from spotlessgs.models.photometric import PhotometricCamera
 from spotlessgs.models.pose import PoseCorrection, corrected_camera
 from spotlessgs.models.relightable import RelightableScene
+from spotlessgs.models.sh import MAX_SH_DEGREE
 from spotlessgs.models.shading import LOW_FREQUENCY_SHADINGS, MODEL_VARIANTS, ModelConfig, resolve_variant
 from spotlessgs.rasterizer.cpp_kernel import numerics_record
 from spotlessgs.training.checkpoint import (
@@ -195,9 +195,9 @@ def start_geometry_settings(config: TrainConfig, views: TrainingViews, variant: 
     """``config`` for a run of ``variant`` with ``trust_start_geometry`` applied: where the start is trusted
     (:func:`start_is_trusted`), :data:`TRUSTED_START_SETTINGS` (the start's normals held, the lamp's bounce light from
     the model's geometry on and the camera-frame one off, the learned BRDF unclamped, the monotone profile, the
-    irradiance shading), for a model
-    with an SH light and a learned BRDF only (:func:`trusts_start_geometry`); elsewhere ``config`` unchanged. Derived
-    from the dataset: the same on a resume and when a finished run is loaded."""
+    irradiance shading), for a model with an SH light and a learned BRDF only (:func:`trusts_start_geometry`);
+    elsewhere ``config`` unchanged. Derived from the dataset: the same on a resume and when a finished run is
+    loaded."""
     if not trusts_start_geometry(variant) or not start_is_trusted(config, views.start_points):
         return config
     if config.trust_start_geometry == "auto":
