@@ -1,7 +1,7 @@
 """How the relighting radiance L0 trades the two ground truths: a run's test views relit at several fixed L0.
 
-    python3 scripts/relight_radiance_sweep.py RUN [RUN ...] [--l0 0.05 0.1 ...] [--plot FILE.png [--labels NAME ...]]
-        [--threads N]
+    python3 scripts/relight_radiance_sweep.py RUN [RUN ...] [--l0 0.05 0.1 ...] [--lamp] [--plot FILE.png
+        [--labels NAME ...]] [--threads N]
 
 A relit view is R·L0 + R·L_lf (docs/method.md §8): the reflectance under an even light L0 plus the learned
 low-frequency (SH, room) light. Exposure alignment removes one overall gain, not the share of the room's light in the
@@ -13,7 +13,10 @@ lamps-on ground truth and, where the dataset has one, its uniform one. Prints a 
 ``spotless relight`` chose for the run (``RUN/relit.json``, when it was relit); ``--plot`` draws the lamps-on score
 against the uniform one, a curve per run (named by ``--labels``, else by its path), L0 written along it. A model
 whose low-frequency light is a constant (DarkGS) relights to the same image at every L0 up to a gain.
-docs/results.md ("The relighting radiance L0 and the residual-light room's targets") quotes it.
+``--lamp`` adds, per run, the L0 that the paper's "replace L_spot by a constant" reads most literally as: the lamp's
+own mean irradiance Ψ Φ max(0, n̂·l̂) on the surfaces the training views see (:func:`lamp_irradiance`), so that the
+relit view holds the lamp's light spread evenly beside the room light as learned.
+docs/results.md ("The relighting radiance L0 and the residual-light room's targets", "A lamp-matched L0") quotes it.
 """
 
 from __future__ import annotations
@@ -23,15 +26,50 @@ import math
 import tempfile
 from pathlib import Path
 
+import numpy as np
+import torch
+
 from evaluation.runner import score_test_views
 from spotlessgs.io.dataset import available_ground_truths, read_dataset
 from spotlessgs.io.errors import FolderLockedError, InputError
 from spotlessgs.io.json_files import read_json
+from spotlessgs.models.shading import lambert_cosine, shading_normals, view_directions
+from spotlessgs.rasterizer import rasterize
 from spotlessgs.run import Run
+from spotlessgs.training.trainer import load_run
 
 #: The L0 values of the sweep by default (white, linear; ``spotless relight`` chose 0.72–0.88 on the
 #: residual-light room).
 DEFAULT_L0 = (0.05, 0.1, 0.2, 0.3, 0.4, 0.6, 0.8, 1.2)
+#: Training views (evenly along the sequence) over which :func:`lamp_irradiance` averages.
+LAMP_VIEWS = 16
+
+
+@torch.no_grad()
+def lamp_irradiance(scene, views, config, count: int = LAMP_VIEWS) -> float:
+    """The lamp's mean irradiance on what the training views see: per Gaussian E = s Ψ Φ max(0, n̂·l̂) (the learned
+    spotlight's radiance at it times the cosine at its shading normal, as training shades it; no shadows), composited
+    into ``count`` training views (evenly along the sequence) and averaged over their pixels weighted by coverage, so
+    that holes in the model do not count. On the L0 axis of :func:`sweep` (the low-frequency light at its learned
+    scale). ``scene``, ``views``, ``config``: :func:`~spotlessgs.training.trainer.load_run`'s."""
+    g, light = scene.gaussians, scene.appearance.light
+    if light is None:
+        raise ValueError("the model has no spotlight (3DGS): there is no lamp to match")
+    train = list(views.train)
+    sample = [train[i] for i in np.linspace(0, len(train) - 1, min(count, len(train))).astype(int)]
+    irradiance, coverage = 0.0, 0.0
+    for k in sample:
+        camera = views.cameras[k]
+        center = camera.c2w[:3, 3]
+        normals = shading_normals(scene.config, g, view_directions(g.means, center), center)
+        spot, to_light = light.incident(g.means, camera.c2w)
+        e = spot * lambert_cosine(normals, to_light)
+        image = rasterize(g.means, g.quats, g.scales, g.opacities, torch.cat([e, torch.ones_like(e), e], dim=1),
+                          camera.viewmat, camera.K, camera.width, camera.height, backend=config.raster_backend,
+                          num_threads=config.num_threads).image
+        irradiance += float(image[..., 0].sum())
+        coverage += float(image[..., 1].sum())
+    return irradiance / coverage
 
 
 def sweep(run_dir: str | Path, l0_values: list[float], work: Path, threads: int = 1) -> list[dict]:
@@ -106,6 +144,8 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("runs", nargs="+", help="trained run folders")
     parser.add_argument("--l0", type=float, nargs="+", default=list(DEFAULT_L0), help="white L0 values (linear)")
+    parser.add_argument("--lamp", action="store_true",
+                        help="also relight each run at its lamp's mean irradiance (lamp_irradiance) as L0")
     parser.add_argument("--plot", type=Path, help="write the trade-off figure here (PNG)")
     parser.add_argument("--labels", nargs="+", help="the runs' names in the figure, one per run (default: folders)")
     parser.add_argument("--threads", type=int, default=1, help="threads for scoring")
@@ -122,11 +162,17 @@ def main() -> None:
         with tempfile.TemporaryDirectory() as tmp:
             try:
                 chosen = chosen_l0(run_dir)
-                rows = sweep(run_dir, args.l0, Path(tmp), args.threads)
+                lamp = lamp_irradiance(*load_run(run_dir, device="cpu")[:3]) if args.lamp else None
+                levels = sorted({*args.l0, *([lamp] if lamp is not None else [])})
+                rows = sweep(run_dir, levels, Path(tmp), args.threads)
             except (FileNotFoundError, InputError, FolderLockedError) as err:  # not a run, a damaged one, its
                 raise SystemExit(f"error: {err}") from None                     # dataset moved, or in use
+            except ValueError as err:  # --lamp on a model without a spotlight
+                raise SystemExit(f"error: {run_dir}: {err}") from None
         curves[label] = rows
         print(f"{run_dir}: spotless relight chose L0 = {chosen:.3f}" if chosen is not None else f"{run_dir}:")
+        if lamp is not None:
+            print(f"  the lamp's mean irradiance on what the training views see: L0 = {lamp:.3f}")
         for r in rows:
             uniform = f"{r['uniform']:.2f}" if r["uniform"] is not None else "-"
             print(f"  L0 {r['l0']:<5g} lamps-on {r['lamps']:.2f} dB  uniform {uniform} dB")

@@ -362,3 +362,59 @@ def test_relight_radiance_sweep_relights_at_each_l0_and_scores_both_ground_truth
     with pytest.raises(SystemExit) as stopped:  # two curves of one name
         module.main()
     assert stopped.value.code == 2
+
+
+def test_relight_radiance_sweep_lamp_irradiance_is_what_training_shades_a_white_surface_with(tmp_path_factory,
+                                                                                           monkeypatch, capsys):
+    """--lamp's L0 (lamp_irradiance) on a tiny DarkGS run: with every albedo white, the coverage-weighted mean of the
+    spotlight half of training's own shading (shade(..., split_lights=True): f̃ · cos · L_spot, f̃ = 1) over the same
+    views; it doubles with the lamp's radiance; the script relights the run at it beside the given L0 and says so;
+    a 3DGS run (no lamp) stops it with one line naming the run."""
+    import numpy as np
+    import torch
+
+    from conftest import synthetic_box_dataset
+    from spotlessgs.models.shading import shade
+    from spotlessgs.rasterizer import rasterize
+    from spotlessgs.training.config import preset
+    from spotlessgs.training.trainer import load_run, train
+
+    module = load_script("relight_radiance_sweep")
+    data = synthetic_box_dataset(tmp_path_factory, "lamp-l0-data", seed=4)
+    root = data.parent
+    config = preset("tiny", iterations=30, image_width=40, num_threads=1, densify_from=1000, log_every=10,
+                    checkpoint_every=1000, init_points=200, max_gaussians=300)
+    for model in ("darkgs", "3dgs"):
+        train(data, root / model, model, config, seed=0, progress=False)
+    scene, views, run_config, _ = load_run(root / "darkgs", device="cpu")
+    lamp = module.lamp_irradiance(scene, views, run_config, count=3)
+    assert np.isfinite(lamp) and lamp > 0
+
+    g, app = scene.gaussians, scene.appearance
+    with torch.no_grad():
+        g.params["albedo_raw"].fill_(40.0)  # sigmoid: 1 in float32
+        train_views = list(views.train)
+        weighted, coverage = 0.0, 0.0
+        for k in [train_views[i] for i in np.linspace(0, len(train_views) - 1, 3).astype(int)]:
+            camera = views.cameras[k]
+            spot_half = shade(scene.config, g, app.light, app.lf_light, app.brdf, camera.c2w, split_lights=True)[:, :3]
+            alpha = torch.ones_like(spot_half)
+            lit = rasterize(g.means, g.quats, g.scales, g.opacities, spot_half, camera.viewmat, camera.K,
+                            camera.width, camera.height).image
+            cover = rasterize(g.means, g.quats, g.scales, g.opacities, alpha, camera.viewmat, camera.K,
+                              camera.width, camera.height).image
+            weighted += float(lit[..., 0].sum())  # white: every channel alike
+            coverage += float(cover[..., 0].sum())
+        assert lamp == pytest.approx(weighted / coverage, rel=1e-5)
+        app.light.radiance_scale.mul_(2.0)
+        assert module.lamp_irradiance(scene, views, run_config, count=3) == pytest.approx(2 * lamp, rel=1e-5)
+
+    monkeypatch.setattr("sys.argv", ["relight_radiance_sweep.py", str(root / "darkgs"), "--l0", "0.5", "--lamp"])
+    module.main()
+    printed = capsys.readouterr().out
+    at = module.lamp_irradiance(*load_run(root / "darkgs", device="cpu")[:3])
+    assert f"the lamp's mean irradiance on what the training views see: L0 = {at:.3f}" in printed
+    assert f"L0 {at:<5g} lamps-on" in printed and "L0 0.5   lamps-on" in printed
+    monkeypatch.setattr("sys.argv", ["relight_radiance_sweep.py", str(root / "3dgs"), "--lamp"])
+    with pytest.raises(SystemExit, match=r"^error: .*3dgs: the model has no spotlight"):
+        module.main()
