@@ -13,9 +13,10 @@ lamps-on ground truth and, where the dataset has one, its uniform one. Prints a 
 ``spotless relight`` chose for the run (``RUN/relit.json``, when it was relit); ``--plot`` draws the lamps-on score
 against the uniform one, a curve per run (named by ``--labels``, else by its path), L0 written along it. A model
 whose low-frequency light is a constant (DarkGS) relights to the same image at every L0 up to a gain.
-``--lamp`` adds, per run, the L0 that the paper's "replace L_spot by a constant" reads most literally as: the lamp's
-own mean irradiance Ψ Φ max(0, n̂·l̂) on the surfaces the training views see (:func:`lamp_irradiance`), so that the
-relit view holds the lamp's light spread evenly beside the room light as learned.
+``--lamp`` adds, per run, the relighting of ``spotless relight --lamp-l0``: L0 as the paper's "replace L_spot by a
+constant" reads most literally, the lamp's own mean irradiance Ψ Φ max(0, n̂·l̂) on the surfaces the training views see
+(:func:`spotlessgs.rendering.lamp_irradiance`), beside the room light as learned, the view then scaled as a whole for
+exposure as the automatic L0 is (so that its clipping matches).
 docs/results.md ("The relighting radiance L0 and the residual-light room's targets", "A lamp-matched L0") quotes it.
 """
 
@@ -26,55 +27,22 @@ import math
 import tempfile
 from pathlib import Path
 
-import numpy as np
-import torch
-
 from evaluation.runner import score_test_views
 from spotlessgs.io.dataset import available_ground_truths, read_dataset
 from spotlessgs.io.errors import FolderLockedError, InputError
 from spotlessgs.io.json_files import read_json
-from spotlessgs.models.shading import lambert_cosine, shading_normals, view_directions
-from spotlessgs.rasterizer import rasterize
 from spotlessgs.run import Run
-from spotlessgs.training.trainer import load_run
 
 #: The L0 values of the sweep by default (white, linear; ``spotless relight`` chose 0.72–0.88 on the
 #: residual-light room).
 DEFAULT_L0 = (0.05, 0.1, 0.2, 0.3, 0.4, 0.6, 0.8, 1.2)
-#: Training views (evenly along the sequence) over which :func:`lamp_irradiance` averages.
-LAMP_VIEWS = 16
 
 
-@torch.no_grad()
-def lamp_irradiance(scene, views, config, count: int = LAMP_VIEWS) -> float:
-    """The lamp's mean irradiance on what the training views see: per Gaussian E = s Ψ Φ max(0, n̂·l̂) (the learned
-    spotlight's radiance at it times the cosine at its shading normal, as training shades it; no shadows), composited
-    into ``count`` training views (evenly along the sequence) and averaged over their pixels weighted by coverage, so
-    that holes in the model do not count. On the L0 axis of :func:`sweep` (the low-frequency light at its learned
-    scale). ``scene``, ``views``, ``config``: :func:`~spotlessgs.training.trainer.load_run`'s."""
-    g, light = scene.gaussians, scene.appearance.light
-    if light is None:
-        raise ValueError("the model has no spotlight (3DGS): there is no lamp to match")
-    train = list(views.train)
-    sample = [train[i] for i in np.linspace(0, len(train) - 1, min(count, len(train))).astype(int)]
-    irradiance, coverage = 0.0, 0.0
-    for k in sample:
-        camera = views.cameras[k]
-        center = camera.c2w[:3, 3]
-        normals = shading_normals(scene.config, g, view_directions(g.means, center), center)
-        spot, to_light = light.incident(g.means, camera.c2w)
-        e = spot * lambert_cosine(normals, to_light)
-        image = rasterize(g.means, g.quats, g.scales, g.opacities, torch.cat([e, torch.ones_like(e), e], dim=1),
-                          camera.viewmat, camera.K, camera.width, camera.height, backend=config.raster_backend,
-                          num_threads=config.num_threads).image
-        irradiance += float(image[..., 0].sum())
-        coverage += float(image[..., 1].sum())
-    return irradiance / coverage
-
-
-def sweep(run_dir: str | Path, l0_values: list[float], work: Path, threads: int = 1) -> list[dict]:
+def sweep(run_dir: str | Path, l0_values: list[float], work: Path, threads: int = 1, lamp: bool = False) -> list[dict]:
     """Rows ``{"l0", "lamps", "uniform"}`` (aligned PSNR, dB; ``uniform`` None without that ground truth) of the run's
-    test views relit at each L0, the relit views kept under ``work`` (``work/l0-<L0>``).
+    test views relit at each L0, the relit views kept under ``work`` (``work/l0-<L0>``); with ``lamp`` last a row
+    relit as ``spotless relight --lamp-l0`` does (``work/l0-lamp``), its ``l0`` "lamp", with ``lamp_irradiance`` and
+    the view's ``gain`` (None for a model without a spotlight, which relights as at any L0).
 
     Raises:
         InputError: the run's dataset has no lamps-on ground truth (names it), or is damaged or gone.
@@ -85,11 +53,14 @@ def sweep(run_dir: str | Path, l0_values: list[float], work: Path, threads: int 
     if "lamps" not in truths:
         raise InputError(f"{data}: the dataset has no ground truth to score against")
     rows = []
-    for level in l0_values:
-        out = work / f"l0-{level:g}"
-        lamps = run.score_views(out, "test", threads, l0=[level] * 3, device="cpu")["psnr_aligned"]
+    for level in [*l0_values, *(["lamp"] if lamp else [])]:
+        out = work / f"l0-{level:g}" if level != "lamp" else work / "l0-lamp"
+        scores = run.score_views(out, "test", threads, l0=[level] * 3 if level != "lamp" else level, device="cpu")
         uniform = score_test_views(data, out, threads, "uniform")["psnr_aligned"] if "uniform" in truths else None
-        rows.append({"l0": level, "lamps": lamps, "uniform": uniform})
+        rows.append({"l0": level, "lamps": scores["psnr_aligned"], "uniform": uniform})
+        if level == "lamp":
+            rows[-1].update(lamp_irradiance=scores["relight"].get("lamp_irradiance"),
+                            gain=scores["relight"].get("low_frequency_gain"))
     return rows
 
 
@@ -123,7 +94,12 @@ def plot(curves: dict[str, list[dict]], path: Path) -> None:
     fig, ax = plt.subplots(figsize=(6.4, 4.8))
     for name, rows in curves.items():
         rows = [r for r in rows if r["uniform"] is not None]
-        ax.plot([r["uniform"] for r in rows], [r["lamps"] for r in rows], marker="o", label=name)
+        lamp = [r for r in rows if r["l0"] == "lamp"]
+        rows = [r for r in rows if r["l0"] != "lamp"]
+        line = ax.plot([r["uniform"] for r in rows], [r["lamps"] for r in rows], marker="o", label=name)[0]
+        for r in lamp:  # --lamp-l0's relighting: a star in the curve's colour
+            ax.plot([r["uniform"]], [r["lamps"]], marker="*", markersize=12, color=line.get_color())
+            ax.annotate("lamp", (r["uniform"], r["lamps"]), fontsize=7, xytext=(3, -9), textcoords="offset points")
         last = None
         for r in rows:  # points within 0.05 dB of the last one written (a constant ambient's) are left unwritten
             if last is None or max(abs(r["uniform"] - last[0]), abs(r["lamps"] - last[1])) > 0.05:
@@ -145,7 +121,8 @@ def main() -> None:
     parser.add_argument("runs", nargs="+", help="trained run folders")
     parser.add_argument("--l0", type=float, nargs="+", default=list(DEFAULT_L0), help="white L0 values (linear)")
     parser.add_argument("--lamp", action="store_true",
-                        help="also relight each run at its lamp's mean irradiance (lamp_irradiance) as L0")
+                        help="also relight each run as `spotless relight --lamp-l0` does (L0: the lamp's mean "
+                             "irradiance)")
     parser.add_argument("--plot", type=Path, help="write the trade-off figure here (PNG)")
     parser.add_argument("--labels", nargs="+", help="the runs' names in the figure, one per run (default: folders)")
     parser.add_argument("--threads", type=int, default=1, help="threads for scoring")
@@ -162,20 +139,20 @@ def main() -> None:
         with tempfile.TemporaryDirectory() as tmp:
             try:
                 chosen = chosen_l0(run_dir)
-                lamp = lamp_irradiance(*load_run(run_dir, device="cpu")[:3]) if args.lamp else None
-                levels = sorted({*args.l0, *([lamp] if lamp is not None else [])})
-                rows = sweep(run_dir, levels, Path(tmp), args.threads)
+                rows = sweep(run_dir, args.l0, Path(tmp), args.threads, lamp=args.lamp)
             except (FileNotFoundError, InputError, FolderLockedError) as err:  # not a run, a damaged one, its
                 raise SystemExit(f"error: {err}") from None                     # dataset moved, or in use
-            except ValueError as err:  # --lamp on a model without a spotlight
-                raise SystemExit(f"error: {run_dir}: {err}") from None
         curves[label] = rows
         print(f"{run_dir}: spotless relight chose L0 = {chosen:.3f}" if chosen is not None else f"{run_dir}:")
-        if lamp is not None:
-            print(f"  the lamp's mean irradiance on what the training views see: L0 = {lamp:.3f}")
         for r in rows:
             uniform = f"{r['uniform']:.2f}" if r["uniform"] is not None else "-"
-            print(f"  L0 {r['l0']:<5g} lamps-on {r['lamps']:.2f} dB  uniform {uniform} dB")
+            if r["l0"] != "lamp":
+                print(f"  L0 {r['l0']:<5g} lamps-on {r['lamps']:.2f} dB  uniform {uniform} dB")
+            elif r["lamp_irradiance"] is None:
+                print(f"  --lamp-l0 (no lamp)  lamps-on {r['lamps']:.2f} dB  uniform {uniform} dB")
+            else:
+                print(f"  --lamp-l0 (L0 {r['lamp_irradiance']:.3f}, the view x {r['gain']:.2f})  lamps-on "
+                      f"{r['lamps']:.2f} dB  uniform {uniform} dB")
     if args.plot:
         plot(curves, args.plot)
         print(f"wrote {args.plot}")

@@ -113,6 +113,10 @@ def train(data_dir, run_dir, model, preset, iterations, image_width, seed, resum
 @click.option("--l0", nargs=3, type=click.FloatRange(0), default=None, metavar="R G B",
               help="Constant linear RGB radiance that replaces the spotlight. Default: automatic (white, scaled so "
                    "that about 1% of relit pixels reach 1; the value used is reported).")
+@click.option("--lamp-l0", is_flag=True,
+              help="L0 = the learned lamp's own mean irradiance on what the training views see: the lamp's light "
+                   "spread evenly, beside the room light as learned (for rooms with light of their own); the relit "
+                   "view is then scaled as a whole so that about 1% of its pixels reach 1.")
 @click.option("--views", "which", default="all", show_default=True, type=click.Choice(["test", "train", "all"]))
 @click.option("--out", "out_dir", type=click.Path(file_okay=False, path_type=Path), default=None,
               help="Output folder (default RUN/relit).")
@@ -123,13 +127,16 @@ def train(data_dir, run_dir, model, preset, iterations, image_width, seed, resum
 @click.option("--no-low-frequency", is_flag=True,
               help="Leave the learned low-frequency (SH / ambient) light out: the image is reflectance x L0 alone.")
 @click.option("-q", "--quiet", is_flag=True)
-def relight(run_dir, l0, which, out_dir, exr, data_dir, device, no_low_frequency, quiet):
+def relight(run_dir, l0, lamp_l0, which, out_dir, exr, data_dir, device, no_low_frequency, quiet):
     """Relight a trained run under even light (paper eq. 8) and write PNGs named like the dataset's images.
 
     The output folder is replaced as a whole and gets a manifest (.manifest.json) that `spotless eval` checks."""
     from spotlessgs.rendering import render_run
 
-    click.echo(json.dumps(render_run(run_dir, "relit", which, out_dir, l0=l0 or "auto", exr=exr, progress=not quiet,
+    if lamp_l0 and l0:
+        raise click.UsageError("give --l0 or --lamp-l0, not both")
+    rule = "lamp" if lamp_l0 else "auto"
+    click.echo(json.dumps(render_run(run_dir, "relit", which, out_dir, l0=l0 or rule, exr=exr, progress=not quiet,
                                      device=device, low_frequency=not no_low_frequency, data_dir=data_dir),
                           indent=2))
 

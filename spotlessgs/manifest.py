@@ -20,8 +20,9 @@ The manifest is JSON written atomically (:func:`spotlessgs.io.atomic.write_json`
                       sha256  hash of the checkpoint file's content: a resumed training replaces it, so images of
                               an earlier checkpoint are recognised as stale
     options         what the command was asked and chose: relit/render: mode, views (test/train/all), l0 (the
-                    linear RGB value used, null for 3dgs and spot renders), l0_mode (auto/given), low_frequency, exr,
-                    width, height; eval: the EvalConfig fields
+                    linear RGB value used, null for 3dgs and spot renders), l0_mode (auto/lamp/given),
+                    low_frequency_gain ("lamp" only: the learned low-frequency light's scale in the view), low_frequency,
+                    exr, width, height; eval: the EvalConfig fields
     dataset         the dataset used: path (absolute), path_relative_to_run (or null), num_views (views of the
                     dataset), transforms_sha256 (hash of its transforms.json, null for COLMAP folders)
     frames          the files written, sorted by name: [{"name": "frame_00000.png", "sha256": "..."}, ...] (names

@@ -39,7 +39,7 @@ from spotlessgs.manifest import (
     read_manifest, write_manifest,
 )
 from spotlessgs.models.pose import corrected_cameras
-from spotlessgs.models.shading import shade
+from spotlessgs.models.shading import lambert_cosine, shade, shading_normals, view_directions
 from spotlessgs.rasterizer import rasterize
 from spotlessgs.training.checkpoint import RUN_SCHEMA_VERSION, read_run_info, resolve_data_dir
 from spotlessgs.training.pose_alignment import align_views
@@ -66,8 +66,12 @@ def select_views(views, which: str) -> list[int]:
 AUTO_L0_PERCENTILE = 99.0
 #: ... lands at this linear value (sRGB ~0.95): bright, with about 1% of pixels at most reaching 1.
 AUTO_L0_TARGET = 0.9
-#: Views sampled (evenly along the sequence) to choose the automatic L0.
+#: Views sampled (evenly along the sequence) to choose the automatic L0, and training views over which
+#: :func:`lamp_irradiance` averages.
 AUTO_L0_VIEWS = 16
+#: What ``l0`` may name instead of three numbers: "auto", white scaled for exposure (AUTO_L0_*); "lamp", white at the
+#: learned lamp's own mean irradiance (:func:`lamp_irradiance`), the relit view then scaled for exposure as a whole.
+L0_RULES = ("auto", "lamp")
 
 
 class RelitColours:
@@ -137,6 +141,41 @@ def auto_l0(images_r: list[np.ndarray], images_low: list[np.ndarray]) -> list[fl
         mid = 0.5 * (lo + hi)
         lo, hi = (mid, hi) if level(mid) < AUTO_L0_TARGET else (lo, mid)
     return [0.5 * (lo + hi)] * 3
+
+
+def exposure_gain(images: list[np.ndarray]) -> float:
+    """The gain g that puts the AUTO_L0_PERCENTILE of the luminance of g·``images`` (H, W, 3 each) at AUTO_L0_TARGET;
+    1 for images that are black there."""
+    level = float(np.percentile(np.concatenate([im.mean(axis=2).ravel() for im in images]), AUTO_L0_PERCENTILE))
+    return AUTO_L0_TARGET / level if level > 0 else 1.0
+
+
+@torch.no_grad()
+def lamp_irradiance(scene, cameras, indices: Sequence[int], config, count: int = AUTO_L0_VIEWS) -> float:
+    """The learned lamp's mean irradiance on what views see: per Gaussian E = s Ψ Φ max(0, n̂·l̂) (the spotlight's
+    radiance at it times the cosine at its shading normal, as training shades it; no shadows), composited into
+    ``count`` of the views ``indices`` of ``cameras`` (evenly along them) and averaged over their pixels weighted by
+    coverage, so that holes in the model do not count. In the units of L0 (the paper's "replace L_spot by a constant",
+    read literally: the lamp's light spread evenly). ``scene``: a loaded run's model (with a spotlight); ``config``:
+    its TrainConfig (the rasterizer backend and threads)."""
+    g, light = scene.gaussians, scene.appearance.light
+    if light is None:
+        raise ValueError("the model has no spotlight (3DGS): there is no lamp to match")
+    indices = list(indices)
+    sample = [indices[i] for i in np.linspace(0, len(indices) - 1, min(count, len(indices))).astype(int)]
+    irradiance, coverage = 0.0, 0.0
+    for k in sample:
+        camera = cameras[k]
+        center = camera.c2w[:3, 3]
+        normals = shading_normals(scene.config, g, view_directions(g.means, center), center)
+        spot, to_light = light.incident(g.means, camera.c2w)
+        e = spot * lambert_cosine(normals, to_light)
+        image = rasterize(g.means, g.quats, g.scales, g.opacities, torch.cat([e, torch.ones_like(e), e], dim=1),
+                          camera.viewmat, camera.K, camera.width, camera.height, backend=config.raster_backend,
+                          num_threads=config.num_threads).image
+        irradiance += float(image[..., 0].sum())
+        coverage += float(image[..., 1].sum())
+    return irradiance / coverage if coverage > 0 else 0.0
 
 
 def _check_output(out: Path, run_dir: Path, data_dir: Path) -> None:
@@ -273,7 +312,10 @@ def render_run(
             docstring), so it must be new, empty, or an earlier render's folder (its manifest says so, or it is the
             run's own ``RUN/relit`` / ``RUN/render``) holding images only; never the dataset or the run's files.
         l0: linear RGB relighting radiance (relit mode), or ``"auto"``: white, scaled so that about 1% of relit
-            pixels reach 1 (see AUTO_L0_*); the value used is reported.
+            pixels reach 1 (see AUTO_L0_*), or ``"lamp"``: white at the lamp's own mean irradiance on what the
+            training views see (:func:`lamp_irradiance`; the learned room light keeps the share of the view it had
+            beside the lamp), the relit view then scaled as a whole so that about 1% of its pixels reach 1 (recorded
+            as ``lamp_irradiance`` and ``low_frequency_gain``); the value used is reported.
         exr: also write linear float EXR files (``<name>.exr`` with channels R, G, B).
         low_frequency: relit mode: False leaves the learned low-frequency light out (image = R·L0 alone), to see what
             the reflectance alone gives; the automatic L0 is then chosen for that image.
@@ -295,8 +337,8 @@ def render_run(
         raise ValueError(f"mode must be relit or spot, got {mode!r}")
     if mode != "relit" and not low_frequency:
         raise ValueError("low_frequency=False only applies to relit mode")
-    if isinstance(l0, str) and l0 != "auto":
-        raise ValueError(f"l0 must be 'auto' or three numbers, got {l0!r}")
+    if isinstance(l0, str) and l0 not in L0_RULES:
+        raise ValueError(f"l0 must be 'auto', 'lamp' or three numbers, got {l0!r}")
     if not isinstance(l0, str):
         l0 = [float(v) for v in l0]
         if len(l0) != 3 or any(not np.isfinite(v) or v < 0 for v in l0):
@@ -390,18 +432,25 @@ def _render_into(run_dir: Path, data_dir: Path, mode: str, which: str, out: Path
                                num_threads=config.num_threads)
             return res.image.float().cpu().numpy()
         both = raster(k)
-        return both[..., :3] * np.asarray(light, dtype=np.float32) + low_part(both)
+        low = low_part(both) if low_gain == 1.0 else np.float32(low_gain) * low_part(both)
+        return both[..., :3] * np.asarray(light, dtype=np.float32) + low
 
     def low_part(both: np.ndarray) -> np.ndarray:
         """The R·L_lf channels of a six-channel render, zero when the low-frequency light is left out."""
         return both[..., 3:] if low_frequency else np.zeros_like(both[..., 3:])
 
     relight: list[float] | None = None
+    low_gain, lamp = 1.0, None  # the low-frequency light's scale in the relit view ("lamp": the exposure gain)
     if mode == "relit" and parts is not None:
         if isinstance(l0, str):
             sample = [indices[i] for i in np.linspace(0, len(indices) - 1, min(AUTO_L0_VIEWS, len(indices))).astype(int)]
             both = [raster(k) for k in sample]
-            relight = auto_l0([b[..., :3] for b in both], [low_part(b) for b in both])
+            if l0 == "lamp":
+                lamp = lamp_irradiance(scene, cameras, select_views(views, "train"), config)
+                low_gain = exposure_gain([lamp * b[..., :3] + low_part(b) for b in both])
+                relight = [low_gain * lamp] * 3
+            else:
+                relight = auto_l0([b[..., :3] for b in both], [low_part(b) for b in both])
         else:
             relight = [float(v) for v in l0]
     clipped, total = 0, 0
@@ -426,13 +475,14 @@ def _render_into(run_dir: Path, data_dir: Path, mode: str, which: str, out: Path
         log.warning("%.2f%% of relit pixels exceed 1 and are clipped in the PNGs; lower --l0 (now %s) or use --exr",
                     100 * fraction, relight)
     summary = {"mode": mode, "views": which, "count": len(indices), "l0": relight, "low_frequency": low_frequency,
-               "l0_mode": "auto" if isinstance(l0, str) else "given",
+               "l0_mode": l0 if isinstance(l0, str) else "given",
+               **({"lamp_irradiance": lamp, "low_frequency_gain": low_gain} if lamp is not None else {}),
                **_output_size(working),
                "seconds_per_view": seconds / max(len(indices), 1), "fps": len(indices) / max(seconds, 1e-9),
                "clipped_fraction": fraction, "num_gaussians": len(g), "device": str(dev), "out_dir": str(out),
                "pose_alignment": alignment}
-    options = {k: summary[k] for k in ("mode", "views", "l0", "l0_mode", "low_frequency", "width", "height")
-               if k in summary}
+    options = {k: summary[k] for k in ("mode", "views", "l0", "l0_mode", "low_frequency_gain", "low_frequency", "width",
+                                       "height") if k in summary}
     if alignment is not None:  # what the evaluation reports: which views were aligned, and how
         options["pose_alignment"] = {k: alignment[k] for k in ("poses", "aligned_views", "loss", "steps")}
     write_manifest(tmp, "relit" if mode == "relit" else "render", run_dir=run_dir, checkpoint=checkpoint,

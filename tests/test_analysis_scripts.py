@@ -364,18 +364,25 @@ def test_relight_radiance_sweep_relights_at_each_l0_and_scores_both_ground_truth
     assert stopped.value.code == 2
 
 
-def test_relight_radiance_sweep_lamp_irradiance_is_what_training_shades_a_white_surface_with(tmp_path_factory,
-                                                                                           monkeypatch, capsys):
-    """--lamp's L0 (lamp_irradiance) on a tiny DarkGS run: with every albedo white, the coverage-weighted mean of the
-    spotlight half of training's own shading (shade(..., split_lights=True): f̃ · cos · L_spot, f̃ = 1) over the same
-    views; it doubles with the lamp's radiance; the script relights the run at it beside the given L0 and says so;
-    a 3DGS run (no lamp) stops it with one line naming the run."""
+def test_lamp_l0_is_the_irradiance_training_shades_a_white_surface_with(tmp_path_factory, monkeypatch, capsys):
+    """The lamp-matched L0 (rendering.lamp_irradiance) on a tiny DarkGS run: with every albedo white, the coverage-
+    weighted mean of the spotlight half of training's own shading (shade(..., split_lights=True): f̃ · cos · L_spot,
+    f̃ = 1) over the same views; it doubles with the lamp's radiance. `spotless relight --lamp-l0` writes the view at
+    that L0 with its low-frequency light, scaled as a whole (the relit view at --l0 E E E times its recorded gain, the
+    99th percentile of luminance at the exposure target); with --l0 too it is refused. relight_radiance_sweep.py
+    --lamp scores that relighting beside the given L0 and says so; a 3DGS run, which has no lamp, relights as ever."""
+    import json
+
     import numpy as np
     import torch
+    from click.testing import CliRunner
 
     from conftest import synthetic_box_dataset
+    from spotlessgs.cli import main
+    from spotlessgs.io.exr import read_exr
     from spotlessgs.models.shading import shade
     from spotlessgs.rasterizer import rasterize
+    from spotlessgs.rendering import AUTO_L0_PERCENTILE, AUTO_L0_TARGET, lamp_irradiance
     from spotlessgs.training.config import preset
     from spotlessgs.training.trainer import load_run, train
 
@@ -387,7 +394,7 @@ def test_relight_radiance_sweep_lamp_irradiance_is_what_training_shades_a_white_
     for model in ("darkgs", "3dgs"):
         train(data, root / model, model, config, seed=0, progress=False)
     scene, views, run_config, _ = load_run(root / "darkgs", device="cpu")
-    lamp = module.lamp_irradiance(scene, views, run_config, count=3)
+    lamp = lamp_irradiance(scene, views.cameras, views.train, run_config, count=3)
     assert np.isfinite(lamp) and lamp > 0
 
     g, app = scene.gaussians, scene.appearance
@@ -398,23 +405,50 @@ def test_relight_radiance_sweep_lamp_irradiance_is_what_training_shades_a_white_
         for k in [train_views[i] for i in np.linspace(0, len(train_views) - 1, 3).astype(int)]:
             camera = views.cameras[k]
             spot_half = shade(scene.config, g, app.light, app.lf_light, app.brdf, camera.c2w, split_lights=True)[:, :3]
-            alpha = torch.ones_like(spot_half)
             lit = rasterize(g.means, g.quats, g.scales, g.opacities, spot_half, camera.viewmat, camera.K,
                             camera.width, camera.height).image
-            cover = rasterize(g.means, g.quats, g.scales, g.opacities, alpha, camera.viewmat, camera.K,
-                              camera.width, camera.height).image
+            cover = rasterize(g.means, g.quats, g.scales, g.opacities, torch.ones_like(spot_half), camera.viewmat,
+                              camera.K, camera.width, camera.height).image
             weighted += float(lit[..., 0].sum())  # white: every channel alike
             coverage += float(cover[..., 0].sum())
         assert lamp == pytest.approx(weighted / coverage, rel=1e-5)
         app.light.radiance_scale.mul_(2.0)
-        assert module.lamp_irradiance(scene, views, run_config, count=3) == pytest.approx(2 * lamp, rel=1e-5)
+        assert lamp_irradiance(scene, views.cameras, views.train, run_config, count=3) == pytest.approx(2 * lamp,
+                                                                                                        rel=1e-5)
 
+    scene, views, run_config, _ = load_run(root / "darkgs", device="cpu")
+    at = lamp_irradiance(scene, views.cameras, views.train, run_config)  # the default 16 views
+    runner = CliRunner()
+    res = runner.invoke(main, ["relight", str(root / "darkgs"), "-q", "--device", "cpu", "--views", "test", "--exr",
+                               "--lamp-l0", "--out", str(root / "lamp")])
+    assert res.exit_code == 0, res.output
+    summary = json.loads(res.output)
+    assert summary["l0_mode"] == "lamp" and summary["lamp_irradiance"] == pytest.approx(at, rel=1e-9)
+    gain = summary["low_frequency_gain"]
+    assert summary["l0"] == pytest.approx([gain * at] * 3, rel=1e-9)
+    given = f"{at!r}"
+    res = runner.invoke(main, ["relight", str(root / "darkgs"), "-q", "--device", "cpu", "--views", "test", "--exr",
+                               "--l0", given, given, given, "--out", str(root / "given")])
+    assert res.exit_code == 0, res.output
+    names = sorted(p.name for p in (root / "lamp").glob("*.exr"))
+    assert names and names == sorted(p.name for p in (root / "given").glob("*.exr"))
+    lamp_images = [np.stack([read_exr(root / "lamp" / n)[c] for c in "RGB"], -1) for n in names]
+    for name, image in zip(names, lamp_images):
+        at_given = np.stack([read_exr(root / "given" / name)[c] for c in "RGB"], -1)
+        np.testing.assert_allclose(image, gain * at_given, rtol=1e-5, atol=1e-7)
+    luminance = np.concatenate([im.mean(axis=2).ravel() for im in lamp_images])
+    assert np.percentile(luminance, AUTO_L0_PERCENTILE) == pytest.approx(AUTO_L0_TARGET, rel=1e-4)
+    res = runner.invoke(main, ["relight", str(root / "darkgs"), "--lamp-l0", "--l0", "1", "1", "1"])
+    assert res.exit_code == 2 and "give --l0 or --lamp-l0, not both" in res.output
+
+    from evaluation.runner import score_test_views
+
+    rows = module.sweep(root / "darkgs", [0.5], root / "sweep", lamp=True)
+    assert [r["l0"] for r in rows] == [0.5, "lamp"]
+    assert rows[1]["lamp_irradiance"] == pytest.approx(at, rel=1e-9) and rows[1]["gain"] == pytest.approx(gain)
+    assert rows[1]["lamps"] == pytest.approx(score_test_views(data, root / "lamp", 1)["psnr_aligned"], abs=1e-9)
     monkeypatch.setattr("sys.argv", ["relight_radiance_sweep.py", str(root / "darkgs"), "--l0", "0.5", "--lamp"])
     module.main()
     printed = capsys.readouterr().out
-    at = module.lamp_irradiance(*load_run(root / "darkgs", device="cpu")[:3])
-    assert f"the lamp's mean irradiance on what the training views see: L0 = {at:.3f}" in printed
-    assert f"L0 {at:<5g} lamps-on" in printed and "L0 0.5   lamps-on" in printed
-    monkeypatch.setattr("sys.argv", ["relight_radiance_sweep.py", str(root / "3dgs"), "--lamp"])
-    with pytest.raises(SystemExit, match=r"^error: .*3dgs: the model has no spotlight"):
-        module.main()
+    assert "L0 0.5   lamps-on" in printed and f"--lamp-l0 (L0 {at:.3f}, the view x {gain:.2f})  lamps-on" in printed
+    assert module.sweep(root / "3dgs", [0.5], root / "sweep-3dgs", lamp=True)[1]["lamp_irradiance"] is None
