@@ -122,14 +122,24 @@ class RelitColours:
                          num_threads=config.num_threads).image
 
 
+def evenly_spaced(indices: Sequence[int], count: int) -> list[int]:
+    """At most ``count`` of ``indices``, evenly along them (the first and the last included)."""
+    indices = list(indices)
+    return [indices[i] for i in np.linspace(0, len(indices) - 1, min(count, len(indices))).astype(int)]
+
+
+def _luminance(images: list[np.ndarray]) -> np.ndarray:
+    """The channel mean of every pixel of ``images`` (H, W, 3 each), flattened into one array."""
+    return np.concatenate([im.mean(axis=2).ravel() for im in images])
+
+
 def auto_l0(images_r: list[np.ndarray], images_low: list[np.ndarray]) -> list[float]:
     """A white L0 = s·(1, 1, 1) that puts the AUTO_L0_PERCENTILE of relit luminance at AUTO_L0_TARGET.
 
     Args:
         images_r: rendered R·1 images (H, W, 3) of a few views; images_low: their R·L_lf images.
     """
-    lum_r = np.concatenate([im.mean(axis=2).ravel() for im in images_r])
-    lum_low = np.concatenate([im.mean(axis=2).ravel() for im in images_low])
+    lum_r, lum_low = _luminance(images_r), _luminance(images_low)
     lo, hi = 0.0, 1.0
     def level(scale: float) -> float:
         return float(np.percentile(scale * lum_r + lum_low, AUTO_L0_PERCENTILE))
@@ -146,7 +156,7 @@ def auto_l0(images_r: list[np.ndarray], images_low: list[np.ndarray]) -> list[fl
 def exposure_gain(images: list[np.ndarray]) -> float:
     """The gain g that puts the AUTO_L0_PERCENTILE of the luminance of g·``images`` (H, W, 3 each) at AUTO_L0_TARGET;
     1 for images that are black there."""
-    level = float(np.percentile(np.concatenate([im.mean(axis=2).ravel() for im in images]), AUTO_L0_PERCENTILE))
+    level = float(np.percentile(_luminance(images), AUTO_L0_PERCENTILE))
     return AUTO_L0_TARGET / level if level > 0 else 1.0
 
 
@@ -161,10 +171,8 @@ def lamp_irradiance(scene, cameras, indices: Sequence[int], config, count: int =
     g, light = scene.gaussians, scene.appearance.light
     if light is None:
         raise ValueError("the model has no spotlight (3DGS): there is no lamp to match")
-    indices = list(indices)
-    sample = [indices[i] for i in np.linspace(0, len(indices) - 1, min(count, len(indices))).astype(int)]
     irradiance, coverage = 0.0, 0.0
-    for k in sample:
+    for k in evenly_spaced(indices, count):
         camera = cameras[k]
         center = camera.c2w[:3, 3]
         normals = shading_normals(scene.config, g, view_directions(g.means, center), center)
@@ -432,8 +440,7 @@ def _render_into(run_dir: Path, data_dir: Path, mode: str, which: str, out: Path
                                num_threads=config.num_threads)
             return res.image.float().cpu().numpy()
         both = raster(k)
-        low = low_part(both) if low_gain == 1.0 else np.float32(low_gain) * low_part(both)
-        return both[..., :3] * np.asarray(light, dtype=np.float32) + low
+        return both[..., :3] * np.asarray(light, dtype=np.float32) + np.float32(low_gain) * low_part(both)
 
     def low_part(both: np.ndarray) -> np.ndarray:
         """The R·L_lf channels of a six-channel render, zero when the low-frequency light is left out."""
@@ -443,8 +450,7 @@ def _render_into(run_dir: Path, data_dir: Path, mode: str, which: str, out: Path
     low_gain, lamp = 1.0, None  # the low-frequency light's scale in the relit view ("lamp": the exposure gain)
     if mode == "relit" and parts is not None:
         if isinstance(l0, str):
-            sample = [indices[i] for i in np.linspace(0, len(indices) - 1, min(AUTO_L0_VIEWS, len(indices))).astype(int)]
-            both = [raster(k) for k in sample]
+            both = [raster(k) for k in evenly_spaced(indices, AUTO_L0_VIEWS)]
             if l0 == "lamp":
                 lamp = lamp_irradiance(scene, cameras, select_views(views, "train"), config)
                 low_gain = exposure_gain([lamp * b[..., :3] + low_part(b) for b in both])

@@ -382,7 +382,7 @@ def test_lamp_l0_is_the_irradiance_training_shades_a_white_surface_with(tmp_path
     from spotlessgs.io.exr import read_exr
     from spotlessgs.models.shading import shade
     from spotlessgs.rasterizer import rasterize
-    from spotlessgs.rendering import AUTO_L0_PERCENTILE, AUTO_L0_TARGET, lamp_irradiance
+    from spotlessgs.rendering import AUTO_L0_PERCENTILE, AUTO_L0_TARGET, evenly_spaced, lamp_irradiance
     from spotlessgs.training.config import preset
     from spotlessgs.training.trainer import load_run, train
 
@@ -400,9 +400,8 @@ def test_lamp_l0_is_the_irradiance_training_shades_a_white_surface_with(tmp_path
     g, app = scene.gaussians, scene.appearance
     with torch.no_grad():
         g.params["albedo_raw"].fill_(40.0)  # sigmoid: 1 in float32
-        train_views = list(views.train)
         weighted, coverage = 0.0, 0.0
-        for k in [train_views[i] for i in np.linspace(0, len(train_views) - 1, 3).astype(int)]:
+        for k in evenly_spaced(views.train, 3):
             camera = views.cameras[k]
             spot_half = shade(scene.config, g, app.light, app.lf_light, app.brdf, camera.c2w, split_lights=True)[:, :3]
             lit = rasterize(g.means, g.quats, g.scales, g.opacities, spot_half, camera.viewmat, camera.K,
