@@ -451,3 +451,48 @@ def test_lamp_l0_is_the_irradiance_training_shades_a_white_surface_with(tmp_path
     printed = capsys.readouterr().out
     assert "L0 0.5   lamps-on" in printed and f"--lamp-l0 (L0 {at:.3f}, the view x {gain:.2f})  lamps-on" in printed
     assert module.sweep(root / "3dgs", [0.5], root / "sweep-3dgs", lamp=True)[1]["lamp_irradiance"] is None
+
+
+def test_shading_cost_times_the_runs_shading_and_variants_that_shade_alike(tmp_path_factory):
+    """shading_cost.py on a tiny SpotlessGS run: the network without its input gradients shades the same colours as
+    the run's own BRDF (so the two times compare like with like); the Disney-only BRDF is the learned one with its network's output at zero; the Lambertian variants shade
+    with the albedo; a DarkGS run is refused. Times are only checked to be positive (tests never assert a time)."""
+    import torch
+
+    from conftest import synthetic_box_dataset
+    from spotlessgs.models.shading import shade
+    from spotlessgs.training.config import preset
+    from spotlessgs.training.trainer import load_run, train
+
+    module = load_script("shading_cost")
+    data = synthetic_box_dataset(tmp_path_factory, "shading-cost-data", seed=5)
+    root = data.parent
+    config = preset("tiny", iterations=20, image_width=40, num_threads=1, densify_from=1000, log_every=10,
+                    checkpoint_every=1000, init_points=200, max_gaussians=300, brdf_hidden=8)
+    for model in ("spotless", "darkgs"):
+        train(data, root / model, model, config, seed=0, progress=False)
+    scene, views, _, _ = load_run(root / "spotless", device="cpu")
+    app, g = scene.appearance, scene.gaussians
+    with torch.no_grad():  # a residual the network's input gradient would show in
+        app.brdf.mlp[-1].weight.fill_(0.3)
+    rows = module.variants(scene.config, app.brdf, app.lf_light, app.bounce_light)
+    c2w = views.cameras.c2w[views.train[0]]
+
+    def colours(config, brdf, lf_light, bounce_light=app.bounce_light):
+        return shade(config, g, app.light, lf_light, brdf, c2w, bounce_light=bounce_light)
+
+    own, detached, disney, lambert, darkgs = [colours(*row[1:]) for row in rows]
+    torch.testing.assert_close(detached, own, rtol=0, atol=0)
+    with torch.no_grad():
+        app.brdf.mlp[-1].weight.zero_()
+        app.brdf.mlp[-1].bias.zero_()
+    torch.testing.assert_close(disney, colours(scene.config, app.brdf, app.lf_light), rtol=0, atol=0)
+    assert not torch.allclose(disney, own)
+    assert rows[3][1].brdf == "lambert" and rows[4][1].ambient == "constant" and rows[4][1].brdf == "lambert"
+    assert not torch.allclose(lambert, darkgs)
+    count, timed = module.shading_cost(root / "spotless", views=2, repeats=1)
+    assert count == len(g) and [name for name, _ in timed] == [name for name, *_ in rows]
+    assert all(ms > 0 for _, ms in timed)
+    darkgs_scene, *_ = load_run(root / "darkgs", device="cpu")
+    with pytest.raises(ValueError, match="SpotlessGS run"):
+        module.variants(darkgs_scene.config, darkgs_scene.appearance.brdf, darkgs_scene.appearance.lf_light, None)

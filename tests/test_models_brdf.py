@@ -148,6 +148,36 @@ def test_learned_brdf_gradients_reach_the_mlp():
     assert all(torch.isfinite(p.grad).all() for p in brdf.parameters())
 
 
+def test_learned_brdf_without_input_gradients_moves_its_inputs_by_the_analytic_factor_alone():
+    """input_gradients=False: the same values and network gradients, and the directions' gradients are those of the
+    Disney factor times the (constant) learned modulation; with the paper's setting the network adds its own."""
+    n_pts = 32
+    g = torch.Generator().manual_seed(3)
+    a = torch.rand(n_pts, 3, dtype=F64, generator=g)
+    rough = 0.09 + 0.9 * torch.rand(n_pts, 1, dtype=F64, generator=g)
+    metal = torch.rand(n_pts, 1, dtype=F64, generator=g)
+    grads = {}
+    for setting in (True, False):
+        brdf = LearnedBRDF(seed=2, upper_clamp=False, input_gradients=setting).double()
+        with torch.no_grad():  # a trained-looking residual: the zero-initialised last layer made non-zero
+            brdf.mlp[-1].weight.copy_(torch.randn(brdf.mlp[-1].weight.shape, dtype=F64, generator=g.manual_seed(9)))
+        dirs = [_upper_hemisphere(n_pts, s).requires_grad_() for s in (4, 5, 6)]
+        out = brdf(a, rough, metal, *dirs)
+        out.sum().backward()
+        grads[setting] = (out.detach(), [d.grad for d in dirs], [p.grad for p in brdf.parameters()])
+        if not setting:  # independently: the Disney factor's gradient with the modulation held fixed
+            ref_dirs = [d.detach().clone().requires_grad_() for d in dirs]
+            fixed = brdf.modulation(*ref_dirs).detach()
+            (math.pi * disney_brdf(a, rough, metal, *ref_dirs) * fixed).sum().backward()
+            for got, want in zip(grads[False][1], ref_dirs):
+                torch.testing.assert_close(got, want.grad, rtol=1e-12, atol=1e-12)
+    torch.testing.assert_close(grads[False][0], grads[True][0], rtol=0, atol=0)
+    for got, want in zip(grads[False][2], grads[True][2]):
+        torch.testing.assert_close(got, want, rtol=1e-12, atol=1e-12)
+    network_part = sum(float((t - f).abs().sum()) for t, f in zip(grads[True][1], grads[False][1]))
+    assert network_part > 1e-3  # the paper's setting passes the network's gradient on to the directions
+
+
 def test_brdf_errors():
     with pytest.raises(ValueError, match=r"residual must be in \[0, 1\)"):
         LearnedBRDF(residual=1.0)

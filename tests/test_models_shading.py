@@ -438,6 +438,27 @@ def test_lambertian_diffuse_setting_reaches_the_learned_brdf_and_its_relit_albed
     assert build_appearance_models(model_config("spotless", TrainConfig(brdf_hidden=16)), seed=1).brdf.burley
 
 
+def test_brdf_network_input_gradients_setting_reaches_the_learned_brdf():
+    """TrainConfig.brdf_network_input_gradients reaches the learned BRDF through model_config (the paper's by
+    default), and with it off a spotlit colour's gradient to the Gaussians' positions no longer has the network's."""
+    from spotlessgs.training.config import TrainConfig
+    from spotlessgs.training.trainer import model_config
+
+    off = model_config("darkgs+brdf", TrainConfig(brdf_hidden=16, brdf_network_input_gradients=False))
+    assert not build_appearance_models(off, seed=1).brdf.input_gradients
+    assert build_appearance_models(model_config("darkgs+brdf", TrainConfig(brdf_hidden=16)), seed=1).brdf.input_gradients
+    position_grads = []
+    for config in (model_config("darkgs+brdf", TrainConfig(brdf_hidden=16)), off):
+        models = build_appearance_models(config, seed=1)
+        with torch.no_grad():
+            models.brdf.mlp[-1].weight.fill_(0.5)  # a non-zero residual
+        g = _scene()
+        g.means.requires_grad_(True)
+        shade(config, g, models.light, models.lf_light, models.brdf, CAM).sum().backward()
+        position_grads.append(g.means.grad.clone())
+    assert not torch.allclose(position_grads[0], position_grads[1])
+
+
 def _rotated(g: GaussianParams, q: np.ndarray) -> GaussianParams:
     """The Gaussians' positions and normals turned by the rotation q (3, 3) about the origin (same colours)."""
     with torch.no_grad():

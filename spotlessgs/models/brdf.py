@@ -182,6 +182,11 @@ class LearnedBRDF(nn.Module):
             3 % of uniform light instead of 70 %). False: f̃ = π f_Disney · modulation, only kept ≥ 0.
         burley: the Disney diffuse lobe with Burley's retro-reflection factor (the paper's); False: Lambertian
             (see :func:`disney_brdf`).
+        input_gradients: the network passes its gradient on to the directions it reads (the paper's: through v̂ and
+            l̂ to the Gaussians' positions and the lamp's pose, through n̂ to the normals). False: the network reads
+            them detached, so that it learns the reflectance's residual without moving geometry or the lamp (the
+            analytic Disney factor still does), and training skips the encoding's backward pass and the first
+            layer's input gradient (modulation values unchanged).
     """
 
     def __init__(
@@ -192,10 +197,12 @@ class LearnedBRDF(nn.Module):
         seed: int = 0,
         upper_clamp: bool = True,
         burley: bool = True,
+        input_gradients: bool = True,
     ) -> None:
         super().__init__()
         self.upper_clamp = upper_clamp
         self.burley = burley
+        self.input_gradients = input_gradients
         if not 0.0 <= residual < 1.0:
             raise ValueError(f"LearnedBRDF residual must be in [0, 1) to keep the factor positive, got {residual}")
         self.num_frequencies = num_frequencies
@@ -212,8 +219,11 @@ class LearnedBRDF(nn.Module):
         )
 
     def modulation(self, normals: torch.Tensor, view_dirs: torch.Tensor, light_dirs: torch.Tensor) -> torch.Tensor:
-        """Learned factor 1 + r tanh(MLP(γ(v), γ(l), γ(n))) for unit vectors (N, 3) each → (N, 1) in [1-r, 1+r]."""
+        """Learned factor 1 + r tanh(MLP(γ(v), γ(l), γ(n))) for unit vectors (N, 3) each → (N, 1) in [1-r, 1+r]
+        (with ``input_gradients`` False, no gradient to the three directions)."""
         dirs = torch.cat([view_dirs, light_dirs, normals], dim=-1)
+        if not self.input_gradients:
+            dirs = dirs.detach()
         return 1.0 + self.residual * torch.tanh(self.mlp(sinusoidal_encoding(dirs, self.num_frequencies)))
 
     def forward(

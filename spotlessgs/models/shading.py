@@ -99,6 +99,9 @@ class ModelConfig:
     # grazing when it is lit and seen from one direction, as a lamp beside the camera does, so it trades against
     # the spotlight's fall-off and position.
     brdf_burley_diffuse: bool = True
+    # Whether the learned BRDF's network passes its gradient on to the directions it reads (LearnedBRDF.input_gradients;
+    # True: the paper's). False: only the analytic Disney factor moves the Gaussians, their normals and the lamp.
+    brdf_network_input_gradients: bool = True
     # Degree 0..3 of a second SH light for the lamp's own bounce light, evaluated at the normal in the camera frame
     # (it moves with the camera, as light bounced off what the lamp lights does), shaded like the low-frequency light
     # in training and left out of relighting; -1: none (the paper's). Only the variants with an SH light have one
@@ -475,6 +478,7 @@ def build_appearance_models(
     lf_light = ConstantAmbient(ambient_init) if cfg.ambient == "constant" else LowFrequencyLight(cfg.sh_degree)
     brdf = LambertianBRDF() if cfg.brdf == "lambert" else LearnedBRDF(hidden=cfg.brdf_hidden, seed=seed,
                                                                      upper_clamp=cfg.brdf_upper_clamp,
-                                                                     burley=cfg.brdf_burley_diffuse)
+                                                                     burley=cfg.brdf_burley_diffuse,
+                                                                     input_gradients=cfg.brdf_network_input_gradients)
     bounce = LowFrequencyLight(cfg.bounce_degree) if cfg.bounce_degree >= 0 else None
     return AppearanceModels(light, lf_light, brdf, bounce, LampBounce() if cfg.lamp_bounce else None)

@@ -140,6 +140,11 @@ class TrainConfig:
     # The learned BRDF's diffuse lobe with Burley's retro-reflection factor (the paper's) or Lambertian
     # (ModelConfig.brdf_burley_diffuse).
     brdf_burley_diffuse: bool = True
+    # Whether the learned BRDF's network passes its gradient on to the directions it reads
+    # (ModelConfig.brdf_network_input_gradients; True: the paper's). False: 8 % less time per SpotlessGS step (idle
+    # A/B, two pairs), but four rows lose 0.14-0.24 dB against the uniform ground truth on the mean of three seeds
+    # (docs/results.md, "The learned BRDF's network without its gradient to the directions").
+    brdf_network_input_gradients: bool = True
     # Degree of the lamp's bounce light, an SH of the camera-frame normal that is part of the SH light and left out of
     # relighting (ModelConfig.bounce_light_degree; -1: none, the paper's). Degree 2 relit the bedroom best (uniform
     # ground truth: 23.79 / 24.41 / 24.22 dB for degrees 1 / 2 / 3, 23.18 without; docs/results.md). A trusted start
