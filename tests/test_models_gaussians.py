@@ -74,6 +74,29 @@ def test_zero_normal_faces_camera_with_finite_nonzero_gradient():
     assert torch.isfinite(grad).all() and _scalar(grad.abs().sum()) > 0
 
 
+def test_held_normals_carry_no_gradient_unless_a_row_falls_back_to_the_camera():
+    """Held normals (normals_raw without a gradient) whose fallback weight is 0 on every row give n̂ without a gradient
+    (the same values as the full formula); one raw row near 0 keeps the path through f̂ to the means for all rows, and
+    learned normals always have it."""
+    normals = np.array([[0.0, 1.0, 0.0], [0.6, 0.0, 0.8], [0.0, 0.0, -1.0]])
+    g = GaussianParams.from_point_cloud(np.array([[0.0, 0, 0], [1.0, 1, 1], [2.0, 0, 1]]), np.full((3, 3), 0.5),
+                                        normals)
+    cam = torch.tensor([3.0, -2.0, 1.0])
+    learned = g.normals(cam)
+    assert learned.requires_grad
+    g.params["normals_raw"].requires_grad_(False)
+    held = g.normals(cam)
+    assert not held.requires_grad
+    torch.testing.assert_close(held, learned.detach(), rtol=0, atol=0)
+    with torch.no_grad():
+        g.params["normals_raw"][2] = 1e-3 * torch.tensor([0.0, 0.0, 1.0])  # |raw| = δ: the fallback weight is δ/e
+    falling_back = g.normals(cam)
+    assert falling_back.requires_grad
+    (falling_back * torch.tensor([1.0, 2.0, 3.0])).sum().backward()
+    assert _scalar(g.params["means"].grad[2].abs().sum()) > 0  # that row turns with its position, as before
+    assert _scalar(g.params["means"].grad[:2].abs().sum()) == 0  # the others' weights are exactly 0
+
+
 def test_unit_normals_are_kept_and_fully_degenerate_normal_is_finite():
     normals = np.array([[0.0, 1.0, 0.0], [0.6, 0.0, 0.8]])
     g = GaussianParams.from_point_cloud(np.array([[0.0, 0, 0], [1.0, 1, 1]]), np.full((2, 3), 0.5), normals)

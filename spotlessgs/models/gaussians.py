@@ -214,14 +214,20 @@ class GaussianParams(nn.Module):
         used unchanged. If the sum is still zero (raw = -δ e⁻¹ f̂ exactly, or a Gaussian at the camera centre) the
         result is f̂, or +z.
 
+        Held normals (``normals_raw`` without a gradient, as a trusted start holds them) whose fallback weight is
+        exactly 0 for every row (every |raw| above about 10δ: the exponential underflows) carry no gradient at all:
+        their only path, through f̂ to the means, is multiplied by 0, so it is cut instead, and every shading term that
+        reads n̂ skips its backward pass to it (the values and the gradients to every parameter are unchanged).
+
         Args:
             camera_center: (3,) camera centre C, world frame.
         """
         if camera_center.shape != (3,):
             raise ValueError(f"camera_center must have shape (3,), got {tuple(camera_center.shape)}")
-        towards = safe_normalize(camera_center.to(self.means) - self.means)
         raw = self.params["normals_raw"]
         weight = NORMAL_FALLBACK_SCALE * torch.exp(-(raw * raw).sum(-1, keepdim=True) / NORMAL_FALLBACK_SCALE**2)
+        means = self.means.detach() if not raw.requires_grad and not bool(weight.any()) else self.means
+        towards = safe_normalize(camera_center.to(means) - means)
         return safe_normalize(raw + weight * towards, fallback=towards)
 
 
