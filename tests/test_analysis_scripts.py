@@ -31,6 +31,21 @@ def load_script(name: str):
     return module
 
 
+def tiny_runs(tmp_path_factory, name: str, seed: int, models, iterations: int = 30, **overrides) -> Path:
+    """Tiny runs of ``models`` (seed 0) on a synthetic box dataset drawn with ``seed``, each in ROOT/MODEL beside the
+    dataset; returns the dataset's folder (ROOT is its parent)."""
+    from conftest import synthetic_box_dataset
+    from spotlessgs.training.config import preset
+    from spotlessgs.training.trainer import train
+
+    data = synthetic_box_dataset(tmp_path_factory, name, seed=seed)
+    config = preset("tiny", iterations=iterations, image_width=40, num_threads=1, densify_from=1000, log_every=10,
+                    checkpoint_every=1000, init_points=200, max_gaussians=300, **overrides)
+    for model in models:
+        train(data, data.parent / model, model, config, seed=0, progress=False)
+    return data
+
+
 def scene(rng: np.random.Generator, shape=(3, 24, 32)):
     """Linear albedo (N, H, W, 3), the lamps' field F (N, H, W), depth, walls and emitters."""
     albedo = rng.uniform(0.1, 0.6, size=shape + (3,))
@@ -304,23 +319,16 @@ def test_relight_radiance_sweep_relights_at_each_l0_and_scores_both_ground_truth
 
     from click.testing import CliRunner
 
-    from conftest import synthetic_box_dataset
     from evaluation.runner import score_test_views
     from spotlessgs.cli import main
-    from spotlessgs.training.config import preset
-    from spotlessgs.training.trainer import train
 
     def relight(run: Path, *options: str) -> None:
         res = CliRunner().invoke(main, ["relight", str(run), "-q", "--device", "cpu", *options])
         assert res.exit_code == 0, res.output
 
     module = load_script("relight_radiance_sweep")
-    data = synthetic_box_dataset(tmp_path_factory, "sweep-data", seed=3)
+    data = tiny_runs(tmp_path_factory, "sweep-data", 3, ("darkgs", "darkgs+sh"), brdf_hidden=8)
     root = data.parent
-    config = preset("tiny", iterations=30, image_width=40, num_threads=1, densify_from=1000, log_every=10,
-                    checkpoint_every=1000, init_points=200, max_gaussians=300, brdf_hidden=8)
-    for model in ("darkgs", "darkgs+sh"):
-        train(data, root / model, model, config, seed=0, progress=False)
     levels = [0.0, 0.3, 1.0]
 
     darkgs = module.sweep(root / "darkgs", levels, root / "sweep-darkgs")
@@ -377,22 +385,16 @@ def test_lamp_l0_is_the_irradiance_training_shades_a_white_surface_with(tmp_path
     import torch
     from click.testing import CliRunner
 
-    from conftest import synthetic_box_dataset
     from spotlessgs.cli import main
     from spotlessgs.io.exr import read_exr
     from spotlessgs.models.shading import shade
     from spotlessgs.rasterizer import rasterize
     from spotlessgs.rendering import AUTO_L0_PERCENTILE, AUTO_L0_TARGET, evenly_spaced, lamp_irradiance
-    from spotlessgs.training.config import preset
-    from spotlessgs.training.trainer import load_run, train
+    from spotlessgs.training.trainer import load_run
 
     module = load_script("relight_radiance_sweep")
-    data = synthetic_box_dataset(tmp_path_factory, "lamp-l0-data", seed=4)
+    data = tiny_runs(tmp_path_factory, "lamp-l0-data", 4, ("darkgs", "3dgs"))
     root = data.parent
-    config = preset("tiny", iterations=30, image_width=40, num_threads=1, densify_from=1000, log_every=10,
-                    checkpoint_every=1000, init_points=200, max_gaussians=300)
-    for model in ("darkgs", "3dgs"):
-        train(data, root / model, model, config, seed=0, progress=False)
     scene, views, run_config, _ = load_run(root / "darkgs", device="cpu")
     lamp = lamp_irradiance(scene, views.cameras, views.train, run_config, count=3)
     assert np.isfinite(lamp) and lamp > 0
@@ -459,18 +461,12 @@ def test_shading_cost_times_the_runs_shading_and_variants_that_shade_alike(tmp_p
     with the albedo; a DarkGS run is refused. Times are only checked to be positive (tests never assert a time)."""
     import torch
 
-    from conftest import synthetic_box_dataset
     from spotlessgs.models.shading import shade
-    from spotlessgs.training.config import preset
-    from spotlessgs.training.trainer import load_run, train
+    from spotlessgs.training.trainer import load_run
 
     module = load_script("shading_cost")
-    data = synthetic_box_dataset(tmp_path_factory, "shading-cost-data", seed=5)
-    root = data.parent
-    config = preset("tiny", iterations=20, image_width=40, num_threads=1, densify_from=1000, log_every=10,
-                    checkpoint_every=1000, init_points=200, max_gaussians=300, brdf_hidden=8)
-    for model in ("spotless", "darkgs"):
-        train(data, root / model, model, config, seed=0, progress=False)
+    root = tiny_runs(tmp_path_factory, "shading-cost-data", 5, ("spotless", "darkgs"), iterations=20,
+                     brdf_hidden=8).parent
     scene, views, _, _ = load_run(root / "spotless", device="cpu")
     app, g = scene.appearance, scene.gaussians
     with torch.no_grad():  # a residual the network's input gradient would show in
