@@ -3,10 +3,10 @@
     python3 scripts/shading_cost.py RUN [--views 8] [--repeats 6]
 
 Loads the finished run RUN (a SpotlessGS model: an SH light and the learned BRDF) and times, per training view, one
-spotlit `shading.shade` of every Gaussian and the backward pass of its sum, with the run's own modules and with parts
-taken away (:func:`variants`): the learned BRDF's network without its gradient to the directions it reads
-(``brdf_network_input_gradients=false``), the Disney factor without the network, a Lambertian BRDF with the SH light,
-and a Lambertian BRDF with DarkGS's constant ambient. Prints a Markdown table of the median ms per view over
+spotlit `shading.shade` of every Gaussian and the backward pass of its sum (its normals held if the run held them),
+with the run's own modules and with parts taken away (:func:`variants`): the learned BRDF's network without its
+gradient to the directions it reads (``brdf_network_input_gradients=false``), the Disney factor without the network,
+a Lambertian BRDF with the SH light, and a Lambertian BRDF with DarkGS's constant ambient. Prints a Markdown table of the median ms per view over
 ``--repeats`` passes through the first ``--views`` training views. The rasteriser, the loss and the optimiser are not
 in it, and training shades only the Gaussians that can touch the view: scripts/step_cost_ab.py measures whole steps.
 docs/results.md ("The learned BRDF's network without its gradient to the directions") quotes it.
@@ -56,8 +56,9 @@ def variants(config: ModelConfig, brdf: LearnedBRDF, lf_light, bounce_light) -> 
 
 def shading_cost(run_dir: str | Path, views: int = 8, repeats: int = 6) -> tuple[int, list[tuple[str, float]]]:
     """(number of Gaussians, [(variant name, median ms per view)]) for the run ``run_dir`` (module docstring)."""
-    scene, train_views, _, _ = load_run(run_dir, device="cpu")
+    scene, train_views, run_config, _ = load_run(run_dir, device="cpu")
     app, gaussians = scene.appearance, scene.gaussians
+    gaussians.params["normals_raw"].requires_grad_(run_config.lr_normals != 0)  # held as the run trained them
     c2ws = [train_views.cameras.c2w[k] for k in train_views.train[:views]]
     rows = []
     for name, config, brdf, lf_light, bounce_light in variants(scene.config, app.brdf, app.lf_light,
