@@ -52,15 +52,18 @@ def sweep(run_dir: str | Path, l0_values: list[float], work: Path, threads: int 
     truths = available_ground_truths(read_dataset(data))
     if "lamps" not in truths:
         raise InputError(f"{data}: the dataset has no ground truth to score against")
-    rows = []
-    for level in [*l0_values, *(["lamp"] if lamp else [])]:
-        out = work / f"l0-{level:g}" if level != "lamp" else work / "l0-lamp"
-        scores = run.score_views(out, "test", threads, l0=[level] * 3 if level != "lamp" else level, device="cpu")
+
+    def relit_row(out: Path, l0: list[float] | str) -> tuple[dict, dict]:
+        """The row of the test views relit at ``l0`` into ``out``, and the lamps-on scores (with the relighting)."""
+        scores = run.score_views(out, "test", threads, l0=l0, device="cpu")
         uniform = score_test_views(data, out, threads, "uniform")["psnr_aligned"] if "uniform" in truths else None
-        rows.append({"l0": level, "lamps": scores["psnr_aligned"], "uniform": uniform})
-        if level == "lamp":
-            rows[-1].update(lamp_irradiance=scores["relight"].get("lamp_irradiance"),
-                            gain=scores["relight"].get("low_frequency_gain"))
+        return {"lamps": scores["psnr_aligned"], "uniform": uniform}, scores
+
+    rows = [{"l0": level, **relit_row(work / f"l0-{level:g}", [level] * 3)[0]} for level in l0_values]
+    if lamp:
+        row, scores = relit_row(work / "l0-lamp", "lamp")
+        rows.append({"l0": "lamp", **row, "lamp_irradiance": scores["relight"].get("lamp_irradiance"),
+                     "gain": scores["relight"].get("low_frequency_gain")})
     return rows
 
 
