@@ -492,3 +492,27 @@ def test_shading_cost_times_the_runs_shading_and_variants_that_shade_alike(tmp_p
     darkgs_scene, *_ = load_run(root / "darkgs", device="cpu")
     with pytest.raises(ValueError, match="SpotlessGS run"):
         module.variants(darkgs_scene.config, darkgs_scene.appearance.brdf, darkgs_scene.appearance.lf_light, None)
+
+
+def test_step_profile_counts_every_profiled_step_and_ranks_operators_by_self_time(tmp_path_factory, tmp_path):
+    """step_profile.py on a tiny SpotlessGS run: the rasterizer's compositing runs forward and backward in every
+    profiled step; the rows are ranked by self time and add up to the total; the run stopped after the profiled steps
+    with a checkpoint a resumed run starts from. Times are only checked to be positive (tests never assert a time)."""
+    from spotlessgs.training.config import preset
+    from spotlessgs.training.trainer import train
+
+    module = load_script("step_profile")
+    data = tiny_runs(tmp_path_factory, "step-profile-data", 6, ())
+    config = preset("tiny", iterations=30, image_width=40, num_threads=1, densify_from=1000, checkpoint_every=1000,
+                    init_points=200, max_gaussians=300)
+    steps = 4
+    ms_per_step, total, rows = module.profile_steps(data, tmp_path / "run", "spotless", config, steps)
+    assert ms_per_step > 0 and total > 0
+    calls = {name: count for name, _, count in rows}
+    assert calls["_CompositeFunction"] >= steps and calls["_CompositeFunctionBackward"] == steps
+    assert [ms for _, ms, _ in rows] == sorted((ms for _, ms, _ in rows), reverse=True)
+    assert sum(ms for _, ms, _ in rows) == pytest.approx(total)
+    assert (tmp_path / "run" / "checkpoints" / "last.safetensors").is_file()
+    resumed = train(data, tmp_path / "run", "spotless", config, seed=0, resume=True, progress=False,
+                    stop_after=steps + 2)
+    assert resumed.steps == steps + 2
