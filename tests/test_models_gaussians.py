@@ -190,6 +190,6 @@ def test_the_shortest_axis_is_a_flat_splats_normal_and_the_normal_shape_term_mea
     both = normal_shape_loss(normals, axes, torch.tensor([True, True]))
     assert _scalar(both) == pytest.approx((0.0 + (1.0 - half)) / 2, abs=1e-6)  # anti-parallel counts as aligned
     assert float(normal_shape_loss(normals, axes, torch.tensor([True, False])).detach()) == pytest.approx(0.0, abs=1e-6)
-    assert float(normal_shape_loss(normals, axes, torch.tensor([False, False]))) == 0.0
+    assert float(normal_shape_loss(normals, axes, torch.tensor([False, False])).detach()) == 0.0
     both.backward()
     assert g.params["quats"].grad.abs().sum() > 0 and g.params["normals_raw"].grad.abs().sum() > 0

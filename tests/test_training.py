@@ -973,14 +973,14 @@ def test_normal_gravity_prior_pulls_to_the_nearer_of_horizontal_and_vertical():
     normals = torch.tensor([[1.0, 0.0, 0.0], [0.0, 0.0, -1.0], [math.cos(tilt), 0.0, math.sin(tilt)],
                             [math.sin(tilt), 0.0, -math.cos(tilt)]], requires_grad=True)
     visible = torch.tensor([True, True, False, False])
-    assert float(normal_gravity_loss(normals, up, visible)) == pytest.approx(0.0, abs=1e-12)
+    assert float(normal_gravity_loss(normals, up, visible).detach()) == pytest.approx(0.0, abs=1e-12)
     loss = normal_gravity_loss(normals, up, torch.tensor([False, False, True, True]))
     expected = (math.sin(tilt) ** 2 + (1.0 - math.cos(tilt)) ** 2) / 2
-    assert float(loss) == pytest.approx(expected, rel=1e-5)
+    assert float(loss.detach()) == pytest.approx(expected, rel=1e-5)
     loss.backward()
     assert float(normals.grad[2, 2]) > 0  # descent lowers the tilted wall's z towards 0
     assert float(normals.grad[3, 2]) > 0  # ... and the tilted ceiling's z towards -1
-    assert float(normal_gravity_loss(normals, up, torch.zeros(4, dtype=torch.bool))) == 0.0
+    assert float(normal_gravity_loss(normals, up, torch.zeros(4, dtype=torch.bool)).detach()) == 0.0
     # level cameras looking along +x and +y (OpenCV: y down) → up is world +z
     look_x = torch.tensor([[0.0, 0.0, 1.0, 0.0], [-1.0, 0.0, 0.0, 0.0], [0.0, -1.0, 0.0, 1.5], [0.0, 0.0, 0.0, 1.0]])
     look_y = torch.tensor([[1.0, 0.0, 0.0, 0.0], [0.0, 0.0, 1.0, 0.0], [0.0, -1.0, 0.0, 1.5], [0.0, 0.0, 0.0, 1.0]])
