@@ -6,8 +6,8 @@ Loads the finished run RUN (a SpotlessGS model: an SH light and the learned BRDF
 spotlit `shading.shade` of every Gaussian and the backward pass of its sum (its normals held if the run held them),
 with the run's own modules and with parts taken away (:func:`variants`): the learned BRDF's network without its
 gradient to the directions it reads (``brdf_network_input_gradients=false``), the Disney factor without the network,
-a Lambertian BRDF with the SH light, and a Lambertian BRDF with DarkGS's constant ambient. Prints a Markdown table of the median ms per view over
-``--repeats`` passes through the first ``--views`` training views. The rasteriser, the loss and the optimiser are not
+a Lambertian BRDF with the SH light, and a Lambertian BRDF with DarkGS's constant ambient. Prints a Markdown table
+of the median ms per view over ``--repeats`` passes through the first ``--views`` training views. The rasteriser, the loss and the optimiser are not
 in it, and training shades only the Gaussians that can touch the view: scripts/step_cost_ab.py measures whole steps.
 docs/results.md ("The learned BRDF's network without its gradient to the directions") quotes it.
 """

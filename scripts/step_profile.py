@@ -2,10 +2,10 @@
 
     python3 scripts/step_profile.py DATA OUT [--variant spotless] [--preset quick] [--steps 300] [--rows 25]
 
-Trains ``--variant`` on DATA into OUT (a new run folder) for the first ``--steps`` steps of ``--preset`` (``stop_after``:
-the run stops as if interrupted, with a checkpoint, and resumes with ``spotless train --resume``) under
-``torch.profiler``, on one thread, and prints a Markdown table of the ``--rows`` operators with the most self CPU time:
-ms per step, share of all profiled self time, and calls per step. The rasterizer's C++ compositing shows as
+Trains ``--variant`` on DATA into OUT (a new run folder) for the first ``--steps`` steps of ``--preset``
+(``stop_after``: the run stops as if interrupted, with a checkpoint, and resumes with ``spotless train --resume``)
+under ``torch.profiler``, on one thread (the run's ``num_threads``), and prints a Markdown table of the ``--rows``
+operators with the most self CPU time: ms per step, share of all profiled self time, and calls per step. The rasterizer's C++ compositing shows as
 ``_CompositeFunction`` and ``_CompositeFunctionBackward``, its projection as ``_ProjectFunction`` and
 ``_ProjectFunctionBackward``; an ``aten::`` row sums every call of that operator, wherever it comes from. The profiler
 slows the run, so the shares are the figure, not the times. The first steps are those before densification, with the
@@ -18,7 +18,6 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-import torch
 from torch.profiler import ProfilerActivity, profile
 
 from spotlessgs.training.config import TrainConfig, preset
@@ -46,7 +45,6 @@ def main() -> None:
     parser.add_argument("--steps", type=int, default=300)
     parser.add_argument("--rows", type=int, default=25)
     args = parser.parse_args()
-    torch.set_num_threads(1)
     ms_per_step, total, rows = profile_steps(args.data, args.out, args.variant, preset(args.preset, num_threads=1),
                                              args.steps)
     print(f"{args.variant}, {args.steps} steps of {args.preset}: {ms_per_step:.1f} ms per step under the profiler, "

@@ -31,16 +31,23 @@ def load_script(name: str):
     return module
 
 
-def tiny_runs(tmp_path_factory, name: str, seed: int, models, iterations: int = 30, **overrides) -> Path:
-    """Tiny runs of ``models`` (seed 0) on a synthetic box dataset drawn with ``seed``, each in ROOT/MODEL beside the
-    dataset; returns the dataset's folder (ROOT is its parent)."""
-    from conftest import synthetic_box_dataset
+def tiny_config(iterations: int = 30, **overrides):
+    """The tiny preset these tests train with: ``iterations`` steps on 40-pixel-wide images, one thread, no
+    densification, at most 300 Gaussians (``overrides``: further TrainConfig fields)."""
     from spotlessgs.training.config import preset
+
+    return preset("tiny", iterations=iterations, image_width=40, num_threads=1, densify_from=1000, log_every=10,
+                  checkpoint_every=1000, init_points=200, max_gaussians=300, **overrides)
+
+
+def tiny_runs(tmp_path_factory, name: str, seed: int, models, iterations: int = 30, **overrides) -> Path:
+    """Tiny runs of ``models`` (seed 0, :func:`tiny_config`) on a synthetic box dataset drawn with ``seed``, each in
+    ROOT/MODEL beside the dataset; returns the dataset's folder (ROOT is its parent)."""
+    from conftest import synthetic_box_dataset
     from spotlessgs.training.trainer import train
 
     data = synthetic_box_dataset(tmp_path_factory, name, seed=seed)
-    config = preset("tiny", iterations=iterations, image_width=40, num_threads=1, densify_from=1000, log_every=10,
-                    checkpoint_every=1000, init_points=200, max_gaussians=300, **overrides)
+    config = tiny_config(iterations, **overrides)
     for model in models:
         train(data, data.parent / model, model, config, seed=0, progress=False)
     return data
@@ -457,8 +464,8 @@ def test_lamp_l0_is_the_irradiance_training_shades_a_white_surface_with(tmp_path
 
 def test_shading_cost_times_the_runs_shading_and_variants_that_shade_alike(tmp_path_factory):
     """shading_cost.py on a tiny SpotlessGS run: the network without its input gradients shades the same colours as
-    the run's own BRDF (so the two times compare like with like); the Disney-only BRDF is the learned one with its network's output at zero; the Lambertian variants shade
-    with the albedo; a DarkGS run is refused. Times are only checked to be positive (tests never assert a time)."""
+    the run's own BRDF (so the two times compare like with like); the Disney-only BRDF is the learned one with its
+    network's output at zero; the Lambertian variants shade with the albedo; a DarkGS run is refused. Times are only checked to be positive (tests never assert a time)."""
     import torch
 
     from spotlessgs.models.shading import shade
@@ -498,13 +505,11 @@ def test_step_profile_counts_every_profiled_step_and_ranks_operators_by_self_tim
     """step_profile.py on a tiny SpotlessGS run: the rasterizer's compositing runs forward and backward in every
     profiled step; the rows are ranked by self time and add up to the total; the run stopped after the profiled steps
     with a checkpoint a resumed run starts from. Times are only checked to be positive (tests never assert a time)."""
-    from spotlessgs.training.config import preset
     from spotlessgs.training.trainer import train
 
     module = load_script("step_profile")
     data = tiny_runs(tmp_path_factory, "step-profile-data", 6, ())
-    config = preset("tiny", iterations=30, image_width=40, num_threads=1, densify_from=1000, checkpoint_every=1000,
-                    init_points=200, max_gaussians=300)
+    config = tiny_config()
     steps = 4
     ms_per_step, total, rows = module.profile_steps(data, tmp_path / "run", "spotless", config, steps)
     assert ms_per_step > 0 and total > 0
