@@ -15,6 +15,14 @@ def _has_cuda() -> bool:
     return torch.cuda.is_available()
 
 
+def pytest_configure(config):
+    """Torch gives some warnings once per process only; give them every time, so that the warning filter in
+    pyproject.toml fails every test that converts a tensor with a gradient to a number, not only the first."""
+    import torch
+
+    torch.set_warn_always(True)
+
+
 def pytest_collection_modifyitems(config, items):
     """Skip `blender` tests without bpy and `gpu` tests without CUDA, with a clear reason."""
     has_bpy = importlib.util.find_spec("bpy") is not None
