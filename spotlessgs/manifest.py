@@ -40,7 +40,7 @@ import os
 from pathlib import Path
 from typing import Any, Iterable, Mapping
 
-from spotlessgs.io.atomic import PARTIAL_MARK, to_jsonable, write_json
+from spotlessgs.io.atomic import to_jsonable, write_json
 from spotlessgs.io.errors import InputError
 from spotlessgs.io.json_files import read_json
 from spotlessgs.io.provenance import provenance
@@ -219,16 +219,3 @@ def verify_frames(folder: str | os.PathLike, manifest: Mapping[str, Any], remedy
     if changed:
         raise InputError(f"{folder}: {len(changed)} file(s) changed since they were written (sha256 differs from "
                          f"the manifest): {_short(changed)}; {remedy}")
-
-
-def is_partial_name(name: str, target: str) -> bool:
-    """Whether ``name`` is a temporary sibling of the folder ``target`` (see :func:`partial_sibling`)."""
-    return name.startswith(f".{target}{PARTIAL_MARK}")
-
-
-def partial_sibling(folder: str | os.PathLike, tag: str = "") -> Path:
-    """A new, not yet existing, hidden temporary path beside ``folder`` (``.<name>.partial-<tag><random>``)."""
-    import secrets
-
-    folder = Path(folder)
-    return folder.parent / f".{folder.name}{PARTIAL_MARK}{tag}{secrets.token_hex(6)}"

@@ -25,7 +25,7 @@ from typing import Any, Iterable, Sequence
 import numpy as np
 import torch
 
-from spotlessgs.io.atomic import PARTIAL_MARK, write_json
+from spotlessgs.io.atomic import PARTIAL_MARK, is_partial_name, partial_sibling, swap_in_folder, write_json
 from spotlessgs.io.cameras import Intrinsics
 from spotlessgs.io.colorspace import linear_to_srgb
 from spotlessgs.io.errors import InputError, OutputOverlapError
@@ -35,8 +35,7 @@ from spotlessgs.io.images import is_image_name, write_png
 from spotlessgs.io.lens import distort_maps, remap, working_camera
 from spotlessgs.io.paths import refuse_overlap
 from spotlessgs.manifest import (
-    MANIFEST_NAME, checkpoint_identity, dataset_record, hash_frames, is_partial_name, manifest_path, partial_sibling,
-    read_manifest, write_manifest,
+    MANIFEST_NAME, checkpoint_identity, dataset_record, hash_frames, manifest_path, read_manifest, write_manifest,
 )
 from spotlessgs.models.pose import corrected_cameras
 from spotlessgs.models.shading import lambert_cosine, shade, shading_normals, view_directions
@@ -240,7 +239,7 @@ def _earlier_render(out: Path, run_dir: Path) -> bool:
 
 def _remove_partial_siblings(out: Path) -> None:
     """Clean up what an interrupted render into ``out`` left beside it (the run lock is held): temporary folders are
-    deleted, except that when ``out`` itself is missing (a crash between :func:`_swap_in`'s two renames) the
+    deleted, except that when ``out`` itself is missing (a crash between :func:`~spotlessgs.io.atomic.swap_in_folder`'s two renames) the
     previous folder, kept as an ``old-`` sibling, is renamed back to ``out`` first."""
     if not out.parent.is_dir():
         return
@@ -260,40 +259,6 @@ def _remove_partial_siblings(out: Path) -> None:
         else:
             with contextlib.suppress(FileNotFoundError):
                 entry.unlink()
-
-
-def _exchange(a: Path, b: Path) -> bool:
-    """Swap two paths in one atomic step (Linux ``renameat2(RENAME_EXCHANGE)``); False where unsupported."""
-    try:
-        import ctypes
-
-        renameat2 = ctypes.CDLL(None, use_errno=True).renameat2
-    except (OSError, AttributeError):
-        return False
-    at_fdcwd, rename_exchange = -100, 2
-    return renameat2(at_fdcwd, os.fsencode(a), at_fdcwd, os.fsencode(b), rename_exchange) == 0
-
-
-def _swap_in(tmp: Path, out: Path) -> None:
-    """Replace the folder ``out`` by the finished folder ``tmp`` (both in the same parent folder). A reader sees the
-    old folder, then the new one (where the system cannot exchange two folders atomically: for an instant none in
-    between), never a mix of both."""
-    if out.is_dir() and not out.is_symlink():
-        if _exchange(tmp, out):
-            shutil.rmtree(tmp, ignore_errors=True)  # now the old folder
-            return
-        old = partial_sibling(out, "old-")  # a crash before the second rename: the next render renames it back
-        os.rename(out, old)
-        try:
-            os.rename(tmp, out)
-        except BaseException:
-            os.rename(old, out)
-            raise
-        shutil.rmtree(old, ignore_errors=True)
-    else:
-        if out.is_symlink():
-            out.unlink()
-        os.rename(tmp, out)
 
 
 @torch.no_grad()
@@ -364,7 +329,7 @@ def render_run(
         try:
             summary = _render_into(run_dir, data, mode, which, out, tmp, l0, exr, progress, device, low_frequency,
                                    align_poses)
-            _swap_in(tmp, out)
+            swap_in_folder(tmp, out)
         except BaseException:
             shutil.rmtree(tmp, ignore_errors=True)
             raise

@@ -137,11 +137,11 @@ def test_relight_replaces_an_earlier_render_and_a_legacy_run_folder(trained, tmp
 
 
 def test_a_crash_between_the_swap_renames_restores_the_previous_folder(tmp_path):
-    from spotlessgs.manifest import partial_sibling
+    from spotlessgs.io.atomic import partial_sibling
     from spotlessgs.rendering import _remove_partial_siblings
 
     out = tmp_path / "relit"
-    old = partial_sibling(out, "old-")  # _swap_in renamed OUT away, then the process died
+    old = partial_sibling(out, "old-")  # swap_in_folder renamed OUT away, then the process died
     before = _photos(old)
     new = partial_sibling(out)  # the new render's folder, not yet renamed to OUT
     _photos(new, 1)
@@ -154,12 +154,12 @@ def test_a_crash_between_the_swap_renames_restores_the_previous_folder(tmp_path)
 
 
 def test_a_failed_second_rename_puts_the_previous_folder_back(tmp_path, monkeypatch):
-    import spotlessgs.rendering as rendering
+    import spotlessgs.io.atomic as atomic
 
     out, tmp = tmp_path / "relit", tmp_path / ".relit.partial-new"
     before = _photos(out)
     _photos(tmp, 1)
-    monkeypatch.setattr(rendering, "_exchange", lambda a, b: False)
+    monkeypatch.setattr(atomic, "_exchange", lambda a, b: False)
     real_rename, calls = os.rename, []
 
     def rename(src, dst):
@@ -168,9 +168,9 @@ def test_a_failed_second_rename_puts_the_previous_folder_back(tmp_path, monkeypa
             raise OSError(28, "No space left on device")
         real_rename(src, dst)
 
-    monkeypatch.setattr(rendering.os, "rename", rename)
+    monkeypatch.setattr(atomic.os, "rename", rename)
     with pytest.raises(OSError):
-        rendering._swap_in(tmp, out)
+        atomic.swap_in_folder(tmp, out)
     monkeypatch.undo()
     assert _snapshot(out) == before
 

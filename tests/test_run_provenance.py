@@ -116,7 +116,7 @@ def test_eval_refuses_images_of_an_earlier_checkpoint(trained, tmp_path):
 
 
 def test_second_relight_replaces_the_first_and_eval_scores_only_it(trained, tmp_path, monkeypatch):
-    import spotlessgs.rendering as rendering
+    import spotlessgs.io.atomic as atomic
 
     run = _copy_run(trained, tmp_path)
     relit = run / "relit"
@@ -133,7 +133,7 @@ def test_second_relight_replaces_the_first_and_eval_scores_only_it(trained, tmp_
     with pytest.raises(FileNotFoundError, match=r"missing relit images for 12 view.*--views all"):
         evaluate_run(run, QUICK)
 
-    monkeypatch.setattr(rendering, "_exchange", lambda a, b: False)  # no atomic exchange: rename, rename
+    monkeypatch.setattr(atomic, "_exchange", lambda a, b: False)  # no atomic exchange: rename, rename
     _relight(run, l0=[1.0, 1.0, 1.0])
     manifest = read_manifest(relit)
     assert _images(relit) == ALL_VIEWS and manifest["options"]["l0"] == [1.0, 1.0, 1.0]

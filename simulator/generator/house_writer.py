@@ -13,7 +13,6 @@ half-written room and a failed run leaves the previous room untouched.
 
 from __future__ import annotations
 
-import contextlib
 import json
 import os
 import shutil
@@ -23,7 +22,7 @@ from pathlib import Path
 
 import numpy as np
 
-from spotlessgs.io.atomic import write_json
+from spotlessgs.io.atomic import swap_in_folder, write_json
 
 from .furniture import FurnitureModel, model_info, save_png, write_model
 
@@ -78,7 +77,7 @@ def write_house(out_dir: Path, files: HouseFiles) -> Path:
             save_png(tmp / "textures" / jid / "texture.png", image)
         write_json(tmp / "house.json", files.house)
         _make_readable(tmp)
-        _swap_in(tmp, out_dir)
+        swap_in_folder(tmp, out_dir)
     except BaseException:
         shutil.rmtree(tmp, ignore_errors=True)
         raise
@@ -92,21 +91,3 @@ def _make_readable(root: Path) -> None:
     os.umask(mask)
     for path in [root, *root.rglob("*")]:
         path.chmod((0o755 if path.is_dir() else 0o644) & ~mask)
-
-
-def _swap_in(new: Path, target: Path) -> None:
-    """Replace ``target`` by the folder ``new`` (two renames; the old folder is deleted afterwards)."""
-    old = None
-    if target.exists():
-        old = Path(tempfile.mkdtemp(prefix=f".{target.name}.old-", dir=target.parent))
-        os.rmdir(old)
-        os.replace(target, old)
-    try:
-        os.replace(new, target)
-    except BaseException:
-        if old is not None:
-            os.replace(old, target)
-        raise
-    if old is not None:
-        with contextlib.suppress(OSError):
-            shutil.rmtree(old)

@@ -13,6 +13,8 @@ import contextlib
 import json
 import math
 import os
+import secrets
+import shutil
 import tempfile
 import threading
 from pathlib import Path
@@ -194,3 +196,50 @@ def write_text(path: str | os.PathLike, text: str) -> None:
     """Write ``text`` atomically."""
     with atomic_open(path) as fh:
         fh.write(text)
+
+
+def is_partial_name(name: str, target: str) -> bool:
+    """Whether ``name`` is a temporary sibling of the folder ``target`` (see :func:`partial_sibling`)."""
+    return name.startswith(f".{target}{PARTIAL_MARK}")
+
+
+def partial_sibling(folder: str | os.PathLike, tag: str = "") -> Path:
+    """A new, not yet existing, hidden temporary path beside ``folder`` (``.<name>.partial-<tag><random>``)."""
+    folder = Path(folder)
+    return folder.parent / f".{folder.name}{PARTIAL_MARK}{tag}{secrets.token_hex(6)}"
+
+
+def _exchange(a: Path, b: Path) -> bool:
+    """Swap two paths in one atomic step (Linux ``renameat2(RENAME_EXCHANGE)``); False where unsupported."""
+    try:
+        import ctypes
+
+        renameat2 = ctypes.CDLL(None, use_errno=True).renameat2
+    except (OSError, AttributeError):
+        return False
+    at_fdcwd, rename_exchange = -100, 2
+    return renameat2(at_fdcwd, os.fsencode(a), at_fdcwd, os.fsencode(b), rename_exchange) == 0
+
+
+def swap_in_folder(new: str | os.PathLike, target: str | os.PathLike) -> None:
+    """Replace the folder ``target`` by the finished folder ``new`` (both in the same parent folder; ``target`` may be
+    missing). A reader sees the old folder, then the new one (where the system cannot exchange two folders atomically:
+    for an instant none in between), never a mix of both. Where the process dies between the two renames, the old
+    folder is left as the sibling ``partial_sibling(target, "old-")``."""
+    new, target = Path(new), Path(target)
+    if target.is_dir() and not target.is_symlink():
+        if _exchange(new, target):
+            shutil.rmtree(new, ignore_errors=True)  # now the old folder
+            return
+        old = partial_sibling(target, "old-")
+        os.rename(target, old)
+        try:
+            os.rename(new, target)
+        except BaseException:
+            os.rename(old, target)
+            raise
+        shutil.rmtree(old, ignore_errors=True)
+    else:
+        if target.is_symlink():
+            target.unlink()
+        os.rename(new, target)
