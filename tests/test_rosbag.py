@@ -30,10 +30,15 @@ def sequence():
 
 
 def _write_bag(path, sequence, ros: int, compressed: bool = False, encoding: str = "rgb8", depth: str | None = None,
-               depth_offset_ns: int = 5_000_000):
+               depth_offset_ns: int = 5_000_000, info_size: tuple[int, int] | None = None, zero_k: bool = False,
+               zero_first_orientation: bool = False, damaged_frame: int | None = None,
+               cropped_frame: int | None = None):
     """A bag with the sequence's frames (raw or JPEG), its CameraInfo and the camera's odometry; with ``depth``
     (``16UC1`` or ``32FC1``) also its registered depth images on ``/cam/depth``, ``depth_offset_ns`` after each
-    frame."""
+    frame. Damage for the error tests: ``info_size`` (width, height) in the CameraInfo instead of the frames',
+    ``zero_k`` an uncalibrated CameraInfo (K all zeros), ``zero_first_orientation`` a zero quaternion in the first
+    odometry message, ``damaged_frame`` that frame's message cut short, ``cropped_frame`` that raw frame one column
+    narrower."""
     if ros == 1:
         from rosbags.rosbag1 import Writer
         store = get_typestore(Stores.ROS1_NOETIC)
@@ -59,18 +64,20 @@ def _write_bag(path, sequence, ros: int, compressed: bool = False, encoding: str
             kwargs = {"seq": 0} if ros == 1 else {}
             return t["std_msgs/msg/Header"](stamp=stamp, frame_id="cam_optical", **kwargs)
 
-        k = [intr.fx, 0, intr.cx - 0.5, 0, intr.fy, intr.cy - 0.5, 0, 0, 1]
+        k = [0.0] * 9 if zero_k else [intr.fx, 0, intr.cx - 0.5, 0, intr.fy, intr.cy - 0.5, 0, 0, 1]
         roi = t["sensor_msgs/msg/RegionOfInterest"](x_offset=0, y_offset=0, height=0, width=0, do_rectify=False)
         matrices = {"d": np.zeros(5), "k": np.array(k, float), "r": np.eye(3).ravel(), "p": np.zeros(12)}
         if ros == 1:  # ROS 1 names them D, K, R, P
             matrices = {name.upper(): value for name, value in matrices.items()}
-        msg = t["sensor_msgs/msg/CameraInfo"](header=header(0), height=height, width=width, distortion_model="plumb_bob",
-                                              binning_x=0, binning_y=0, roi=roi, **matrices)
+        info_width, info_height = info_size or (width, height)
+        msg = t["sensor_msgs/msg/CameraInfo"](header=header(0), height=info_height, width=info_width,
+                                              distortion_model="plumb_bob", binning_x=0, binning_y=0, roi=roi,
+                                              **matrices)
         writer.write(info, 0, serialize(msg, "sensor_msgs/msg/CameraInfo"))
         for i in range(frames + 1):  # odometry every 0.5 s; frame i at 0.5 i s
             ns = i * 500_000_000
             j = min(i, frames - 1)
-            q = Rotation.from_matrix(c2w[j, :3, :3]).as_quat()
+            q = np.zeros(4) if zero_first_orientation and i == 0 else Rotation.from_matrix(c2w[j, :3, :3]).as_quat()
             pose = t["geometry_msgs/msg/Pose"](position=t["geometry_msgs/msg/Point"](x=c2w[j, 0, 3], y=c2w[j, 1, 3],
                                                                                       z=c2w[j, 2, 3]),
                                                orientation=t["geometry_msgs/msg/Quaternion"](x=q[0], y=q[1], z=q[2],
@@ -91,9 +98,12 @@ def _write_bag(path, sequence, ros: int, compressed: bool = False, encoding: str
                 msg = t["sensor_msgs/msg/CompressedImage"](header=header(ns), format="jpeg", data=data.ravel())
             else:
                 data = cv2.cvtColor(rgb, cv2.COLOR_RGB2BGR) if encoding == "bgr8" else rgb
-                msg = t["sensor_msgs/msg/Image"](header=header(ns), height=height, width=width, encoding=encoding,
-                                                 is_bigendian=0, step=3 * width, data=data.ravel())
-            writer.write(images, ns, serialize(msg, image_type))
+                data = np.ascontiguousarray(data[:, :-1]) if i == cropped_frame else data
+                msg = t["sensor_msgs/msg/Image"](header=header(ns), height=height, width=data.shape[1],
+                                                 encoding=encoding, is_bigendian=0, step=3 * data.shape[1],
+                                                 data=data.ravel())
+            raw = serialize(msg, image_type)
+            writer.write(images, ns, raw[:30] if i == damaged_frame else raw)
             if depth is not None:
                 z = sequence.depth[i]
                 data, step = ((np.round(z * 1000).astype("<u2"), 2 * width) if depth == "16UC1"
@@ -146,6 +156,40 @@ def test_bag_errors_name_the_bag_and_the_problem(sequence, tmp_path):
     result = CliRunner().invoke(main, ["prepare", "--bag", str(bag), "--image-topic", "/cam/image", "--odometry-topic",
                                        "/cam/odom", "--out", str(tmp_path / "data")])
     assert result.exit_code == 2 and "need the camera too" in result.output
+
+
+def test_damaged_or_inconsistent_bags_name_the_bag_topic_and_stamp(sequence, tmp_path):
+    """A cut-short message, a frame of another size, a CameraInfo of another size or uncalibrated: one line naming
+    the bag, the topic and (for a frame) its time stamp, before anything is written."""
+    cases = [
+        ({"damaged_frame": 2}, r"cam: /cam/image at 1000000000 ns: damaged sensor_msgs/msg/Image message"),
+        ({"cropped_frame": 3}, rf"cam: /cam/image: the frame at 1500000000 ns is {WIDTH - 1}x{HEIGHT}, the first "
+                               rf"{WIDTH}x{HEIGHT}"),
+        ({"info_size": (640, 480)}, rf"cam: /cam/image: the frames are {WIDTH}x{HEIGHT} but /cam/info says 640x480"),
+        ({"zero_k": True}, r"cam: /cam/info: the CameraInfo cannot be used \(.*focal lengths must be positive.*\); is "
+                           r"the camera calibrated\?"),
+    ]
+    for k, (damage, message) in enumerate(cases):
+        bag = tmp_path / f"{k}" / "cam"
+        _write_bag(bag, sequence, 2, **damage)
+        with pytest.raises(InputError, match=message):
+            read_bag(bag, "/cam/image", "/cam/info", "/cam/odom")
+        out = tmp_path / f"{k}" / "data"
+        result = CliRunner().invoke(main, ["prepare", "--bag", str(bag), "--image-topic", "/cam/image",
+                                           "--camera-info-topic", "/cam/info", "--odometry-topic", "/cam/odom",
+                                           "--out", str(out), "-q"])
+        assert result.exit_code == 2 and len(result.output.strip().splitlines()) == 1, result.output
+        assert not out.exists() or not any(out.iterdir())  # refused before anything was written
+
+
+def test_odometry_before_it_is_initialised_is_skipped(sequence, tmp_path):
+    """A zero quaternion (odometry that has not initialised yet) drops that pose with a warning; the frames between
+    the remaining poses keep theirs."""
+    bag = tmp_path / "cam"
+    c2w = _write_bag(bag, sequence, 2, zero_first_orientation=True)
+    frames = read_bag(bag, "/cam/image", "/cam/info", "/cam/odom")
+    assert len(frames.images) == FRAMES - 1 and frames.skipped == 1  # the frame at 0 s had only the zero pose
+    np.testing.assert_allclose(frames.c2w, c2w[1:], atol=1e-6)
 
 
 def test_image_encodings_and_camera_models():

@@ -15,6 +15,7 @@ Frames are kept at least ``min_interval_s`` apart in time and, with poses, ``min
 
 from __future__ import annotations
 
+import logging
 import math
 from dataclasses import dataclass
 from pathlib import Path
@@ -27,6 +28,8 @@ from scipy.spatial.transform import Rotation
 
 from spotlessgs.io.cameras import Intrinsics, interpolate_pose
 from spotlessgs.io.errors import InputError
+
+log = logging.getLogger(__name__)
 
 IMAGE_TYPES = ("sensor_msgs/msg/Image", "sensor_msgs/msg/CompressedImage")
 POSE_TYPES = ("nav_msgs/msg/Odometry", "geometry_msgs/msg/PoseStamped")
@@ -133,13 +136,25 @@ def camera_info_intrinsics(msg, where: str) -> Intrinsics:
     else:
         raise InputError(f"{where}: distortion model {msg.distortion_model!r} is not supported (plumb_bob, "
                          "rational_polynomial, equidistant)")
-    return Intrinsics(k[0], k[4], k[2] + 0.5, k[5] + 0.5, int(msg.width), int(msg.height), lens, d)
+    try:
+        return Intrinsics(k[0], k[4], k[2] + 0.5, k[5] + 0.5, int(msg.width), int(msg.height), lens, d)
+    except ValueError as exc:  # an uncalibrated camera publishes zeros
+        raise InputError(f"{where}: the CameraInfo cannot be used ({exc}); is the camera calibrated?") from None
 
 
 def _pose(msg, msgtype: str) -> tuple[np.ndarray, np.ndarray]:
     pose = msg.pose.pose if msgtype.endswith("Odometry") else msg.pose
     p, q = pose.position, pose.orientation
     return np.array([p.x, p.y, p.z]), np.array([q.x, q.y, q.z, q.w])
+
+
+def _deserialize(reader, raw: bytes, conn, t: int, where: str):
+    """The message ``raw`` of connection ``conn``; InputError naming ``where`` (the bag and topic) and the bag's time
+    ``t`` (ns) where it cannot be decoded (a truncated or damaged message)."""
+    try:
+        return reader.deserialize(raw, conn.msgtype)
+    except Exception as exc:  # rosbags raises its own error types, and struct or index errors from the raw bytes
+        raise InputError(f"{where} at {t} ns: damaged {conn.msgtype} message ({exc})") from None
 
 
 def _stamp_ns(msg, fallback: int) -> int:
@@ -178,22 +193,29 @@ def read_bag(bag: str | Path, image_topic: str, camera_info_topic: str | None = 
         intrinsics = None
         if camera_info_topic is not None:
             conns = connections(camera_info_topic, ("sensor_msgs/msg/CameraInfo",))
-            for conn, _t, raw in reader.messages(connections=conns):
-                intrinsics = camera_info_intrinsics(reader.deserialize(raw, conn.msgtype), f"{bag}: {camera_info_topic}")
+            for conn, t, raw in reader.messages(connections=conns):
+                where = f"{bag}: {camera_info_topic}"
+                intrinsics = camera_info_intrinsics(_deserialize(reader, raw, conn, t, where), where)
                 break
         poses = None
         if pose_topic is not None:
             conns = connections(pose_topic, POSE_TYPES)
             records = [(_stamp_ns(m, t), *_pose(m, c.msgtype)) for c, t, raw in reader.messages(connections=conns)
-                       for m in [reader.deserialize(raw, c.msgtype)]]
+                       for m in [_deserialize(reader, raw, c, t, f"{bag}: {pose_topic}")]]
             records.sort(key=lambda r: r[0])
+            valid = [r for r in records if _valid_pose(r[1], r[2])]
+            if len(valid) < len(records):  # odometry that is not yet initialised often publishes a zero quaternion
+                log.warning("%s: %s: %d of %d poses skipped (a zero or non-finite orientation, or a non-finite "
+                            "position)", bag, pose_topic, len(records) - len(valid), len(records))
+            records = valid
             if len(records) < 2:
-                raise InputError(f"{bag}: topic {pose_topic!r} has {len(records)} pose(s); at least 2 are needed")
+                raise InputError(f"{bag}: topic {pose_topic!r} has {len(records)} usable pose(s); at least 2 are "
+                                 "needed")
             poses = records
         stamps, images, c2w, skipped = [], [], [], 0
         last_stamp, last_centre = None, None
         for conn, t, raw in reader.messages(connections=image_conns):
-            msg = reader.deserialize(raw, conn.msgtype)
+            msg = _deserialize(reader, raw, conn, t, f"{bag}: {image_topic}")
             stamp = _stamp_ns(msg, t)
             if last_stamp is not None and (stamp - last_stamp) < min_interval_s * 1e9:
                 skipped += 1
@@ -213,6 +235,7 @@ def read_bag(bag: str | Path, image_topic: str, camera_info_topic: str | None = 
                 last_centre = pose[:3, 3]
         if not images:
             raise InputError(f"{bag}: no frame of {image_topic!r} was kept ({skipped} skipped)")
+        _check_frame_sizes(images, stamps, intrinsics, f"{bag}: {image_topic}", camera_info_topic)
         depths = None
         if depth_topic is not None:
             depths = _matched_depths(reader, connections(depth_topic, ("sensor_msgs/msg/Image",)), stamps,
@@ -239,7 +262,7 @@ def _matched_depths(reader, conns, stamps: list[int], where: str) -> list[np.nda
     nearest: dict[int, tuple[int, int, object]] = {}  # frame -> (|Δt|, the message's stamp, the message)
     depth_stamps = []
     for conn, t, raw in reader.messages(connections=conns):
-        msg = reader.deserialize(raw, conn.msgtype)
+        msg = _deserialize(reader, raw, conn, t, where)
         stamp = _stamp_ns(msg, t)
         depth_stamps.append(stamp)
         lo = int(np.searchsorted(sorted_stamps, stamp - DEPTH_SYNC_NS, side="left"))
@@ -260,6 +283,26 @@ def _matched_depths(reader, conns, stamps: list[int], where: str) -> list[np.nda
         if stamp not in decoded:
             decoded[stamp] = decode_depth(msg, f"{where} at {stamp} ns")
     return [decoded[nearest[k][1]] for k in range(len(stamps))]
+
+
+def _check_frame_sizes(images: list[np.ndarray], stamps: list[int], intrinsics: Intrinsics | None, where: str,
+                       camera_info_topic: str | None) -> None:
+    """InputError naming ``where`` (the bag and image topic) and the frame's stamp where a kept frame differs in size
+    from the first, or the frames from the CameraInfo's width and height."""
+    height, width = images[0].shape[:2]
+    for image, stamp in zip(images, stamps):
+        if image.shape[:2] != (height, width):
+            raise InputError(f"{where}: the frame at {stamp} ns is {image.shape[1]}x{image.shape[0]}, the first "
+                             f"{width}x{height}; one camera's frames must share a size")
+    if intrinsics is not None and (intrinsics.width, intrinsics.height) != (width, height):
+        raise InputError(f"{where}: the frames are {width}x{height} but {camera_info_topic} says "
+                         f"{intrinsics.width}x{intrinsics.height} (a CameraInfo of another camera or resolution)")
+
+
+def _valid_pose(position: np.ndarray, quaternion: np.ndarray) -> bool:
+    """Whether a pose message can place a camera: a finite position and a finite, non-zero orientation."""
+    norm = float(np.linalg.norm(quaternion))
+    return bool(np.isfinite(position).all()) and math.isfinite(norm) and norm > 1e-6
 
 
 def _interpolate(records, stamp: int) -> np.ndarray | None:
