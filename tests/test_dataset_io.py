@@ -5,6 +5,7 @@ from __future__ import annotations
 import dataclasses
 import json
 import math
+import re
 import struct
 import zlib
 from pathlib import Path
@@ -319,6 +320,15 @@ def test_image_errors(tmp_path):
     (tmp_path / "junk.png").write_bytes(b"this is not an image")
     with pytest.raises(ValueError, match="junk.png: cannot decode image"):
         read_image(tmp_path / "junk.png")
+
+    def chunk(kind: bytes, body: bytes) -> bytes:
+        return struct.pack(">I", len(body)) + kind + body + struct.pack(">I", zlib.crc32(kind + body))
+
+    header = struct.pack(">IIBBBBB", 20000, 20000, 8, 2, 0, 0, 0)  # says 20000x20000 RGB: a decompression bomb
+    (tmp_path / "huge.png").write_bytes(b"\x89PNG\r\n\x1a\n" + chunk(b"IHDR", header)
+                                        + chunk(b"IDAT", zlib.compress(b"")) + chunk(b"IEND", b""))
+    with pytest.raises(ValueError, match="huge.png: cannot decode image .*decompression bomb"):
+        read_image(tmp_path / "huge.png")
     with pytest.raises(ValueError, match=r"o.png: write_png expects an \(H, W, 3\) image, got shape \(4, 4\)"):
         write_png(tmp_path / "o.png", np.zeros((4, 4)))
     with pytest.raises(ValueError, match="o.png: write_png image contains NaN"):
@@ -629,6 +639,31 @@ def test_colmap_errors(tmp_path):
     bad_name = model_from_poses(intr, ["has space.png", "b.png"], c2w)
     with pytest.raises(ValueError, match="name 'has space.png' is empty or contains whitespace"):
         write_colmap_text(tmp_path / "x", bad_name)
+    # a pose that is not finite or has a zero quaternion, an id twice, a name that is not UTF-8: file and line
+    lines = images.splitlines(keepends=True)
+    entry = next(k for k, line in enumerate(lines) if line.startswith("1 "))
+    fields = lines[entry].split(" ")
+    for k, value, problem in ((7, "nan", "unusable pose"), (6, "inf", "unusable pose"), (1, "0", None)):
+        damaged = fields.copy()
+        damaged[k] = value
+        if problem is None:  # the quaternion (w x y z) all zeros
+            damaged[1:5] = ["0", "0", "0", "0"]
+            problem = "unusable pose"
+        (tmp_path / "images.txt").write_text("".join(lines[:entry] + [" ".join(damaged)] + lines[entry + 1:]))
+        with pytest.raises(ValueError, match=rf"images.txt:{entry + 1}: image 1 has an {problem}"):
+            read_colmap_text(tmp_path)
+    twice = lines[entry + 2].split(" ")
+    twice[0] = "1"
+    (tmp_path / "images.txt").write_text("".join(lines[:entry + 2] + [" ".join(twice)] + lines[entry + 3:]))
+    with pytest.raises(ValueError, match=rf"images.txt:{entry + 3}: image id 1 appears twice"):
+        read_colmap_text(tmp_path)
+    (tmp_path / "images.txt").write_bytes(images.replace("frame_00001.png", "fr\xe9me.png").encode("latin-1"))
+    with pytest.raises(ValueError, match=rf"images.txt:{entry + 3}: not UTF-8 text"):
+        read_colmap_text(tmp_path)
+    (tmp_path / "images.txt").write_text(images)
+    (tmp_path / "bin" / "images.bin").write_bytes(data.replace(b"img_0.jpg", b"img_\xe9.jpg", 1))
+    with pytest.raises(ValueError, match="images.bin: image name at offset .* is not UTF-8"):
+        read_colmap_binary(tmp_path / "bin")
 
 
 # --------------------------------------------------------------------------------------------------- transforms.json
@@ -771,6 +806,14 @@ def test_transforms_error_paths(tmp_path):
         (dict(frames=[{"file_path": "a.png", "transform_matrix": np.diag([2.0, 1, 1, 1]).tolist()}]),
          "not a rotation"),
         (dict(frames=[{"file_path": "/abs/a.png", "transform_matrix": eye}]), "must be a relative POSIX path"),
+        (dict(frames=[{"file_path": "../other/a.png", "transform_matrix": eye}]),
+         r"frames\[0\].file_path: must stay inside the dataset folder \(no '..'\)"),
+        (dict(frames=[{"file_path": "a.png", "gt_file_path": "gt/../../x.png", "transform_matrix": eye}]),
+         r"frames\[0\].gt_file_path: must stay inside the dataset folder"),
+        (dict(ply_file_path="../../points.ply"), "ply_file_path: must stay inside the dataset folder"),
+        (dict(fl_x=None, camera_angle_x=0), r"camera_angle_x: a field of view must lie between 0 and pi radians"),
+        (dict(fl_x=None, camera_angle_x=4.0), "a field of view must lie between 0 and pi"),
+        (dict(w=10**400), r"\.w: expected a finite number, got 1000000000.*\.\.\. \(401 characters\)"),
         (dict(frames=[{"file_path": "a.png", "transform_matrix": "eye"}]), "not a numeric 4x4 matrix"),
         (dict(fl_x=None), "missing key 'fl_x'"),
         (dict(fl_x=-3.0), "focal lengths must be positive"),
@@ -802,6 +845,9 @@ def test_transforms_error_paths(tmp_path):
     (tmp_path / "bad.json").write_text("{not json")
     with pytest.raises(DatasetError, match="bad.json: not valid JSON"):
         read_transforms(tmp_path / "bad.json")
+    (tmp_path / "deep.json").write_text("[" * 100_000 + "]" * 100_000)
+    with pytest.raises(DatasetError, match=r"deep.json: not valid JSON \(nested too deeply\)"):
+        read_transforms(tmp_path / "deep.json")
     (tmp_path / "list.json").write_text("[]")
     with pytest.raises(DatasetError, match="top level must be an object"):
         read_transforms(tmp_path / "list.json")
@@ -877,6 +923,13 @@ def test_read_dataset_dispatch_and_colmap_folder(tmp_path):
     np.testing.assert_allclose(cloud.xyz, xyz.astype(np.float32))
     with pytest.raises(FileNotFoundError, match=r"image 1 file .*frame_00000.png does not exist"):
         read_colmap_dataset(folder, check_files=True)
+    for name in ("../outside.png", "/etc/hostname"):  # a name that leaves the images folder
+        renamed = dict(model.images)
+        renamed[1] = dataclasses.replace(renamed[1], name=name)
+        write_colmap_text(tmp_path / "escape" / "sparse" / "0", dataclasses.replace(model, images=renamed))
+        with pytest.raises(DatasetError, match=rf"escape/sparse/0/images.txt: image 1 is named '{re.escape(name)}'; "
+                                               "COLMAP names a frame by its path inside the images folder"):
+            read_dataset(tmp_path / "escape")
     with pytest.raises(FileNotFoundError, match="neither transforms.json nor a COLMAP sparse/ folder"):
         read_dataset(tmp_path / "empty")
     (tmp_path / "bad" / "sparse").mkdir(parents=True)

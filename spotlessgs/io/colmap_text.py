@@ -11,6 +11,7 @@ Text format: https://colmap.github.io/format.html (one line per camera; two line
 
 from __future__ import annotations
 
+import io
 import os
 import struct
 from dataclasses import dataclass, field
@@ -261,13 +262,18 @@ def write_colmap_text(folder: str | os.PathLike, model: ColmapModel) -> None:
 def _data_lines(path: Path) -> list[tuple[int, str]]:
     if not path.is_file():
         raise FileNotFoundError(f"{path}: COLMAP model file not found")
+    data = path.read_bytes()
+    try:
+        text = data.decode("utf-8")
+    except UnicodeDecodeError as exc:
+        line = data[: exc.start].count(b"\n") + 1
+        raise ValueError(f"{path}:{line}: not UTF-8 text ({exc.reason})") from None
     out = []
-    with open(path, encoding="utf-8") as fh:
-        for number, line in enumerate(fh, start=1):
-            stripped = line.strip()
-            if stripped.startswith("#"):
-                continue
-            out.append((number, stripped))
+    for number, line in enumerate(io.StringIO(text, newline=None), start=1):  # lines as a text file's, \r\n included
+        stripped = line.strip()
+        if stripped.startswith("#"):
+            continue
+        out.append((number, stripped))
     return out
 
 
@@ -325,6 +331,7 @@ def read_colmap_text(folder: str | os.PathLike) -> ColmapModel:
             raise ValueError(f"{path}:{number}: bad image entry ({exc})") from exc
         if img.camera_id not in cameras:
             raise ValueError(f"{path}:{number}: image {img.image_id} refers to unknown camera {img.camera_id}")
+        _check_image(img, images, f"{path}:{number}")
         images[img.image_id] = img
         k += 2
 
@@ -352,6 +359,17 @@ def read_colmap_text(folder: str | os.PathLike) -> ColmapModel:
         tuple(tracks),
     )
     return ColmapModel(cameras, images, points)
+
+
+def _check_image(image: ColmapImage, images: dict[int, ColmapImage], where: str) -> None:
+    """ValueError naming ``where`` (the file, and line) for an image that repeats an id already in ``images`` or whose
+    pose is not finite or has a zero quaternion."""
+    if image.image_id in images:
+        raise ValueError(f"{where}: image id {image.image_id} appears twice")
+    norm = float(np.linalg.norm(image.qvec))
+    if not (np.isfinite(image.qvec).all() and np.isfinite(image.tvec).all() and norm > 1e-12):
+        raise ValueError(f"{where}: image {image.image_id} has an unusable pose (quaternion {image.qvec.tolist()}, "
+                         f"translation {image.tvec.tolist()}: not finite, or a zero quaternion)")
 
 
 class _Reader:
@@ -385,7 +403,10 @@ class _Reader:
         end = self.data.find(b"\x00", self.pos)
         if end < 0:
             raise ValueError(f"{self.path}: unterminated image name at offset {self.pos}")
-        text = self.data[self.pos : end].decode("utf-8")
+        try:
+            text = self.data[self.pos : end].decode("utf-8")
+        except UnicodeDecodeError as exc:
+            raise ValueError(f"{self.path}: image name at offset {self.pos} is not UTF-8 ({exc.reason})") from None
         self.pos = end + 1
         return text
 
@@ -417,7 +438,7 @@ def read_colmap_binary(folder: str | os.PathLike) -> ColmapModel:
         obs = reader.array(obs_dtype, reader.read("Q")[0])
         if camera_id not in cameras:
             raise ValueError(f"{reader.path}: image {image_id} refers to unknown camera {camera_id}")
-        images[image_id] = ColmapImage(
+        image = ColmapImage(
             image_id,
             np.array([qw, qx, qy, qz]),
             np.array([tx, ty, tz]),
@@ -426,6 +447,8 @@ def read_colmap_binary(folder: str | os.PathLike) -> ColmapModel:
             np.stack([obs["x"], obs["y"]], axis=1),
             obs["id"].astype(np.int64),
         )
+        _check_image(image, images, str(reader.path))
+        images[image_id] = image
     reader.finish()
 
     reader = _Reader(folder / "points3D.bin")

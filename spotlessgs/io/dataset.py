@@ -44,6 +44,14 @@ def read_colmap_dataset(folder: str | os.PathLike, check_files: bool = False) ->
     if not model.images:
         raise DatasetError(f"{sparse}: COLMAP model has no registered images")
     images = sorted(model.images.values(), key=lambda im: im.name)
+    for im in images:  # names are relative to the images folder: one that leaves it is damage, not a frame
+        if not im.name or Path(im.name).is_absolute() or ".." in Path(im.name).parts:
+            raise DatasetError(f"{model_files(sparse)[1]}: image {im.image_id} is named {im.name!r}; COLMAP names a "
+                               "frame by its path inside the images folder")
+    names = [im.name for im in images]
+    if len(set(names)) < len(names):
+        twice = next(n for n, m in zip(names, names[1:]) if n == m)
+        raise DatasetError(f"{model_files(sparse)[1]}: two images are named {twice!r}")
     try:
         intrinsics = {cid: model.cameras[cid].to_intrinsics() for cid in {im.camera_id for im in images}}
     except ValueError as exc:  # a camera model we cannot use: name the file that defines it

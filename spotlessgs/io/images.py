@@ -117,7 +117,7 @@ def _read_with_pillow(path: Path) -> np.ndarray:
                 data = data.astype(np.float32) / 255.0
             else:
                 raise ValueError(f"{path}: unsupported image mode {mode!r}")
-    except (UnidentifiedImageError, OSError, SyntaxError) as exc:
+    except (UnidentifiedImageError, OSError, SyntaxError, Image.DecompressionBombError) as exc:
         raise ValueError(f"{path}: cannot decode image ({exc})") from exc
     return data
 

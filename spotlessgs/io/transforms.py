@@ -74,9 +74,27 @@ def _vec(value: Any, shape: tuple[int, ...], where: str) -> np.ndarray:
 
 
 def _finite_number(value: Any, where: str) -> float:
-    if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
-        raise DatasetError(f"{where}: expected a finite number, got {value!r}")
-    return float(value)
+    try:  # an integer beyond float's range overflows
+        number = float(value) if isinstance(value, (int, float)) and not isinstance(value, bool) else math.nan
+    except OverflowError:
+        number = math.nan
+    if not math.isfinite(number):
+        raise DatasetError(f"{where}: expected a finite number, got {_short_repr(value)}")
+    return number
+
+
+def _short_repr(value: Any, limit: int = 60) -> str:
+    """repr(value), cut to ``limit`` characters (a damaged file's value may be huge)."""
+    text = repr(value)
+    return text if len(text) <= limit else f"{text[:limit]}... ({len(text)} characters)"
+
+
+def _view_angle(value: Any, where: str) -> float:
+    """A field of view (radians) in (0, π): nerfstudio's ``camera_angle_x`` / ``camera_angle_y``."""
+    angle = _finite_number(value, where)
+    if not 0.0 < angle < math.pi:
+        raise DatasetError(f"{where}: a field of view must lie between 0 and pi radians, got {angle!r}")
+    return angle
 
 
 @dataclass(frozen=True, eq=False)
@@ -249,6 +267,8 @@ def _check_relative(path_str: str, where: str) -> None:
         raise DatasetError(f"{where}: expected a non-empty relative path string, got {path_str!r}")
     if Path(path_str).is_absolute() or "\\" in path_str:
         raise DatasetError(f"{where}: must be a relative POSIX path, got {path_str!r}")
+    if ".." in Path(path_str).parts:
+        raise DatasetError(f"{where}: must stay inside the dataset folder (no '..'), got {path_str!r}")
 
 
 def nerfstudio_camera(intrinsics: Intrinsics, path: str | os.PathLike) -> dict[str, Any]:
@@ -473,10 +493,14 @@ def _frame_intrinsics(data: dict[str, Any], frame: dict[str, Any], where: str, r
     if w is None or h is None:
         if not image.is_file():
             raise DatasetError(f"{where}: missing 'w'/'h' and image {image} is not there to measure")
-        from PIL import Image
+        from PIL import Image, UnidentifiedImageError
 
-        with Image.open(image) as im:
-            w, h = im.size
+        try:
+            with Image.open(image) as im:
+                w, h = im.size
+        except (UnidentifiedImageError, OSError) as exc:
+            raise DatasetError(f"{where}: missing 'w'/'h' and image {image} cannot be read to measure it ({exc})"
+                               ) from None
     w = _finite_number(w, f"{where}.w")
     h = _finite_number(h, f"{where}.h")
     if w != int(w) or h != int(h) or w <= 0 or h <= 0:
@@ -486,11 +510,11 @@ def _frame_intrinsics(data: dict[str, Any], frame: dict[str, Any], where: str, r
         angle = get("camera_angle_x")
         if angle is None:
             raise DatasetError(f"{where}: missing key 'fl_x' (and no 'camera_angle_x')")
-        fl_x = 0.5 * w / math.tan(0.5 * _finite_number(angle, f"{where}.camera_angle_x"))
+        fl_x = 0.5 * w / math.tan(0.5 * _view_angle(angle, f"{where}.camera_angle_x"))
     fl_y = get("fl_y")
     if fl_y is None:
         angle_y = get("camera_angle_y")
-        fl_y = fl_x if angle_y is None else 0.5 * h / math.tan(0.5 * _finite_number(angle_y, f"{where}.camera_angle_y"))
+        fl_y = fl_x if angle_y is None else 0.5 * h / math.tan(0.5 * _view_angle(angle_y, f"{where}.camera_angle_y"))
     cx = get("cx")
     cy = get("cy")
     values = (
@@ -562,6 +586,8 @@ def read_transforms(path: str | os.PathLike, check_files: bool = False) -> Datas
         data = json.loads(path.read_text(encoding="utf-8"))
     except (json.JSONDecodeError, UnicodeDecodeError) as exc:
         raise DatasetError(f"{path}: not valid JSON ({exc})") from exc
+    except RecursionError:
+        raise DatasetError(f"{path}: not valid JSON (nested too deeply)") from None
     if not isinstance(data, dict):
         raise DatasetError(f"{path}: top level must be an object")
     root = path.parent
