@@ -308,6 +308,31 @@ def test_points_from_depth_refuse_a_frame_without_depth_and_leave_the_dataset(rg
     assert not (data / DEPTH_POINTS_FILE).exists()
 
 
+def test_points_refuse_a_one_frame_dataset_and_a_damaged_summary_before_writing(rgbd_room, tmp_path):
+    """One frame is a test frame only: no training frame to take points from. A prepare.json that is not a JSON object
+    is named, and nothing is written: the dataset stays as it was, and a rerun after mending it completes."""
+    data = tmp_path / "data"
+    shutil.copytree(rgbd_room, data)
+    raw = json.loads((data / "transforms.json").read_text())
+    one = tmp_path / "one"
+    shutil.copytree(rgbd_room, one)
+    plain = {key: value for key, value in raw.items() if key != "spotless"}  # as a bag's: the every-11th split
+    (one / "transforms.json").write_text(json.dumps({**plain, "frames": raw["frames"][:1]}))
+    result = CliRunner().invoke(main, ["prepare", "--points", str(one), "--points-from", "depth", "-q"])
+    assert result.exit_code == 2 and len(result.output.strip().splitlines()) == 1, result.output
+    assert "one/transforms.json: no training frame (1 frame(s), all in the test split)" in result.output
+    before = (data / "transforms.json").read_bytes()
+    (data / SUMMARY_FILE).write_text("[]")
+    with pytest.raises(InputError, match=r"prepare.json: damaged the summary of spotless prepare: expected a JSON "
+                                         "object, found an array"):
+        add_depth_points(data)
+    assert (data / "transforms.json").read_bytes() == before and not (data / DEPTH_POINTS_FILE).exists()
+    (data / SUMMARY_FILE).write_text("{}")
+    assert add_depth_points(data)["points"] > 0
+    assert read_dataset(data).ply_path == data / DEPTH_POINTS_FILE
+    assert json.loads((data / SUMMARY_FILE).read_text())["points"]["file"] == DEPTH_POINTS_FILE
+
+
 def test_points_from_is_a_choice_that_goes_with_points(rgbd_room, tmp_path):
     result = CliRunner().invoke(main, ["prepare", "--images", str(rgbd_room / "images"), "--out",
                                        str(tmp_path / "o"), "--points-from", "depth"])

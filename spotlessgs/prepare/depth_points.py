@@ -35,7 +35,7 @@ from spotlessgs.io.lens import camera_points
 from spotlessgs.io.provenance import provenance
 from spotlessgs.io.seeding import numpy_rng
 from spotlessgs.io.transforms import DatasetDescription
-from spotlessgs.prepare.points import adopt_start_cloud
+from spotlessgs.prepare.points import adopt_start_cloud, training_frames
 
 DEPTH_POINTS_FILE = "depth_points.ply"
 #: The most points of the start (the simulator's dense clouds have as many).
@@ -86,7 +86,7 @@ def add_depth_points(
     dataset = read_dataset(transforms, check_files=True)
     if dataset.ply_path is not None:
         raise InputError(f"{transforms}: already names a point cloud ({dataset.ply_path.name}); nothing to do")
-    train = list(dataset.split.train)
+    train = training_frames(dataset, transforms)
     missing = [k for k in train if dataset.depth_paths is None or dataset.depth_paths[k] is None]
     if missing:
         raise InputError(f"{transforms}: frames[{missing[0]}] ({dataset.file_paths[missing[0]]}) has no "

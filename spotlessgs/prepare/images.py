@@ -27,7 +27,7 @@ import numpy as np
 from evaluation.sfm import SfmConfig, run_sfm
 from evaluation.trajectory import trajectory_errors
 from spotlessgs.baselines2d.clahe import clahe
-from spotlessgs.io.atomic import atomic_path, write_json
+from spotlessgs.io.atomic import atomic_path, partial_sibling, swap_in_folder, write_json
 from spotlessgs.io.cameras import Intrinsics
 from spotlessgs.io.colmap_text import read_colmap_model
 from spotlessgs.io.dataset import read_dataset
@@ -120,6 +120,7 @@ def prepare_images(
     images_dir, out = Path(images_dir), Path(out)
     refuse_overlap(out, {"--images": images_dir}, "--out")
     frames = list_image_files(images_dir)
+    _check_copy_names(images_dir, frames)
     width, height = _read_frames(frames)
     names = [p.name for p in frames]
     step = progress or (lambda _name: None)
@@ -169,6 +170,18 @@ def prepare_images(
     return summary
 
 
+def _check_copy_names(images_dir: Path, frames: list[Path]) -> None:
+    """InputError where two frames would share a name in the dataset: their PNG copies are named by the file stem
+    (``a.jpg`` and ``a.png``, ``a.JPG`` and ``a.jpg`` both become ``a.png``)."""
+    seen: dict[str, Path] = {}
+    for path in frames:
+        name = f"{path.stem}.png"
+        if name in seen:
+            raise InputError(f"{images_dir}: {seen[name].name} and {path.name} would both become {name} in the "
+                             "dataset; rename one of them")
+        seen[name] = path
+
+
 def _simpler_model(camera_model: str) -> str:
     """A camera model with fewer lens parameters than ``camera_model`` (for the hint of a lens that folds)."""
     return "SIMPLE_RADIAL" if camera_model in ("RADIAL", "OPENCV", "FULL_OPENCV", "OPENCV_FISHEYE") else "PINHOLE"
@@ -193,10 +206,15 @@ def _write_dataset(frames: list[Path], sfm_names: list[str], model_dir: Path, ou
                 shutil.copy2(path, tmp)
         else:  # the model names the frames by their PNG copies: store the original pixels as PNG too
             write_png(target, read_image(path))
-    sparse = out / "sparse" / "0"
-    if sparse.exists():
-        shutil.rmtree(sparse)
-    shutil.copytree(model_dir, sparse)
+    sparse = out / "sparse" / "0"  # the new model replaces an earlier run's in one step
+    sparse.parent.mkdir(parents=True, exist_ok=True)
+    tmp = partial_sibling(sparse)
+    try:
+        shutil.copytree(model_dir, tmp)
+        swap_in_folder(tmp, sparse)
+    except BaseException:
+        shutil.rmtree(tmp, ignore_errors=True)
+        raise
 
 
 def pose_error(out: Path, truth: Path) -> dict[str, Any] | None:

@@ -15,7 +15,6 @@ Only the training frames are used, so the test views' inputs take no part in the
 
 from __future__ import annotations
 
-import json
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any
@@ -28,8 +27,10 @@ from spotlessgs.io.colorspace import linear_to_srgb
 from spotlessgs.io.dataset import read_dataset
 from spotlessgs.io.errors import InputError
 from spotlessgs.io.images import read_image, write_png
+from spotlessgs.io.json_files import read_json
 from spotlessgs.io.ply import write_point_cloud
 from spotlessgs.io.provenance import provenance
+from spotlessgs.io.transforms import DatasetDescription
 from spotlessgs.prepare.images import NOISE_SAMPLE, SUMMARY_FILE, brighten, brightening_blur
 from spotlessgs.training.validation import evenly_spaced
 
@@ -65,7 +66,7 @@ def add_sfm_points(
     step = progress or (lambda _name: None)
     work = data / "sfm" / "points"
     copies = work / "input"
-    train = list(dataset.split.train)
+    train = training_frames(dataset, transforms)
     names = []
     step(f"brightened copies of {len(train)} training frames")
 
@@ -97,17 +98,27 @@ def add_sfm_points(
     return summary
 
 
+def training_frames(dataset: DatasetDescription, transforms: Path) -> list[int]:
+    """The indices of ``dataset``'s training frames; InputError naming ``transforms`` where there are none (a dataset
+    of one frame: the split puts it in the test set)."""
+    train = list(dataset.split.train)
+    if not train:
+        raise InputError(f"{transforms}: no training frame ({len(dataset.image_paths)} frame(s), all in the test "
+                         "split); a start cloud needs training frames")
+    return train
+
+
 def adopt_start_cloud(data: Path, file: str, xyz: np.ndarray, rgb: np.ndarray, normals: np.ndarray | None,
                       summary: dict[str, Any]) -> None:
     """Make a point cloud the initial one of the posed dataset ``data``: write it to ``data/file`` (positions (N, 3),
-    uint8 colours (N, 3), normals (N, 3) or None), point ``transforms.json``'s ``ply_file_path`` at it (rewritten
-    atomically, nothing else changes) and record ``summary`` as ``prepare.json``'s ``points``."""
+    uint8 colours (N, 3), normals (N, 3) or None), record ``summary`` as ``prepare.json``'s ``points`` and point
+    ``transforms.json``'s ``ply_file_path`` at it (rewritten atomically, nothing else changes). Both JSON files are
+    read before anything is written, and ``transforms.json`` is written last: an interrupted or refused run leaves a
+    dataset that a rerun completes."""
+    transforms, summary_path = data / "transforms.json", data / SUMMARY_FILE
+    record = read_json(transforms, "a dataset's camera poses")
+    whole = read_json(summary_path, "the summary of spotless prepare") if summary_path.is_file() else {}
     write_point_cloud(data / file, xyz, rgb, normals)
-    transforms = data / "transforms.json"
-    record = json.loads(transforms.read_text(encoding="utf-8"))
-    record["ply_file_path"] = file
-    write_json(transforms, record)
-    summary_path = data / SUMMARY_FILE
-    whole = json.loads(summary_path.read_text(encoding="utf-8")) if summary_path.is_file() else {}
     write_json(summary_path, {**whole, "points": summary})
+    write_json(transforms, {**record, "ply_file_path": file})
 
