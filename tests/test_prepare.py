@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import os
 import shutil
 
 import cv2
@@ -136,3 +137,37 @@ def test_a_lens_that_cannot_be_used_names_a_simpler_model(room, tmp_path, monkey
     with pytest.raises(InputError, match=f"estimated a {model} camera that cannot be used .* such as {hint}$"):
         prepare_images(room / "images", tmp_path / "data", camera_model=model)
     assert "cannot be inverted" in json.loads((tmp_path / "data" / SUMMARY_FILE).read_text())["error"]
+
+
+def test_brightened_copies_are_reused_only_for_the_same_frame_and_blur(tmp_path):
+    """Resuming reuses a copy made from the same file with the same blur; a frame replaced under the same name (or
+    another blur) is brightened again, and a damaged record only costs a rebrightening."""
+    from spotlessgs.prepare.images import COPIES_RECORD, brighten, write_brightened_copies
+
+    frames, copies = tmp_path / "frames", tmp_path / "copies"
+    frames.mkdir()
+    rng = np.random.default_rng(0)
+    for name in ("a.png", "b.png"):
+        write_png(frames / name, rng.uniform(0, 0.3, (24, 32, 3)))
+    sources = [(name, frames / name) for name in ("a.png", "b.png")]
+    reads = []
+
+    def read(path):
+        reads.append(path.name)
+        return read_image(path)
+
+    write_brightened_copies(copies, sources, read, 0.0)
+    assert reads == ["a.png", "b.png"]
+    np.testing.assert_allclose(read_image(copies / "a.png"), brighten(read_image(frames / "a.png")), atol=1 / 255)
+    write_brightened_copies(copies, sources, read, 0.0)  # a rerun: nothing to do
+    assert reads == ["a.png", "b.png"]
+    write_png(frames / "b.png", rng.uniform(0, 0.3, (24, 32, 3)))  # the same name, another frame
+    os.utime(frames / "b.png", ns=(1, 1))  # a modification time of its own even on a coarse clock
+    write_brightened_copies(copies, sources, read, 0.0)
+    assert reads == ["a.png", "b.png", "b.png"]
+    np.testing.assert_allclose(read_image(copies / "b.png"), brighten(read_image(frames / "b.png")), atol=1 / 255)
+    write_brightened_copies(copies, sources, read, 1.0)  # another blur: every copy again
+    assert reads[3:] == ["a.png", "b.png"]
+    (copies / COPIES_RECORD).write_text("{damaged")
+    write_brightened_copies(copies, sources, read, 1.0)
+    assert reads[5:] == ["a.png", "b.png"]

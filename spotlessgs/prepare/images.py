@@ -34,6 +34,7 @@ from spotlessgs.io.dataset import read_dataset
 from spotlessgs.io.errors import InputError
 from spotlessgs.io.frame_quality import noise_level
 from spotlessgs.io.images import list_image_files, read_image, write_png
+from spotlessgs.io.json_files import read_json
 from spotlessgs.io.paths import refuse_overlap
 from spotlessgs.io.provenance import provenance
 from spotlessgs.training.validation import evenly_spaced
@@ -41,6 +42,9 @@ from spotlessgs.training.validation import evenly_spaced
 log = logging.getLogger(__name__)
 
 SUMMARY_FILE = "prepare.json"
+# Beside the brightened copies: which file and blur made each one (write_brightened_copies), and how often it is saved.
+COPIES_RECORD = "sources.json"
+COPIES_RECORD_EVERY = 50
 # Registration below this share of the frames is reported as a warning (the dataset is still written).
 MIN_REGISTERED_SHARE = 0.9
 
@@ -75,6 +79,35 @@ def brightening_blur(images: Sequence[np.ndarray]) -> tuple[float, float]:
     level reaches NOISY_FRAMES, else 0)."""
     level = float(np.median([noise_level(image) for image in images])) if images else 0.0
     return level, DENOISE_SIGMA_PX if level >= NOISY_FRAMES else 0.0
+
+
+def write_brightened_copies(folder: Path, sources: Sequence[tuple[str, Path]], read: Callable[[Path], np.ndarray],
+                            blur: float) -> None:
+    """Write ``folder/name``, :func:`brighten` (with ``blur``) of ``read(path)``, for each (name, path) of ``sources``.
+
+    A copy from an earlier run is reused only where ``folder/COPIES_RECORD`` says it was made from the same file (its
+    path, size and modification time) with the same blur: an interrupted run resumes, and frames that changed since
+    (the same names re-extracted from another video) are brightened again instead of feeding SfM the old ones. The
+    record is written every :data:`COPIES_RECORD_EVERY` copies and at the end, always after the copies it names."""
+    record_path = folder / COPIES_RECORD
+    try:
+        record = read_json(record_path, "the record of the brightened copies") if record_path.is_file() else {}
+    except InputError as exc:  # a damaged record only costs the copies it named
+        log.warning("%s; brightening every frame again", exc)
+        record = {}
+    written = 0
+    for name, path in sources:
+        status = path.stat()
+        origin = [str(path.resolve()), status.st_size, status.st_mtime_ns, blur]
+        if record.get(name) == origin and (folder / name).is_file():
+            continue
+        write_png(folder / name, brighten(read(path), blur))
+        record[name] = origin
+        written += 1
+        if written % COPIES_RECORD_EVERY == 0:
+            write_json(record_path, record)
+    if written or not record_path.is_file():
+        write_json(record_path, record)
 
 
 def _read_frames(names: list[Path]) -> tuple[int, int]:
@@ -127,11 +160,8 @@ def prepare_images(
     step("brightened copies")
     noise, blur = brightening_blur([read_image(frames[k]) for k in evenly_spaced(range(len(frames)), NOISE_SAMPLE)])
     brightened = out / "sfm" / "input"
-    for path in frames:
-        target = brightened / f"{path.stem}.png"
-        if not target.is_file():
-            write_png(target, brighten(read_image(path), blur))
     sfm_names = [f"{p.stem}.png" for p in frames]
+    write_brightened_copies(brightened, list(zip(sfm_names, frames)), read_image, blur)
     # every sub-model the mapper can build (it starts a new one where registration breaks off), the largest kept: with
     # one model only, a mapper whose first initial pair was poor stopped there (the robot camera's noisy frames: 2 of
     # 60 registered, against 60 of 60 in the largest of two models)

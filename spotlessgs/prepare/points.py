@@ -26,12 +26,12 @@ from spotlessgs.io.atomic import write_json
 from spotlessgs.io.colorspace import linear_to_srgb
 from spotlessgs.io.dataset import read_dataset
 from spotlessgs.io.errors import InputError
-from spotlessgs.io.images import read_image, write_png
+from spotlessgs.io.images import read_image
 from spotlessgs.io.json_files import read_json
 from spotlessgs.io.ply import write_point_cloud
 from spotlessgs.io.provenance import provenance
 from spotlessgs.io.transforms import DatasetDescription
-from spotlessgs.prepare.images import NOISE_SAMPLE, SUMMARY_FILE, brighten, brightening_blur
+from spotlessgs.prepare.images import NOISE_SAMPLE, SUMMARY_FILE, brightening_blur, write_brightened_copies
 from spotlessgs.training.validation import evenly_spaced
 
 POINTS_FILE = "sfm_points.ply"
@@ -67,21 +67,17 @@ def add_sfm_points(
     work = data / "sfm" / "points"
     copies = work / "input"
     train = training_frames(dataset, transforms)
-    names = []
     step(f"brightened copies of {len(train)} training frames")
 
-    def frame(k: int) -> np.ndarray:
-        image = read_image(dataset.image_paths[k])
+    def frame(path: Path) -> np.ndarray:
+        image = read_image(path)
         if dataset.meta.get("linear_images"):
             image = linear_to_srgb(np.clip(image, 0.0, 1.0)).astype(np.float32)
         return image
 
-    noise, blur = brightening_blur([frame(k) for k in evenly_spaced(train, NOISE_SAMPLE)])
-    for k in train:
-        name = f"{k:05d}.png"
-        if not (copies / name).is_file():
-            write_png(copies / name, brighten(frame(k), blur))
-        names.append(name)
+    noise, blur = brightening_blur([frame(dataset.image_paths[k]) for k in evenly_spaced(train, NOISE_SAMPLE)])
+    names = [f"{k:05d}.png" for k in train]
+    write_brightened_copies(copies, [(name, dataset.image_paths[k]) for name, k in zip(names, train)], frame, blur)
     config = SfmConfig(matcher=matcher, num_threads=threads, seed=seed)
     result = triangulate_known_poses(copies, names, dataset.c2w_opencv[train], dataset.intrinsics, work / "colmap",
                                      config, progress=step)
