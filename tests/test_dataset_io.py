@@ -954,6 +954,39 @@ def test_read_dataset_dispatch_and_colmap_folder(tmp_path):
         two.intrinsics  # noqa: B018
 
 
+def test_initial_points_that_are_not_finite_are_left_out(tmp_path, caplog):
+    """A depth camera's PLY with NaN rows for invalid pixels: those rows go, with a warning; none left is an error
+    naming the file. A COLMAP point's colour outside 0..255 is named by file and line."""
+    _write_dataset(tmp_path / "d", n=4)
+    xyz = np.array([[0.0, 0.0, 1.0], [np.nan, 0.0, 1.0], [1.0, 2.0, 3.0], [0.0, np.inf, 1.0]])
+    rgb = np.array([[1, 2, 3], [4, 5, 6], [7, 8, 9], [10, 11, 12]], np.uint8)
+
+    def write_raw_ply(path, xyz, rgb):  # as another program writes it: our writer refuses NaN
+        vertices = np.zeros(len(xyz), dtype=[(a, "<f4") for a in "xyz"] + [(c, "u1") for c in ("red", "green", "blue")])
+        for k, name in enumerate(("x", "y", "z", "red", "green", "blue")):
+            vertices[name] = (xyz if k < 3 else rgb)[:, k % 3]
+        PlyData([PlyElement.describe(vertices, "vertex")]).write(str(path))
+
+    write_raw_ply(tmp_path / "d" / "points3D.ply", xyz, rgb)
+    with caplog.at_level("WARNING"):
+        cloud = load_initial_points(read_dataset(tmp_path / "d"))
+    np.testing.assert_array_equal(cloud.xyz, xyz[[0, 2]].astype(np.float32))
+    np.testing.assert_array_equal(cloud.rgb, rgb[[0, 2]])
+    assert "points3D.ply: 2 of 4 points left out" in caplog.text
+    write_raw_ply(tmp_path / "d" / "points3D.ply", xyz[[1, 3]], rgb[:2])
+    with pytest.raises(InputError, match=r"points3D.ply: none of its 2 points has a finite position"):
+        load_initial_points(read_dataset(tmp_path / "d"))
+    *_, model = _model(3)
+    write_colmap_text(tmp_path / "c", model)
+    lines = (tmp_path / "c" / "points3D.txt").read_text().splitlines(keepends=True)
+    entry = next(k for k, line in enumerate(lines) if not line.startswith("#"))
+    fields = lines[entry].split(" ")
+    fields[4] = "300"
+    (tmp_path / "c" / "points3D.txt").write_text("".join(lines[:entry] + [" ".join(fields)] + lines[entry + 1:]))
+    with pytest.raises(ValueError, match=rf"points3D.txt:{entry + 1}: bad point line \(colour \[300, .*outside 0..255"):
+        read_colmap_text(tmp_path / "c")
+
+
 def test_cameras_of_a_colmap_dataset_project_points_as_pycolmap_does(tmp_path):
     """Independent reference: pycolmap's own projection of the model's 3D points into each image."""
     intr, c2w, names, xyz, rgb, model = _model(5)

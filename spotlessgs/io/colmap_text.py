@@ -346,7 +346,10 @@ def read_colmap_text(folder: str | os.PathLike) -> ColmapModel:
                 raise ValueError(f"expected 8 fields plus (IMAGE_ID, POINT2D_IDX) pairs, got {len(parts)} fields")
             ids.append(int(parts[0]))
             xyz.append([float(v) for v in parts[1:4]])
-            rgb.append([int(v) for v in parts[4:7]])
+            colour = [int(v) for v in parts[4:7]]
+            if not all(0 <= v <= 255 for v in colour):
+                raise ValueError(f"colour {colour} outside 0..255")
+            rgb.append(colour)
             errors.append(float(parts[7]))
             tracks.append(np.array(parts[8:], dtype=np.int64).reshape(-1, 2))
         except (ValueError, IndexError) as exc:

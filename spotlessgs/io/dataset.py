@@ -10,6 +10,7 @@ Supported layouts:
 from __future__ import annotations
 
 import glob
+import logging
 import os
 from pathlib import Path
 from typing import Any
@@ -24,6 +25,8 @@ from spotlessgs.io.json_files import read_json
 from spotlessgs.io.lens import check_invertible
 from spotlessgs.io.ply import PointCloud, read_point_cloud
 from spotlessgs.io.transforms import DatasetDescription, DatasetError, Split, read_transforms
+
+log = logging.getLogger(__name__)
 
 
 def _find_sparse_dir(folder: Path) -> Path:
@@ -169,12 +172,26 @@ def true_exposure_gains(dataset: DatasetDescription) -> tuple[float, ...] | None
 
 
 def load_initial_points(dataset: DatasetDescription) -> PointCloud | None:
-    """The initial point cloud: the PLY named by the dataset, else the COLMAP model's 3D points, else None."""
+    """The initial point cloud: the PLY named by the dataset, else the COLMAP model's 3D points, else None. Points
+    whose position (or normal) is not finite (a depth camera's invalid pixels, exported as NaN) are left out with a
+    warning; InputError naming the file where none is left."""
     if dataset.ply_path is not None:
-        return read_point_cloud(dataset.ply_path)
-    sparse = dataset.meta.get("sparse_dir")
-    if sparse is not None:
-        points = read_colmap_model(sparse).points
-        if len(points.ids):
-            return PointCloud(points.xyz.astype(np.float32), points.rgb, None)
-    return None
+        source, cloud = dataset.ply_path, read_point_cloud(dataset.ply_path)
+    elif dataset.meta.get("sparse_dir") is not None:
+        points = read_colmap_model(dataset.meta["sparse_dir"]).points
+        if not len(points.ids):
+            return None
+        source, cloud = model_files(dataset.meta["sparse_dir"])[2], PointCloud(points.xyz.astype(np.float32),
+                                                                                points.rgb, None)
+    else:
+        return None
+    finite = np.isfinite(cloud.xyz).all(axis=1)
+    if cloud.normals is not None:
+        finite &= np.isfinite(cloud.normals).all(axis=1)
+    if finite.all():
+        return cloud
+    if not finite.any():
+        raise InputError(f"{source}: none of its {len(finite)} points has a finite position")
+    log.warning("%s: %d of %d points left out (a position or normal that is not finite)", source,
+                int((~finite).sum()), len(finite))
+    return PointCloud(cloud.xyz[finite], cloud.rgb[finite], None if cloud.normals is None else cloud.normals[finite])
