@@ -306,6 +306,12 @@ def test_points_from_depth_refuse_a_frame_without_depth_and_leave_the_dataset(rg
     with pytest.raises(InputError, match=r"frame_00002.png: the depth image is 10x10, its frame .* 96x72"):
         add_depth_points(data)
     assert not (data / DEPTH_POINTS_FILE).exists()
+    # a colour frame of another size than its camera
+    write_depth_image(data / "depth" / "frame_00002.png", np.ones((72, 96)))
+    write_png(data / "images" / "frame_00002.png", np.zeros((36, 48, 3)))
+    with pytest.raises(InputError, match=r"images/frame_00002.png: the frame is 48x36, its camera 96x72"):
+        add_depth_points(data)
+    assert (data / "transforms.json").read_text() == json.dumps(raw) and not (data / DEPTH_POINTS_FILE).exists()
 
 
 def test_points_refuse_a_one_frame_dataset_and_a_damaged_summary_before_writing(rgbd_room, tmp_path):

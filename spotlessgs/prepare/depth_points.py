@@ -202,8 +202,13 @@ def neighbour_mean_normals(xyz: np.ndarray, normals: np.ndarray, neighbours: int
 
 
 def _srgb_uint8(dataset: DatasetDescription, k: int) -> np.ndarray:
-    """(H, W, 3) uint8 sRGB colours of frame ``k`` (linear frames encoded)."""
+    """(H, W, 3) uint8 sRGB colours of frame ``k`` (linear frames encoded); InputError naming the frame where it is
+    not of its camera's size."""
     image = read_image(dataset.image_paths[k])
+    camera = dataset.cameras[k]
+    if image.shape[:2] != (camera.height, camera.width):
+        raise InputError(f"{dataset.image_paths[k]}: the frame is {image.shape[1]}x{image.shape[0]}, its camera "
+                         f"{camera.width}x{camera.height}")
     if dataset.meta.get("linear_images"):
         image = linear_to_srgb(np.clip(image, 0.0, 1.0))
     return np.clip(np.rint(np.asarray(image) * 255.0), 0, 255).astype(np.uint8)
