@@ -1,6 +1,6 @@
 """Where a SpotlessGS run's shading time goes: forward + backward of `shade` over all its Gaussians, one thread.
 
-    python3 scripts/shading_cost.py RUN [--views 8] [--repeats 6]
+    python3 scripts/shading_cost.py RUN [--views 8] [--repeats 6] [--parts [--compile]]
 
 Loads the finished run RUN (a SpotlessGS model: an SH light and the learned BRDF) and times, per training view, one
 spotlit `shading.shade` of every Gaussian and the backward pass of its sum (its normals held if the run held them),
@@ -10,6 +10,12 @@ a Lambertian BRDF with the SH light, and a Lambertian BRDF with DarkGS's constan
 of the median ms per view over ``--repeats`` passes through the first ``--views`` training views. The rasteriser, the loss and the optimiser are not
 in it, and training shades only the Gaussians that can touch the view: scripts/step_cost_ab.py measures whole steps.
 docs/results.md ("The learned BRDF's network without its gradient to the directions") quotes it.
+
+``--parts`` prints a second table, the learned BRDF's own parts on the first training view's inputs
+(:func:`brdf_parts`): the analytic Disney factor (with ``--compile`` also under ``torch.compile``, its first call
+timed apart), the network with and without its gradient to the directions, the sinusoidal encoding, the network's
+first-layer input-gradient product and the whole BRDF. docs/results.md ("Where a SpotlessGS step's time goes")
+quotes it.
 """
 
 from __future__ import annotations
@@ -22,9 +28,11 @@ from pathlib import Path
 
 import torch
 
-from spotlessgs.models.brdf import LambertianBRDF, LearnedBRDF
+from spotlessgs.io.seeding import torch_generator
+from spotlessgs.models.brdf import LambertianBRDF, LearnedBRDF, disney_brdf
 from spotlessgs.models.light import ConstantAmbient
-from spotlessgs.models.shading import ModelConfig, shade
+from spotlessgs.models.nets import sinusoidal_encoding
+from spotlessgs.models.shading import ModelConfig, shade, shading_normals, view_directions
 from spotlessgs.training.trainer import load_run
 
 
@@ -77,11 +85,90 @@ def shading_cost(run_dir: str | Path, views: int = 8, repeats: int = 6) -> tuple
     return len(gaussians), rows
 
 
+def brdf_inputs(scene, c2w: torch.Tensor) -> tuple[list[torch.Tensor], torch.Tensor]:
+    """The learned BRDF's inputs as `shade` computes them for the camera ``c2w`` (4, 4), detached: [albedo (N, 3),
+    roughness (N, 1), metalness (N, 1), normals, view directions, light directions (N, 3)], and the spotlight's
+    radiance (N, 1)."""
+    gaussians, light = scene.gaussians, scene.appearance.light
+    center = c2w[:3, 3]
+    with torch.no_grad():
+        view_dirs = view_directions(gaussians.means, center)
+        normals = shading_normals(scene.config, gaussians, view_dirs, center)
+        spot, light_dirs = light.incident(gaussians.means, c2w)
+        inputs = [gaussians.albedo, gaussians.roughness, gaussians.metalness, normals, view_dirs, light_dirs]
+    return [x.detach().clone() for x in inputs], spot.detach()
+
+
+def _median_ms(fn, repeats: int) -> float:
+    fn()  # warm-up
+    times = []
+    for _ in range(repeats):
+        start = time.perf_counter()
+        fn()
+        times.append(1000.0 * (time.perf_counter() - start))
+    return statistics.median(times)
+
+
+def brdf_parts(run_dir: str | Path, repeats: int = 20, compile_disney: bool = False) -> tuple[int, list[tuple[str, float]]]:
+    """(number of Gaussians, [(part, median ms of its forward + backward)]) of the learned BRDF of the run ``run_dir``
+    on the first training view's inputs (:func:`brdf_inputs`), over ``repeats`` passes after one warm-up (module
+    docstring). The encoding and the first layer's product are fed a fixed random gradient of their output's shape."""
+    scene, views, _, _ = load_run(run_dir, device="cpu")
+    brdf = scene.appearance.brdf
+    if not isinstance(brdf, LearnedBRDF):
+        raise ValueError(f"shading_cost --parts needs a run with the learned BRDF, not {scene.config.name!r}")
+    inputs, _ = brdf_inputs(scene, views.cameras.c2w[views.train[0]])
+    detached = LearnedBRDF(hidden=scene.config.brdf_hidden, upper_clamp=brdf.upper_clamp, burley=brdf.burley,
+                           input_gradients=False)
+    detached.load_state_dict(brdf.state_dict())
+
+    def forward_backward(fn):
+        def run() -> None:
+            leaves = [x.clone().requires_grad_(True) for x in inputs]
+            fn(*leaves).sum().backward()
+        return run
+
+    def disney(a, r, m, n, v, l):
+        return disney_brdf(a, r, m, n, v, l, brdf.burley)
+
+    gen = torch_generator(0, "shading-cost-parts")
+    normals, view_dirs, light_dirs = inputs[3:]
+    directions = torch.cat([view_dirs, light_dirs, normals], dim=1)  # as the network reads them
+    encoding_grad = torch.randn(len(directions), brdf.input_size, generator=gen)
+    first_layer = brdf.mlp[0].weight.detach()
+    hidden_grad = torch.randn(len(directions), first_layer.shape[0], generator=gen)
+
+    def encoding() -> None:
+        sinusoidal_encoding(directions.clone().requires_grad_(True), brdf.num_frequencies).backward(encoding_grad)
+
+    rows = [("Disney factor", _median_ms(forward_backward(disney), repeats))]
+    if compile_disney:
+        compiled = torch.compile(disney, dynamic=True)
+        start = time.perf_counter()
+        forward_backward(compiled)()
+        first = time.perf_counter() - start
+        rows.append((f"Disney factor under torch.compile (first call {first:.0f} s)",
+                     _median_ms(forward_backward(compiled), repeats)))
+    rows += [
+        ("network, with its gradient to the directions",
+         _median_ms(forward_backward(lambda a, r, m, n, v, l: brdf.modulation(n, v, l)), repeats)),
+        ("network, without it", _median_ms(forward_backward(lambda a, r, m, n, v, l: detached.modulation(n, v, l)),
+                                           repeats)),
+        (f"sinusoidal encoding (N, 9) -> (N, {brdf.input_size})", _median_ms(encoding, repeats)),
+        (f"first layer's input gradient (N, {first_layer.shape[0]}) x ({first_layer.shape[0]}, {brdf.input_size})",
+         _median_ms(lambda: hidden_grad @ first_layer, repeats)),
+        ("the whole learned BRDF", _median_ms(forward_backward(brdf), repeats)),
+    ]
+    return len(inputs[0]), rows
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("run", type=Path)
     parser.add_argument("--views", type=int, default=8)
     parser.add_argument("--repeats", type=int, default=6)
+    parser.add_argument("--parts", action="store_true", help="also time the learned BRDF's parts")
+    parser.add_argument("--compile", action="store_true", help="with --parts: also the Disney factor under torch.compile")
     args = parser.parse_args()
     torch.set_num_threads(1)
     count, rows = shading_cost(args.run, args.views, args.repeats)
@@ -89,6 +176,13 @@ def main() -> None:
     print("| shading | ms per view |\n|---|---|")
     for name, ms in rows:
         print(f"| {name} | {ms:.1f} |")
+    if args.parts:
+        count, rows = brdf_parts(args.run, compile_disney=args.compile)
+        print(f"\nthe learned BRDF's parts on the first training view's {count:,} Gaussians; forward + backward, "
+              "median ms of 20 passes")
+        print("| part | ms |\n|---|---|")
+        for name, ms in rows:
+            print(f"| {name} | {ms:.2f} |")
 
 
 if __name__ == "__main__":

@@ -499,6 +499,18 @@ def test_shading_cost_times_the_runs_shading_and_variants_that_shade_alike(tmp_p
     darkgs_scene, *_ = load_run(root / "darkgs", device="cpu")
     with pytest.raises(ValueError, match="SpotlessGS run"):
         module.variants(darkgs_scene.config, darkgs_scene.appearance.brdf, darkgs_scene.appearance.lf_light, None)
+    # --parts times the BRDF on the inputs shade gives it: f̃ · cos · L_spot is shade's spotlight half
+    from spotlessgs.models.shading import lambert_cosine
+
+    inputs, spot = module.brdf_inputs(scene, c2w)
+    halves = shade(scene.config, g, app.light, app.lf_light, app.brdf, c2w, split_lights=True,
+                   bounce_light=app.bounce_light)
+    torch.testing.assert_close(app.brdf(*inputs) * lambert_cosine(inputs[3], inputs[5]) * spot, halves[:, :3])
+    count, parts = module.brdf_parts(root / "spotless", repeats=1)
+    assert count == len(g) and len(parts) == 6 and parts[-1][0] == "the whole learned BRDF"
+    assert all(ms > 0 for _, ms in parts)
+    with pytest.raises(ValueError, match="learned BRDF"):
+        module.brdf_parts(root / "darkgs", repeats=1)
 
 
 def test_step_profile_counts_every_profiled_step_and_ranks_operators_by_self_time(tmp_path_factory, tmp_path):
