@@ -43,7 +43,7 @@ from spotlessgs.io.cameras import Intrinsics, opengl_to_opencv_c2w
 from spotlessgs.io.dataset import GROUND_TRUTHS
 from spotlessgs.io.errors import InputError
 from spotlessgs.io.exr import read_emitters
-from spotlessgs.io.folder_lock import folder_lock
+from spotlessgs.io.folder_lock import source_and_output_locks
 from spotlessgs.io.images import list_image_files, read_image
 from spotlessgs.io.paths import refuse_overlap
 from spotlessgs.io.provenance import provenance
@@ -630,7 +630,7 @@ def evaluate_run(
     if json_path is not None:
         refuse_overlap(json_path, {"RUN/relit": relit_dir, "--data": data_root, "RUN/checkpoints": run / "checkpoints",
                                    "RUN/run.json": run / "run.json", "RUN/config.json": run / "config.json"}, "--json")
-    with folder_lock(run, "spotless eval"):
+    with source_and_output_locks(run, out, "spotless eval"):
         return _evaluate_run_locked(run, data_root, relit_dir, out, config, json_path)
 
 

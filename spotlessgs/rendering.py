@@ -30,7 +30,7 @@ from spotlessgs.io.cameras import Intrinsics
 from spotlessgs.io.colorspace import linear_to_srgb
 from spotlessgs.io.errors import InputError, OutputOverlapError
 from spotlessgs.io.exr import write_exr
-from spotlessgs.io.folder_lock import folder_lock
+from spotlessgs.io.folder_lock import source_and_output_locks
 from spotlessgs.io.images import is_image_name, write_png
 from spotlessgs.io.lens import distort_maps, remap, working_camera
 from spotlessgs.io.paths import refuse_overlap
@@ -303,7 +303,8 @@ def render_run(
         written as ``RUN/<relit|render>.json`` (outside the image folder, which holds images and its manifest only).
 
     Raises:
-        FolderLockedError: another process writes the run (training, another render).
+        FolderLockedError: another process writes the run (training, a render into the run), or another render
+            writes ``out_dir``.
         InputError / OutputOverlapError: the dataset is not found, or the output folder may not be replaced.
     """
     if mode not in ("relit", "spot"):
@@ -321,7 +322,7 @@ def render_run(
     default_out = run_dir / ("relit" if mode == "relit" else "render")
     out = Path(out_dir) if out_dir is not None else default_out
     _check_output(out, run_dir, data)
-    with folder_lock(run_dir, "spotless relight" if mode == "relit" else "spotless render"):
+    with source_and_output_locks(run_dir, out, "spotless relight" if mode == "relit" else "spotless render"):
         _remove_partial_siblings(out)
         out.parent.mkdir(parents=True, exist_ok=True)
         tmp = partial_sibling(out)

@@ -66,6 +66,30 @@ def test_a_reader_of_an_unwritable_folder_without_a_lock_file_takes_no_lock(tmp_
             pass
 
 
+def test_commands_that_write_outside_a_run_read_it_shared_and_lock_their_own_output(tmp_path):
+    """relight / render / eval into a folder outside the run: several at once on one run (each its own output),
+    beside no writer of the run, never two into one output; into the run itself: the run's writer lock."""
+    from spotlessgs.io.folder_lock import source_and_output_locks
+
+    run, outs = tmp_path / "run", tmp_path / "outs"
+    run.mkdir()
+    outs.mkdir()
+    with held_by_another_process(run, "spotless relight", shared=True):  # another relight reads the run
+        with held_by_another_process(outs, "spotless relight", name=".a.lock"):  # ... and writes outs/a
+            with source_and_output_locks(run, outs / "b", "spotless relight"):  # another output: side by side
+                pass
+            with pytest.raises(FolderLockedError, match="spotless relight"):  # the same output
+                with source_and_output_locks(run, outs / "a", "spotless relight"):
+                    pass
+        with pytest.raises(FolderLockedError):  # an output inside the run needs the run alone
+            with source_and_output_locks(run, run / "relit", "spotless relight"):
+                pass
+    with held_by_another_process(run, "spotless train"):
+        with pytest.raises(FolderLockedError, match="spotless train"):
+            with source_and_output_locks(run, outs / "b", "spotless relight"):
+                pass
+
+
 def test_render_shards_run_side_by_side_but_not_twice_nor_beside_a_whole_render(tmp_path):
     from simulator.render_pipeline import FramePart, _render_lock
 

@@ -90,6 +90,25 @@ def folder_lock(folder: str | os.PathLike, command: str, *, shared: bool = False
         os.close(fd)
 
 
+@contextlib.contextmanager
+def source_and_output_locks(source: str | os.PathLike, out: str | os.PathLike, command: str) -> Iterator[None]:
+    """The locks of a command that reads the folder ``source`` (a run) and writes the folder ``out``: ``source``
+    exclusively when ``out`` lies inside it, else ``source`` shared (a colleague's read-only run can be read, and
+    several such commands read one run at once) and ``out`` through its own lock file ``.<name>.lock`` beside it
+    (two commands never write one ``out``).
+
+    Raises:
+        FolderLockedError: a conflicting holder of either lock (named).
+    """
+    real_source, real_out = Path(os.path.realpath(source)), Path(os.path.realpath(out))
+    if real_out.is_relative_to(real_source):
+        with folder_lock(source, command):
+            yield
+        return
+    with folder_lock(source, command, shared=True), folder_lock(real_out.parent, command, name=f".{real_out.name}.lock"):
+        yield
+
+
 def _open_lock_file(folder: Path, lock_file: Path, shared: bool) -> int | None:
     """The lock file's descriptor (the folder and file created when missing); None for a reader of a folder it cannot
     write that has no lock file."""
