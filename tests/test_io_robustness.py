@@ -504,6 +504,23 @@ def test_ctrl_c_after_the_last_step_skips_the_final_evaluation_and_resume_finish
 # ---- 9. `--model auto` refuses --out inside --data before creating anything --------------------------------------
 
 
+def test_a_finished_run_shared_without_its_checkpoint_is_not_trained_over(box, trained, tmp_path):
+    """A colleague's finished run, copied without checkpoints/: training into it again, with or without --resume,
+    is refused and every file stays as it was."""
+    from spotlessgs.training.trainer import train
+
+    run = tmp_path / "run"
+    shutil.copytree(trained, run)
+    shutil.rmtree(run / "checkpoints")
+    before = {p.name: p.read_bytes() for p in run.iterdir() if p.is_file()}
+    assert "train_summary.json" in before and "metrics.jsonl" in before
+    for resume in (False, True):
+        with pytest.raises(FileExistsError, match=r"run holds a finished training run without its checkpoint "
+                                                  r"\(checkpoints/last.safetensors\).*use a new --out"):
+            train(box, run, "3dgs", _tiny_config(), seed=0, progress=False, resume=resume)
+    assert {p.name: p.read_bytes() for p in run.iterdir() if p.is_file()} == before
+
+
 def test_train_auto_refuses_a_run_folder_inside_its_dataset_before_creating_it(tmp_path):
     from spotlessgs.training.selection import train_auto
 
