@@ -521,6 +521,27 @@ def test_a_finished_run_shared_without_its_checkpoint_is_not_trained_over(box, t
     assert {p.name: p.read_bytes() for p in run.iterdir() if p.is_file()} == before
 
 
+def test_data_for_a_moved_dataset_must_hold_the_runs_own_files(box, trained, tmp_path_factory, tmp_path):
+    """--data (relight, render, eval, export, load_run) points at where the run's dataset went: a copy of it is taken,
+    another dataset (frames named alike) is refused in one line before anything is written."""
+    from click.testing import CliRunner
+
+    from spotlessgs.cli import main
+    from spotlessgs.training.checkpoint import read_run_info, resolve_data_dir
+
+    moved = tmp_path / "moved"
+    shutil.copytree(box, moved)
+    assert resolve_data_dir(trained, read_run_info(trained), moved) == moved.resolve()
+    other = synthetic_box_dataset(tmp_path_factory, "robustness-other-box", seed=8)
+    with pytest.raises(InputError, match=r"other-box.*: --data holds other files than the run .*run was trained on"):
+        resolve_data_dir(trained, read_run_info(trained), other)
+    for command in (["relight", str(trained), "--out", str(tmp_path / "relit")], ["eval", str(trained)],
+                    ["export", str(trained), "--out", str(tmp_path / "x.ply")]):
+        result = CliRunner().invoke(main, [*command, "--data", str(other)])
+        assert result.exit_code == 2 and "--data holds other files than the run" in result.output, result.output
+    assert not (tmp_path / "relit").exists() and not (tmp_path / "x.ply").exists()
+
+
 def test_train_auto_refuses_a_run_folder_inside_its_dataset_before_creating_it(tmp_path):
     from spotlessgs.training.selection import train_auto
 

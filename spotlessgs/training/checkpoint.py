@@ -21,6 +21,8 @@ from pathlib import Path
 from typing import Any, Sequence
 
 from spotlessgs.io.atomic import write_text
+from spotlessgs.io.dataset import read_dataset
+from spotlessgs.io.dataset_fingerprint import dataset_fingerprint, other_dataset
 from spotlessgs.io.errors import InputError
 from spotlessgs.io.json_files import read_json
 from spotlessgs.io.tensor_file import load_plain_torch_file, load_tree, save_tree
@@ -124,14 +126,20 @@ def resolve_data_dir(run_dir: str | Path, info: dict[str, Any], override: str | 
     ``data_dir`` is taken relative to the run folder).
 
     Raises:
-        InputError: ``override`` is not a folder, or neither recorded path is one (names the run and both paths and
-            suggests ``--data``).
+        InputError: ``override`` is not a folder or holds other files than the run was trained on (its dataset
+            fingerprint differs from run.json's: :mod:`spotlessgs.io.dataset_fingerprint`), or neither recorded path
+            is a folder (names the run and both paths and suggests ``--data``).
     """
     run_dir = Path(run_dir)
     if override is not None:
         if not Path(override).is_dir():
             raise InputError(f"{override}: --data is not a dataset folder (not found)")
-        return Path(override).resolve()
+        data = Path(override).resolve()
+        recorded = info.get("data_fingerprint")
+        if recorded is not None and other_dataset(recorded, dataset_fingerprint(read_dataset(data))):
+            raise InputError(f"{override}: --data holds other files than the run {run_dir} was trained on (another "
+                             "dataset fingerprint); point --data at the run's own dataset")
+        return data
     tried: list[str] = []
     for key in ("data_dir_relative", "data_dir"):
         value = info.get(key)
