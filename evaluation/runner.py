@@ -45,7 +45,7 @@ from spotlessgs.io.errors import InputError
 from spotlessgs.io.exr import read_emitters
 from spotlessgs.io.folder_lock import source_and_output_locks
 from spotlessgs.io.images import list_image_files, read_image
-from spotlessgs.io.paths import refuse_overlap
+from spotlessgs.io.paths import refuse_overlap, refuse_run_file
 from spotlessgs.io.provenance import provenance
 from spotlessgs.manifest import (
     MANIFEST_NAME, checkpoint_step, current_checkpoint, dataset_record, hash_frames, manifest_path, manifest_sha256,
@@ -630,6 +630,7 @@ def evaluate_run(
     if json_path is not None:
         refuse_overlap(json_path, {"RUN/relit": relit_dir, "--data": data_root, "RUN/checkpoints": run / "checkpoints",
                                    "RUN/run.json": run / "run.json", "RUN/config.json": run / "config.json"}, "--json")
+        refuse_run_file(json_path, run, "--json", may_replace=out)
     with source_and_output_locks(run, out, "spotless eval"):
         return _evaluate_run_locked(run, data_root, relit_dir, out, config, json_path)
 

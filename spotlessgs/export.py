@@ -15,7 +15,7 @@ import torch
 from spotlessgs.io.atomic import atomic_path
 from spotlessgs.io.colorspace import linear_to_srgb
 from spotlessgs.io.errors import InputError
-from spotlessgs.io.paths import refuse_overlap
+from spotlessgs.io.paths import refuse_overlap, refuse_run_file
 from spotlessgs.models.sh import SH_C0
 from spotlessgs.models.shading import RELIGHT_L0_DEFAULT
 from spotlessgs.training.checkpoint import read_run_info, resolve_data_dir
@@ -30,7 +30,8 @@ def export_ply(run_dir: str | Path, out_path: str | Path, l0: Sequence[float] = 
 
     Raises:
         OutputOverlapError: ``out_path`` is, holds or lies inside the dataset folder, the run's checkpoints folder,
-            run.json or config.json (checked before anything is loaded or written).
+            run.json or config.json, or would replace another file of the run or write into one of its folders
+            than an earlier export (a ``.ply`` file directly in it) (checked before anything is loaded or written).
         InputError: ``out_path`` is an existing folder, or the dataset is not found (see ``--data``).
     """
     from plyfile import PlyData, PlyElement
@@ -41,6 +42,7 @@ def export_ply(run_dir: str | Path, out_path: str | Path, l0: Sequence[float] = 
                               run_dir / "run.json", "RUN/config.json": run_dir / "config.json"}, "--out")
     if out_path.is_dir():
         raise InputError(f"{out_path}: --out is a folder; give the path of the PLY file to write")
+    refuse_run_file(out_path, run_dir, "--out", own_suffix=".ply")
     scene, views, _config, _info = load_run(run_dir, device="cpu", data_dir=data_root)
     g = scene.gaussians
     n = len(g)

@@ -204,6 +204,9 @@ def test_eval_run_refuses_json_in_its_inputs(trained):
             evaluate_run(run, QUICK, json_path=path)
     res = _cli("eval", str(run), "--json", str(data / "transforms.json"), "--quiet", "--no-lpips")
     _one_line_error(res, "transforms.json: --json is inside the input --data")
+    for path in (run / "metrics.jsonl", run / "train_summary.json"):
+        res = _cli("eval", str(run), "--json", str(path), "--quiet", "--no-lpips")
+        _one_line_error(res, f"{path.name}: --json would replace a file of the run")
     assert {p: p.read_bytes() if p.exists() else None for p in guarded} == before
     assert not (run / "eval").exists()  # refused before anything was written
 
@@ -227,6 +230,16 @@ def test_export_refuses_the_checkpoint_run_files_and_the_dataset(trained, tmp_pa
     with pytest.raises(InputError, match="--out is a folder"):
         export_ply(run, tmp_path)
     assert export_ply(run, tmp_path / "model.ply").is_file()
+    # the run's other files and folders: its log, its summary, a relit image (an earlier export may be replaced)
+    others = [run / "metrics.jsonl", run / "train_summary.json", next((run / "relit").glob("*.png")),
+              run / "relit" / "new.ply"]
+    before = {p: p.read_bytes() if p.exists() else None for p in others}
+    for path in others:
+        res = _cli("export", str(run), "--out", str(path))
+        _one_line_error(res, str(path), "--out would replace a file of the run")
+    assert {p: p.read_bytes() if p.exists() else None for p in others} == before
+    assert export_ply(run, run / "model.ply").is_file() and export_ply(run, run / "model.ply").is_file()
+    (run / "model.ply").unlink()
 
 
 # ---- (5) eval finds a run's dataset like every other command --------------------------------------------------------

@@ -43,3 +43,23 @@ def refuse_overlap(output: str | os.PathLike, inputs: Mapping[str, str | os.Path
         if src.is_relative_to(out):
             raise OutputOverlapError(f"{output}: {output_name} contains the input {name} ({value}); "
                                      "choose an output that does not hold the input")
+
+
+def refuse_run_file(output: str | os.PathLike, run_dir: str | os.PathLike, output_name: str,
+                    may_replace: str | os.PathLike | None = None, own_suffix: str | None = None) -> None:
+    """Raise where the output *file* ``output`` would replace a file of the run folder ``run_dir`` (its log, its
+    summaries, a relit image): inside the run it may only be a new file directly in the run folder, a file directly
+    in it with the suffix ``own_suffix`` (the command's own earlier output, e.g. ``.ply`` for an export), or lie
+    inside the folder ``may_replace`` (a command's own output folder, e.g. ``RUN/eval``).
+
+    Raises:
+        OutputOverlapError: naming the file and what to choose instead.
+    """
+    out, run = _real(output), _real(run_dir)
+    if not out.is_relative_to(run) or (may_replace is not None and out.is_relative_to(_real(may_replace))):
+        return
+    if out.parent == run and (not os.path.lexists(out) or (own_suffix is not None
+                                                           and out.suffix.lower() == own_suffix)):
+        return
+    raise OutputOverlapError(f"{output}: {output_name} would replace a file of the run {run_dir} or write into one of "
+                             "its folders; choose a path outside the run or a new file name in it")
