@@ -116,6 +116,26 @@ def test_a_moved_dataset_keeps_its_fingerprint_and_any_change_to_its_training_in
     assert len({original, *fingerprints.values()}) == 4, fingerprints
 
 
+def test_the_views_fingerprint_leaves_out_the_start_cloud_and_nothing_else(room, tmp_path):
+    """A finished run's relighting reads the views, not the start cloud: a point cloud added (PLY and
+    ply_file_path) keeps the views' fingerprint and changes the whole one; a changed pose changes both."""
+    from spotlessgs.io.dataset_fingerprint import dataset_fingerprints
+    from spotlessgs.io.ply import write_point_cloud
+
+    whole, views = dataset_fingerprints(read_dataset(room))
+    assert whole == dataset_fingerprint(read_dataset(room)) and views == whole  # no start cloud: the same files
+    clouded = _copy(room, tmp_path / "clouded")
+    write_point_cloud(clouded / "start.ply", np.zeros((3, 3)), np.zeros((3, 3), np.uint8))
+    record = json.loads((clouded / "transforms.json").read_text())
+    (clouded / "transforms.json").write_text(json.dumps({**record, "ply_file_path": "start.ply"}))
+    clouded_whole, clouded_views = dataset_fingerprints(read_dataset(clouded))
+    assert clouded_views == views and clouded_whole != whole
+    record["frames"][1]["transform_matrix"][0][3] += 0.01
+    (clouded / "transforms.json").write_text(json.dumps({**record, "ply_file_path": "start.ply"}))
+    posed_whole, posed_views = dataset_fingerprints(read_dataset(clouded))
+    assert posed_views != views and posed_whole != clouded_whole
+
+
 def test_an_unreadable_file_is_named(room, tmp_path):
     broken = _copy(room, tmp_path / "broken")
     (broken / "images" / "frame_00001.png").unlink()

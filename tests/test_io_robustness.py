@@ -9,6 +9,7 @@ from __future__ import annotations
 import errno
 import json
 import os
+import re
 import shutil
 import signal
 import stat
@@ -540,6 +541,59 @@ def test_data_for_a_moved_dataset_must_hold_the_runs_own_files(box, trained, tmp
         result = CliRunner().invoke(main, [*command, "--data", str(other)])
         assert result.exit_code == 2 and "--data holds other files than the run" in result.output, result.output
     assert not (tmp_path / "relit").exists() and not (tmp_path / "x.ply").exists()
+
+
+def _edited_checkpoint(trained: Path, where: Path, edit) -> Path:
+    """A copy of the run ``trained`` in ``where`` whose checkpoint ``edit(checkpoint dict)`` changed."""
+    from spotlessgs.io.tensor_file import load_tree, save_tree
+    from spotlessgs.training.checkpoint import CHECKPOINT_FORMAT, checkpoint_path
+
+    run = shutil.copytree(trained, where)
+    ckpt = load_tree(checkpoint_path(run), CHECKPOINT_FORMAT)
+    edit(ckpt)
+    save_tree(checkpoint_path(run), ckpt, CHECKPOINT_FORMAT)
+    return run
+
+
+def _set(table: str, name: str, value):
+    def edit(ckpt):
+        ckpt[table][name] = value(ckpt[table][name])
+    return edit
+
+
+@pytest.mark.parametrize("edit, problem", [
+    (_set("gaussians", "means", lambda t: t.clone().fill_(float("nan"))),
+     r"gaussians.means has \d+ value\(s\) that are not finite"),
+    (_set("gaussians", "quats", lambda t: t[:-1]), r"the Gaussians' tensors hold \[\d+, \d+\] rows"),
+    (_set("gaussians", "means", lambda t: t.double()), r"gaussians.means is a torch.float64 tensor"),
+    (lambda ckpt: ckpt.update(gaussians={k: v[:0] for k, v in ckpt["gaussians"].items()}),
+     r"tensors hold \[0\] rows, expected one count of at least 1"),
+    (lambda ckpt: ckpt.pop("appearance"), r"'appearance' is not a table of tensors"),
+    (lambda ckpt: ckpt["gaussians"].pop("quats"), r"damaged checkpoint: .*quats"),
+    (lambda ckpt: ckpt.update(step="abc"), r"step 'abc' is not a whole number"),
+])
+def test_a_damaged_checkpoint_is_one_line_naming_it(box, trained, tmp_path, edit, problem):
+    """A checkpoint edited by hand or damaged: relight stops with one line naming checkpoints/last.safetensors
+    before writing anything (a NaN model relit to black images with exit 0)."""
+    from click.testing import CliRunner
+
+    from spotlessgs.cli import main
+
+    run = _edited_checkpoint(trained, tmp_path / "run", edit)
+    result = CliRunner().invoke(main, ["relight", str(run), "--out", str(tmp_path / "relit"), "-q"])
+    assert result.exit_code == 2 and len(result.output.strip().splitlines()) == 1, result.output
+    assert re.search(rf"checkpoints/last.safetensors: .*{problem}", result.output), result.output
+    assert not (tmp_path / "relit").exists()
+
+
+def test_resume_refuses_a_checkpoint_beyond_the_runs_iterations_or_without_optimizer_state(box, trained, tmp_path):
+    from spotlessgs.training.trainer import train
+
+    for name, edit, problem in (("late", lambda ckpt: ckpt.update(step=100), "it is at step 100, beyond the run's 2"),
+                                ("bare", lambda ckpt: ckpt.pop("strategy"), "it lacks strategy")):
+        run = _edited_checkpoint(trained, tmp_path / name, edit)
+        with pytest.raises(InputError, match=rf"last.safetensors: cannot resume from this checkpoint: {problem}"):
+            train(box, run, "3dgs", _tiny_config(), seed=0, progress=False, resume=True)
 
 
 def test_train_auto_refuses_a_run_folder_inside_its_dataset_before_creating_it(tmp_path):

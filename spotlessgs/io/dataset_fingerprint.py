@@ -61,15 +61,18 @@ def _training_content(record: object) -> object:
     return kept
 
 
-def _file_digest(path: Path, description: Path) -> str:
+def _file_digest(path: Path, description: Path, drop: tuple[str, ...] = ()) -> str:
     """SHA-256 (hex) of what training reads of ``path``: ``description`` (the dataset's ``transforms.json``) as its
-    training content in canonical JSON, any other file as its bytes."""
+    training content in canonical JSON, without its top-level keys ``drop``, any other file as its bytes."""
     if path == description and path.suffix == ".json":
         try:
             record = json.loads(path.read_text(encoding="utf-8"))
         except (UnicodeDecodeError, json.JSONDecodeError) as exc:
             raise InputError(f"{path}: not a readable dataset description ({exc})") from None
-        canonical = json.dumps(_training_content(record), sort_keys=True, separators=(",", ":"))
+        content = _training_content(record)
+        if isinstance(content, dict):
+            content = {k: v for k, v in content.items() if k not in drop}
+        canonical = json.dumps(content, sort_keys=True, separators=(",", ":"))
         return hashlib.sha256(canonical.encode()).hexdigest()
     with open(path, "rb") as f:
         return hashlib.file_digest(f, "sha256").hexdigest()
@@ -83,16 +86,37 @@ def dataset_fingerprint(dataset: DatasetDescription) -> str:
     Raises:
         InputError: a file cannot be read (names it).
     """
-    root = Path(dataset.root)
-    whole = hashlib.sha256()
+    return dataset_fingerprints(dataset)[0]
+
+
+def dataset_fingerprints(dataset: DatasetDescription) -> tuple[str, str]:
+    """(:func:`dataset_fingerprint`, the views' fingerprint), reading each file once. The views' fingerprint leaves
+    out the start point cloud (the PLY file and ``transforms.json``'s ``ply_file_path``, or a COLMAP model's
+    ``points3D`` file): what a finished run's relighting, rendering and evaluation read of the dataset, so that its
+    dataset moved with another start cloud is still its own.
+
+    Raises:
+        InputError: a file cannot be read (names it).
+    """
+    root, description = Path(dataset.root), Path(dataset.source)
+    cloud = {Path(dataset.ply_path)} if dataset.ply_path is not None else set()
+    if description.is_dir():
+        cloud.add(model_files(description)[2])
+    whole, views = hashlib.sha256(), hashlib.sha256()
     for path in training_input_files(dataset):
         try:
-            digest = _file_digest(path, Path(dataset.source))
+            digest = _file_digest(path, description)
+            if path == description and path.suffix == ".json":
+                digest_without_cloud = _file_digest(path, description, drop=("ply_file_path",))
+            else:
+                digest_without_cloud = digest
         except OSError as exc:
             raise InputError(f"{path}: cannot read the dataset file ({exc.strerror or exc})") from None
         name = Path(os.path.relpath(path, root)).as_posix()
         whole.update(f"{name}\0{digest}\n".encode())
-    return FINGERPRINT_PREFIX + whole.hexdigest()
+        if path not in cloud:
+            views.update(f"{name}\0{digest_without_cloud}\n".encode())
+    return FINGERPRINT_PREFIX + whole.hexdigest(), FINGERPRINT_PREFIX + views.hexdigest()
 
 
 def other_dataset(recorded: object, fingerprint: str) -> bool:

@@ -20,9 +20,11 @@ import os
 from pathlib import Path
 from typing import Any, Sequence
 
+import torch
+
 from spotlessgs.io.atomic import write_text
 from spotlessgs.io.dataset import read_dataset
-from spotlessgs.io.dataset_fingerprint import dataset_fingerprint, other_dataset
+from spotlessgs.io.dataset_fingerprint import dataset_fingerprints, other_dataset
 from spotlessgs.io.errors import InputError
 from spotlessgs.io.json_files import read_json
 from spotlessgs.io.tensor_file import load_plain_torch_file, load_tree, save_tree
@@ -65,7 +67,37 @@ def load_checkpoint(run_dir: Path) -> dict[str, Any]:
     if not isinstance(data, dict) or data.get("version") != CHECKPOINT_VERSION:
         found = data.get("version") if isinstance(data, dict) else type(data).__name__
         raise InputError(f"{path}: checkpoint version {found} is not {CHECKPOINT_VERSION}")
+    check_checkpoint(data, path)
     return data
+
+
+def check_checkpoint(data: dict[str, Any], path: Path) -> None:
+    """InputError naming ``path`` where a checkpoint ``data`` cannot be a model: ``gaussians`` and ``appearance``
+    tables of tensors, the Gaussians' float32 tensors sharing one count N ≥ 1, every floating tensor finite, and
+    ``step`` a whole number ≥ 0 (a damaged or hand-edited file; training never saves a non-finite model)."""
+    for table in ("gaussians", "appearance"):
+        values = data.get(table)
+        if not isinstance(values, dict) or not all(isinstance(v, torch.Tensor) for v in values.values()):
+            raise InputError(f"{path}: damaged checkpoint: '{table}' is not a table of tensors")
+    counts = set()
+    for name, tensor in data["gaussians"].items():
+        if tensor.dtype != torch.float32 or tensor.ndim == 0:
+            raise InputError(f"{path}: damaged checkpoint: gaussians.{name} is a {tensor.dtype} tensor of shape "
+                             f"{tuple(tensor.shape)}, expected float32 with one row per Gaussian")
+        counts.add(tensor.shape[0])
+    if len(counts) != 1 or 0 in counts:
+        raise InputError(f"{path}: damaged checkpoint: the Gaussians' tensors hold {sorted(counts)} rows, expected "
+                         "one count of at least 1")
+    for table in ("gaussians", "appearance"):
+        for name, tensor in data[table].items():
+            if tensor.is_floating_point() and not torch.isfinite(tensor).all():
+                bad = int((~torch.isfinite(tensor)).sum())
+                raise InputError(f"{path}: damaged checkpoint: {table}.{name} has {bad} value(s) that are not finite")
+    step = data.get("step")
+    if isinstance(step, torch.Tensor) and step.numel() == 1 and not step.is_floating_point():
+        step = int(step)
+    if not isinstance(step, int) or isinstance(step, bool) or step < 0:
+        raise InputError(f"{path}: damaged checkpoint: step {step!r} is not a whole number of at least 0")
 
 
 def read_run_info(run_dir: Path, required: Sequence[str] = ()) -> dict[str, Any]:
@@ -135,8 +167,10 @@ def resolve_data_dir(run_dir: str | Path, info: dict[str, Any], override: str | 
         if not Path(override).is_dir():
             raise InputError(f"{override}: --data is not a dataset folder (not found)")
         data = Path(override).resolve()
-        recorded = info.get("data_fingerprint")
-        if recorded is not None and other_dataset(recorded, dataset_fingerprint(read_dataset(data))):
+        # the views' fingerprint where the run has one (its start cloud may differ), else the whole dataset's
+        key = "views_fingerprint" if info.get("views_fingerprint") is not None else "data_fingerprint"
+        if info.get(key) is not None and other_dataset(info[key], dataset_fingerprints(read_dataset(data))[
+                0 if key == "data_fingerprint" else 1]):
             raise InputError(f"{override}: --data holds other files than the run {run_dir} was trained on (another "
                              "dataset fingerprint); point --data at the run's own dataset")
         return data

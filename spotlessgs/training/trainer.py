@@ -20,7 +20,7 @@ import numpy as np
 import torch
 
 from spotlessgs.io.dataset import read_dataset
-from spotlessgs.io.dataset_fingerprint import dataset_fingerprint, other_dataset
+from spotlessgs.io.dataset_fingerprint import dataset_fingerprints, other_dataset
 from spotlessgs.io.atomic import remove_partial_files, write_json
 from spotlessgs.io.errors import InputError, write_error
 from spotlessgs.io.folder_lock import folder_lock
@@ -456,15 +456,24 @@ def run_variant(run_info: dict[str, Any]) -> str | ModelConfig:
     return ModelConfig(**with_defaults(ModelConfig, saved)) if saved is not None else run_info["model"]
 
 
-def restore_scene(ckpt: dict[str, Any], run_info: dict[str, Any], config: TrainConfig) -> RelightableScene:
-    """Rebuild the model of a checkpoint (modules with the same structure, then their saved values)."""
+def restore_scene(ckpt: dict[str, Any], run_info: dict[str, Any], config: TrainConfig, where: Path) -> RelightableScene:
+    """Rebuild the model of a checkpoint ``ckpt`` read from ``where`` (modules with the same structure, then their
+    saved values); InputError naming ``where`` where its tensors do not fit the run's model."""
     cfg = model_config(run_variant(run_info), config)
-    gaussians = GaussianParams(ckpt["gaussians"])
+    try:
+        gaussians = GaussianParams(ckpt["gaussians"])
+    except ValueError as exc:  # a missing parameter, or one of another shape
+        raise InputError(f"{where}: damaged checkpoint: {exc}") from None
     light_init: dict[str, Any] = {}
     if cfg.calibrated:  # the structure needs a cone; the fitted values are overwritten by the saved state
         light_init = {"light_rotation": None, "light_translation": np.zeros(3), "cone": (0.5, 0.3)}
     scene = RelightableScene.create(cfg, gaussians, seed=run_info["seed"], **light_init)
-    scene.modules_.load_state_dict(ckpt["appearance"])
+    try:
+        scene.modules_.load_state_dict(ckpt["appearance"])
+    except RuntimeError as exc:  # torch names the missing, unexpected and misshapen entries
+        detail = " ".join(str(exc).split())
+        raise InputError(f"{where}: the checkpoint's light and reflectance do not fit the run's model ({detail})"
+                         ) from None
     if cfg.calibrated and scene.appearance.light is not None:
         scene.appearance.light.set_pose_trainable(False)
     return scene
@@ -562,7 +571,7 @@ def _train_locked(data_dir: Path, run_dir: Path, variant: str | ModelConfig, con
             raise InputError(f"{run_dir / 'config.json'}: damaged run settings: 'run' is not a JSON object")
         # the dataset may have moved (--data DIR), an older version wrote the file: not another setting; the
         # dataset's files are compared below (data_fingerprint)
-        moved = ("data_dir", "data_dir_relative", "schema_version", "data_fingerprint")
+        moved = ("data_dir", "data_dir_relative", "schema_version", "data_fingerprint", "views_fingerprint")
         # settings added since the run began take their defaults (what the run trained with), the model's too
         old_run = dict(old["run"])
         if isinstance(old_run.get("model_config"), dict):
@@ -581,7 +590,7 @@ def _train_locked(data_dir: Path, run_dir: Path, variant: str | ModelConfig, con
     # what the run trains on, compared on a resume before the images load (a run saved before the fingerprint
     # existed has none to compare, and gets one)
     dataset = read_dataset(data_dir, check_files=True)
-    run_info["data_fingerprint"] = dataset_fingerprint(dataset)
+    run_info["data_fingerprint"], run_info["views_fingerprint"] = dataset_fingerprints(dataset)
     if resume and has_checkpoint:
         if other_dataset(recorded_data_fingerprint(run_dir), run_info["data_fingerprint"]):
             raise InputError(f"{run_dir}: --resume on another dataset: the files of {data_dir} differ from those the "
@@ -615,7 +624,7 @@ def _train_locked(data_dir: Path, run_dir: Path, variant: str | ModelConfig, con
     lamp_bounces = LampBounceCache(config)  # each view's lamp bounce irradiance (lamp_bounce only)
     start = 0
     if ckpt is not None:
-        scene = restore_scene(ckpt, run_info, config).to(device)
+        scene = restore_scene(ckpt, run_info, config, ckpt_file).to(device)
         shadow_maps.load_state_dict(ckpt.get("shadow_maps", {}), device)
         lamp_bounces.load_state_dict(ckpt.get("lamp_bounces", {}), device)
         if photometric is not None:
@@ -633,10 +642,16 @@ def _train_locked(data_dir: Path, run_dir: Path, variant: str | ModelConfig, con
         opts = build_optimizers(scene, config, extent, photometric)
         if poses is not None:
             opts["pose"] = pose_optimizer(poses, config)
+        start = int(ckpt["step"])
+        missing = [k for k in ("optimizers", "strategy") if not isinstance(ckpt.get(k), dict)]
+        missing += [f"optimizers.{k}" for k in opts if not missing and not isinstance(ckpt["optimizers"].get(k), dict)]
+        if missing or start > config.iterations:
+            problem = (f"it lacks {', '.join(missing)}" if missing else
+                       f"it is at step {start}, beyond the run's {config.iterations} iterations")
+            raise InputError(f"{ckpt_file}: cannot resume from this checkpoint: {problem}")
         for k, o in opts.items():
             o.load_state_dict(ckpt["optimizers"][k])
         strategy.load_state_dict(ckpt["strategy"])
-        start = int(ckpt["step"])
         truncate_metrics(run_dir / "metrics.jsonl", start)
         log.info("resuming %s at step %d", run_dir, start)
     else:
@@ -1007,6 +1022,6 @@ def load_run(run_dir: str | Path, device: str = "auto", data_dir: str | Path | N
     ckpt = load_checkpoint(run_dir)
     # as the run trained: the model's structure is the checkpoint's, even where the dataset's start cloud has changed
     config = trained_settings(saved, views, run_variant(info), ckpt, checkpoint_path(run_dir))
-    scene = restore_scene(ckpt, info, config).to(resolve_device(device))
+    scene = restore_scene(ckpt, info, config, checkpoint_path(run_dir)).to(resolve_device(device))
     scene.eval()
     return scene, views, config, info
