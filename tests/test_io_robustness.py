@@ -596,6 +596,49 @@ def test_resume_refuses_a_checkpoint_beyond_the_runs_iterations_or_without_optim
             train(box, run, "3dgs", _tiny_config(), seed=0, progress=False, resume=True)
 
 
+@pytest.mark.parametrize("file, edit, problem", [
+    ("config.json", lambda c: c["train"].update(image_width="40"),
+     r"config.json: damaged run settings: train.image_width: expected a whole number or null, got '40'"),
+    ("config.json", lambda c: c["train"].update(linear_input="yes"),
+     r"train.linear_input: expected true or false, got 'yes'"),
+    ("config.json", lambda c: c["train"].update(depth_spread_every=0),
+     r"config.json: damaged run settings: TrainConfig: depth_spread_every must be >= 1"),
+    ("run.json", lambda r: r.update(seed="abc"), r"run.json: damaged run description: seed 'abc' is not a whole"),
+    ("run.json", lambda r: r.update(model="foo"), r"run.json: damaged run description: model 'foo' is not one of"),
+    ("run.json", lambda r: r.update(model=[1]), r"run.json: damaged run description: model \[1\] is not one of"),
+    ("run.json", lambda r: r.update(model_config=[1]), r"run.json: damaged model_config: is not a JSON object"),
+    ("run.json", lambda r: r.update(model_config={"bogus": 1}), r"run.json: the model_config does not fit"),
+    ("run.json", lambda r: r.update(data_dir=5, data_dir_relative=None), r"run.json: damaged run description: "
+                                                                         r"data_dir 5 is not a path"),
+])
+def test_hand_edited_run_files_are_one_line_naming_the_file_and_field(box, trained, tmp_path, file, edit, problem):
+    from click.testing import CliRunner
+
+    from spotlessgs.cli import main
+
+    run = shutil.copytree(trained, tmp_path / "run")
+    record = json.loads((run / file).read_text())
+    edit(record)
+    (run / file).write_text(json.dumps(record))
+    result = CliRunner().invoke(main, ["relight", str(run), "--out", str(tmp_path / "relit"), "-q"])
+    assert result.exit_code == 2 and len(result.output.strip().splitlines()) == 1, result.output
+    assert re.search(problem, result.output), result.output
+    assert not (tmp_path / "relit").exists()
+
+
+def test_field_types_follow_the_annotations():
+    from spotlessgs.models.shading import ModelConfig
+    from spotlessgs.training.config import TrainConfig, field_type_errors
+
+    assert field_type_errors(TrainConfig, {"iterations": 10, "image_width": None, "ssim_lambda": 1, "preset": "x",
+                                           "linear_input": False, "not_a_field": object()}) == []
+    assert field_type_errors(TrainConfig, {"iterations": 1.5, "ssim_lambda": True, "preset": 3}) == [
+        "iterations: expected a whole number, got 1.5", "ssim_lambda: expected a number, got True",
+        "preset: expected text, got 3"]
+    assert field_type_errors(ModelConfig, {"light_model": "lamp"}) == [
+        "light_model: expected one of 'none', 'spotlight', got 'lamp'"]
+
+
 def test_train_auto_refuses_a_run_folder_inside_its_dataset_before_creating_it(tmp_path):
     from spotlessgs.training.selection import train_auto
 

@@ -100,6 +100,25 @@ def check_checkpoint(data: dict[str, Any], path: Path) -> None:
         raise InputError(f"{path}: damaged checkpoint: step {step!r} is not a whole number of at least 0")
 
 
+def _recorded_data_dirs(run_dir: Path, info: dict[str, Any]) -> list[Path]:
+    """The folders run.json's ``data_dir_relative`` and ``data_dir`` name (resolved; the paths that are text)."""
+    recorded = [info.get(key) for key in ("data_dir_relative", "data_dir")]
+    return [(Path(v) if Path(v).is_absolute() else run_dir / v).resolve() for v in recorded if isinstance(v, str) and v]
+
+
+def _check_views(run_dir: Path, info: dict[str, Any], data: Path, given: str | Path) -> None:
+    """InputError where the dataset folder ``data`` (given as ``given``) holds other views than the run trained on:
+    run.json's ``views_fingerprint`` where it has one (the start cloud may differ), else its ``data_fingerprint``;
+    a run saved before fingerprints is not compared."""
+    key = "views_fingerprint" if info.get("views_fingerprint") is not None else "data_fingerprint"
+    if info.get(key) is None:
+        return
+    whole, views = dataset_fingerprints(read_dataset(data))
+    if other_dataset(info[key], views if key == "views_fingerprint" else whole):
+        raise InputError(f"{given}: --data holds other files than the run {run_dir} was trained on (another "
+                         "dataset fingerprint); point --data at the run's own dataset")
+
+
 def read_run_info(run_dir: Path, required: Sequence[str] = ()) -> dict[str, Any]:
     """The run's ``run.json`` (a JSON object).
 
@@ -167,18 +186,16 @@ def resolve_data_dir(run_dir: str | Path, info: dict[str, Any], override: str | 
         if not Path(override).is_dir():
             raise InputError(f"{override}: --data is not a dataset folder (not found)")
         data = Path(override).resolve()
-        # the views' fingerprint where the run has one (its start cloud may differ), else the whole dataset's
-        key = "views_fingerprint" if info.get("views_fingerprint") is not None else "data_fingerprint"
-        if info.get(key) is not None and other_dataset(info[key], dataset_fingerprints(read_dataset(data))[
-                0 if key == "data_fingerprint" else 1]):
-            raise InputError(f"{override}: --data holds other files than the run {run_dir} was trained on (another "
-                             "dataset fingerprint); point --data at the run's own dataset")
+        if data not in _recorded_data_dirs(run_dir, info):  # the dataset moved: it must hold the run's own views
+            _check_views(run_dir, info, data, override)
         return data
     tried: list[str] = []
     for key in ("data_dir_relative", "data_dir"):
         value = info.get(key)
         if not value:
             continue
+        if not isinstance(value, str):
+            raise InputError(f"{run_dir / 'run.json'}: damaged run description: {key} {value!r} is not a path")
         path = Path(value)
         path = path if path.is_absolute() else run_dir / path
         if path.is_dir():

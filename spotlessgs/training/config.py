@@ -8,6 +8,8 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import types
+import typing
 from dataclasses import dataclass
 from typing import Any
 
@@ -26,6 +28,49 @@ SWITCH_VALUES = ("auto", "on", "off")
 PREDATING_VALUES: dict[str, Any] = {"bounce_light_degree": -1, "shadow_camera_relative": False,
                                     "depth_spread_weight": 0.0, "depth_spread": "on", "depth_spread_every": 1,
                                     "lamp_bounce_every": 1, "trust_start_geometry": "off", "rid_model": "mlp"}
+
+
+def field_type_errors(cls: type, values: dict[str, Any]) -> list[str]:
+    """The entries of ``values`` (fields of the settings dataclass ``cls`` as JSON gave them) whose type is not the
+    field's: ``bool`` takes true/false only, ``int`` a whole number, ``float`` any number, ``str`` text, ``X | None``
+    also null, a tuple a list; one message per entry (``"seed: expected an int, got 'abc'"``). Names ``cls`` does not
+    have are left to its constructor."""
+    hints = typing.get_type_hints(cls)
+    return [f"{name}: expected {_type_name(hints[name])}, got {value!r}" for name, value in values.items()
+            if name in hints and not _fits(value, hints[name])]
+
+
+def _fits(value: Any, kind: Any) -> bool:
+    """Whether the JSON value ``value`` can stand for the annotation ``kind`` (see :func:`field_type_errors`)."""
+    origin, args = typing.get_origin(kind), typing.get_args(kind)
+    if origin in (typing.Union, types.UnionType):
+        return any(_fits(value, arg) for arg in args)
+    if kind is type(None):
+        return value is None
+    if kind is bool:
+        return isinstance(value, bool)
+    if kind is int:
+        return isinstance(value, int) and not isinstance(value, bool)
+    if kind is float:
+        return isinstance(value, (int, float)) and not isinstance(value, bool)
+    if kind is str:
+        return isinstance(value, str)
+    if origin is typing.Literal:
+        return value in args
+    if origin is tuple:
+        return isinstance(value, (list, tuple))
+    return True  # another type: its constructor or __post_init__ checks it
+
+
+def _type_name(kind: Any) -> str:
+    args = [a for a in typing.get_args(kind) if a is not type(None)]
+    if typing.get_origin(kind) in (typing.Union, types.UnionType):
+        return " or ".join(_type_name(a) for a in args) + " or null"
+    if typing.get_origin(kind) is typing.Literal:
+        return "one of " + ", ".join(repr(a) for a in typing.get_args(kind))
+    if typing.get_origin(kind) is tuple:
+        return "a list"
+    return {bool: "true or false", int: "a whole number", float: "a number", str: "text"}.get(kind, str(kind))
 
 
 def with_defaults(cls: type, saved: dict[str, Any]) -> dict[str, Any]:

@@ -44,7 +44,7 @@ from spotlessgs.training.checkpoint import (
     RUN_SCHEMA_VERSION, check_schema_version, checkpoint_path, data_dir_fields, existing_checkpoint, load_checkpoint,
     read_run_info, recorded_data_fingerprint, resolve_data_dir, save_checkpoint, truncate_metrics,
 )
-from spotlessgs.training.config import TrainConfig, with_defaults
+from spotlessgs.training.config import TrainConfig, field_type_errors, with_defaults
 from spotlessgs.training.data import TrainingViews, initial_point_cloud, load_training_views
 from spotlessgs.training.light_report import write_light_report
 from spotlessgs.training.light_unit import spot_radiance_scale
@@ -449,11 +449,20 @@ def build_photometric(config: TrainConfig, views: TrainingViews, split: ViewSpli
                              log_gain_prior=prior).to(device)
 
 
-def run_variant(run_info: dict[str, Any]) -> str | ModelConfig:
-    """The variant a run trained (its run.json ``run_info``): a preset's name, or the ModelConfig that a run of an
-    arbitrary one (``spotless train --model auto``) stores itself."""
+def run_variant(run_info: dict[str, Any], where: str | Path = "run.json") -> str | ModelConfig:
+    """The variant a run trained (its run.json ``run_info``, read from ``where``): a preset's name, or the ModelConfig
+    that a run of an arbitrary one (``spotless train --model auto``) stores itself. InputError naming ``where`` for a
+    model_config of the wrong form."""
     saved = run_info.get("model_config")
-    return ModelConfig(**with_defaults(ModelConfig, saved)) if saved is not None else run_info["model"]
+    if saved is None:
+        return run_info["model"]
+    wrong = ["is not a JSON object"] if not isinstance(saved, dict) else field_type_errors(ModelConfig, saved)
+    if wrong:
+        raise InputError(f"{where}: damaged model_config: {wrong[0]}")
+    try:
+        return ModelConfig(**with_defaults(ModelConfig, saved))
+    except (TypeError, ValueError) as exc:  # an unknown field (another version's run), or a value out of range
+        raise InputError(f"{where}: the model_config does not fit this version ({exc})") from None
 
 
 def restore_scene(ckpt: dict[str, Any], run_info: dict[str, Any], config: TrainConfig, where: Path) -> RelightableScene:
@@ -921,10 +930,15 @@ def saved_train_config(path: Path) -> TrainConfig:
     check_schema_version(path, saved)
     if not isinstance(saved["train"], dict):
         raise InputError(f"{path}: damaged run settings: 'train' is not a JSON object")
+    wrong = field_type_errors(TrainConfig, saved["train"])
+    if wrong:
+        raise InputError(f"{path}: damaged run settings: train.{wrong[0]}")
     try:
         return TrainConfig(**with_defaults(TrainConfig, saved["train"]))
     except TypeError as exc:  # an unknown or missing field: another version's run
         raise InputError(f"{path}: the training settings do not fit this version ({exc})") from None
+    except ValueError as exc:  # a value out of its range
+        raise InputError(f"{path}: damaged run settings: {exc}") from None
 
 
 def unrefined_views(views: TrainingViews) -> list[int]:
@@ -1016,12 +1030,20 @@ def load_run(run_dir: str | Path, device: str = "auto", data_dir: str | Path | N
     # what restore_scene needs: the model (its name, or the config of `--model auto`) and the seed
     require_keys(info, run_dir / "run.json", "run description",
                  ("seed",) if "model_config" in info else ("model", "seed"))
+    wrong = [f"{key} {info[key]!r} is not {kind}" for key, kind, ok in (
+        ("seed", "a whole number", isinstance(info["seed"], int) and not isinstance(info["seed"], bool)),
+        ("model", f"one of {sorted(MODEL_VARIANTS)}", "model_config" in info
+                                                   or isinstance(info.get("model"), str) and info["model"] in MODEL_VARIANTS))
+        if not ok]
+    if wrong:
+        raise InputError(f"{run_dir / 'run.json'}: damaged run description: {wrong[0]}")
+    variant = run_variant(info, run_dir / "run.json")
     saved = saved_train_config(run_dir / "config.json")
     views = load_training_views(resolve_data_dir(run_dir, info, data_dir), saved.image_width, saved.linear_input,
                                 saved.saturation_threshold)
     ckpt = load_checkpoint(run_dir)
     # as the run trained: the model's structure is the checkpoint's, even where the dataset's start cloud has changed
-    config = trained_settings(saved, views, run_variant(info), ckpt, checkpoint_path(run_dir))
+    config = trained_settings(saved, views, variant, ckpt, checkpoint_path(run_dir))
     scene = restore_scene(ckpt, info, config, checkpoint_path(run_dir)).to(resolve_device(device))
     scene.eval()
     return scene, views, config, info
