@@ -172,7 +172,29 @@ def read_manifest(folder: str | os.PathLike) -> dict[str, Any] | None:
     if missing or not isinstance(record["frames"], list):
         raise InputError(f"{path}: damaged manifest (missing {', '.join(missing) or 'frames list'}); "
                          "write the folder again")
+    problem = _manifest_form_problem(record)
+    if problem:
+        raise InputError(f"{path}: damaged manifest ({problem}); write the folder again")
     return record
+
+
+def _manifest_form_problem(record: dict[str, Any]) -> str | None:
+    """What is of the wrong form in a manifest ``record`` that has every required field, or None: ``kind`` text,
+    ``checkpoint``, ``options`` and ``dataset`` JSON objects (or null), each frame an object with a ``name`` inside
+    the folder and a ``sha256`` text."""
+    if not isinstance(record["kind"], str):
+        return f"kind {record['kind']!r} is not text"
+    for key in ("checkpoint", "options", "dataset"):
+        if record[key] is not None and not isinstance(record[key], dict):
+            return f"{key} is not a JSON object"
+    for k, frame in enumerate(record["frames"]):
+        if not isinstance(frame, dict) or not isinstance(frame.get("name"), str) \
+                or not isinstance(frame.get("sha256"), str):
+            return f"frames[{k}] is not an object with a name and a sha256"
+        name = frame["name"]
+        if not name or Path(name).is_absolute() or ".." in Path(name).parts:
+            return f"frames[{k}] names {name!r}, not a file inside the folder"
+    return None
 
 
 def manifest_sha256(folder: str | os.PathLike) -> str:

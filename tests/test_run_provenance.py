@@ -227,6 +227,17 @@ def test_eval_names_a_changed_an_unlisted_frame_and_a_missing_manifest(trained, 
     (relit / "frame_00099.png").unlink()
     evaluate_run(run, QUICK)
 
+    good = json.loads((relit / MANIFEST_NAME).read_text())
+    for edit, problem in ((lambda m: m.update(frames=[1]), r"frames\[0\] is not an object with a name and a sha256"),
+                          (lambda m: m["frames"][0].pop("name"), r"frames\[0\] is not an object with a name"),
+                          (lambda m: m["frames"][0].update(name="../../run.json"), r"frames\[0\] names "
+                                                                                   r"'../../run.json', not a file"),
+                          (lambda m: m.update(checkpoint="abc"), "checkpoint is not a JSON object")):
+        damaged = json.loads(json.dumps(good))
+        edit(damaged)
+        (relit / MANIFEST_NAME).write_text(json.dumps(damaged))
+        with pytest.raises(InputError, match=rf"relit/\.manifest\.json: damaged manifest \({problem}.*write the"):
+            evaluate_run(run, QUICK)
     (relit / MANIFEST_NAME).unlink()
     with pytest.raises(InputError, match=r"relit: no manifest \(\.manifest\.json\).*run `spotless relight"):
         evaluate_run(run, QUICK)
