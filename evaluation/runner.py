@@ -21,6 +21,7 @@ from __future__ import annotations
 import contextlib
 import logging
 import os
+import re
 import tempfile
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
@@ -166,15 +167,23 @@ def score_pairs(pairs: Sequence[ImagePair], config: EvalConfig = EvalConfig(), l
     with _torch_threads(config.num_threads), torch.no_grad():
         for pair, row in _bar(list(zip(pairs, per_image)), config, f"{label}", total=len(pairs)):
             pred, gt = _load_pair(pair)
-            score(pred, gt, row, "")
+            try:
+                score(pred, gt, row, "")
+                keep = _non_emitters(pair, gt)
+                if keep is not None:
+                    score_masked(pred, gt, keep, row, "")
+            except ValueError as exc:  # images too small for SSIM's window, lamps leaving no lamp-free window
+                raise InputError(f"{pair.pred} against {pair.gt}: {exc}") from None
             acc.add(pred, gt)
-            keep = _non_emitters(pair, gt)
             keeps.append(keep)
             if keep is not None:
-                score_masked(pred, gt, keep, row, "")
                 acc_masked.add(pred[:, keep], gt[:, keep])
         gain = gain_masked = None
         if config.aligned:
+            if acc.sum_pp <= 0.0:
+                folders = sorted({str(pair.pred.parent) for pair in pairs})
+                raise InputError(f"{', '.join(folders)}: every pixel of the {len(pairs)} predicted image(s) is black, "
+                                 "so the exposure gain of the aligned metrics is undefined (an empty render?)")
             gain = acc.gain()
             gain_masked = acc_masked.gain() if acc_masked.count else None
             for pair, row, keep in _bar(list(zip(pairs, per_image, keeps)), config, f"{label} (aligned)",
@@ -246,7 +255,12 @@ def temporal_block(
         raise ValueError(f"temporal {label}: {len(paths)} images but {len(posed.frames)} posed frames")
     with _torch_threads(config.num_threads), torch.no_grad():
         frames = (_chw(_load(p)) for p in _bar(paths, config, f"temporal {label}", total=len(paths)))
-        plain = temporal_scores(frames)
+        try:
+            plain = temporal_scores(frames)
+        except ValueError as exc:  # frames of different sizes: name the files (the scores name pair indices)
+            pair = re.match(r"frames (\d+) and (\d+) differ", str(exc))
+            where = f"{paths[int(pair[1])]} and {paths[int(pair[2])].name}" if pair else str(Path(paths[0]).parent)
+            raise InputError(f"{where}: temporal {label}: {exc}") from None
         out = {"tmp_psnr": plain.mean_psnr, "tmp_ssim": plain.mean_ssim, "tmp_flicker": plain.flicker}
         # one camera (the frames of several cameras are not warped); a lens warps through OpenCV's camera model
         if (posed is not None and posed.intrinsics is not None

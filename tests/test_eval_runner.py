@@ -137,6 +137,29 @@ def test_size_mismatch_is_named(tmp_path):
         evaluate_folders(tmp_path / "p", tmp_path / "g", QUIET)
 
 
+def test_degenerate_folders_are_one_error_naming_the_files(tmp_path):
+    """All-black predictions (no exposure gain), images smaller than SSIM's window, frames of two sizes in one
+    sequence: an InputError naming the folder or the files, not an error without a path."""
+    from spotlessgs.io.errors import InputError
+
+    for k in range(2):
+        write_png(tmp_path / "black" / f"{k}.png", np.zeros((20, 20, 3)))
+        write_png(tmp_path / "gt" / f"{k}.png", np.full((20, 20, 3), 0.5))
+        write_png(tmp_path / "tiny" / f"{k}.png", np.zeros((8, 8, 3)))
+        write_png(tmp_path / "tiny_gt" / f"{k}.png", np.zeros((8, 8, 3)))
+    config = EvalConfig(lpips=False, progress=False, num_threads=1)
+    with pytest.raises(InputError, match=r"black: every pixel of the 2 predicted image\(s\) is black"):
+        evaluate_folders(tmp_path / "black", tmp_path / "gt", config)
+    with pytest.raises(InputError, match=r"tiny/0.png against .*tiny_gt/0.png: images of 8x8 pixels are smaller"):
+        evaluate_folders(tmp_path / "tiny", tmp_path / "tiny_gt", config)
+    write_png(tmp_path / "mixed" / "0.png", np.full((20, 20, 3), 0.4))
+    write_png(tmp_path / "mixed" / "1.png", np.full((20, 24, 3), 0.4))
+    write_png(tmp_path / "mixed_gt" / "0.png", np.full((20, 20, 3), 0.5))
+    write_png(tmp_path / "mixed_gt" / "1.png", np.full((20, 24, 3), 0.5))
+    with pytest.raises(InputError, match=r"mixed/0.png and 1.png: temporal .*frames 0 and 1 differ in shape"):
+        evaluate_folders(tmp_path / "mixed", tmp_path / "mixed_gt", config)
+
+
 def test_run_errors(run_dir, tmp_path):
     with pytest.raises(FileNotFoundError, match=r"not a training run \(no run.json\)"):
         evaluate_run(tmp_path, QUIET)
