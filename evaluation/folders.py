@@ -25,15 +25,17 @@ class ImagePair:
     exr: Path | None = None
 
 
-def image_names(folder: str | os.PathLike) -> list[str]:
+def image_names(folder: str | os.PathLike, non_images: str = "error") -> list[str]:
     """Sorted image file names in ``folder``; a folder holding other files is refused (see
     :func:`spotlessgs.io.images.list_image_files` with ``non_images="error"``, which raises FileNotFoundError /
-    ValueError naming the folder and the files)."""
-    return [p.name for p in list_image_files(folder, non_images="error")]
+    ValueError naming the folder and the files), or with ``non_images="skip"`` (a folder whose manifest vouches for
+    every file, e.g. ``spotless relight --exr``'s EXR files) they are left out."""
+    return [p.name for p in list_image_files(folder, non_images=non_images)]
 
 
 def match_folders(
-    pred_dir: str | os.PathLike, gt_dir: str | os.PathLike, names: Sequence[str] | None = None
+    pred_dir: str | os.PathLike, gt_dir: str | os.PathLike, names: Sequence[str] | None = None,
+    non_images: tuple[str, str] = ("error", "error"),
 ) -> list[ImagePair]:
     """Pair the images of ``pred_dir`` and ``gt_dir`` by file name.
 
@@ -42,6 +44,7 @@ def match_folders(
         gt_dir: folder of reference images.
         names: when given, exactly these file names are paired (both folders may hold more); otherwise both folders
             must hold the same set of image names.
+        non_images: what :func:`image_names` does with other files in ``pred_dir`` and in ``gt_dir``.
 
     Returns:
         the pairs, in the order of ``names`` or sorted by name.
@@ -50,7 +53,7 @@ def match_folders(
         ValueError: the folders hold different image counts or names (missing and extra names are listed), or a
             requested name is absent from a folder.
     """
-    pred_names, gt_names = image_names(pred_dir), image_names(gt_dir)
+    pred_names, gt_names = image_names(pred_dir, non_images[0]), image_names(gt_dir, non_images[1])
     pred_set, gt_set = set(pred_names), set(gt_names)
     if names is None:
         if pred_set != gt_set:

@@ -450,7 +450,9 @@ def evaluate_folders(
         refuse_overlap(json_path, inputs, "--json")
     pred_manifest = check_folder_manifest(Path(pred_dir), "--pred")
     gt_manifest = check_folder_manifest(Path(gt_dir), "--gt")
-    pairs = match_folders(pred_dir, gt_dir)
+    # a folder whose manifest vouches for every file may hold more than images (relight --exr's EXR files)
+    pairs = match_folders(pred_dir, gt_dir, non_images=tuple("error" if m is None else "skip"
+                                                             for m in (pred_manifest, gt_manifest)))
     results: dict = {"mode": "folders", "pred_dir": str(pred_dir), "gt_dir": str(gt_dir),
                      "pred_manifest": pred_manifest, "gt_manifest": gt_manifest}
     scores = score_pairs(pairs, config, "image metrics")

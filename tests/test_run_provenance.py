@@ -243,6 +243,21 @@ def test_eval_names_a_changed_an_unlisted_frame_and_a_missing_manifest(trained, 
         evaluate_run(run, QUICK)
 
 
+def test_folder_mode_scores_a_relight_with_exr_files_its_manifest_vouches_for(trained, tmp_path):
+    """`relight --exr` writes an EXR beside each PNG: folder mode scores the PNGs of such a folder (its manifest
+    lists every file), and still refuses a stray file in a folder without one."""
+    out = tmp_path / "relit-exr"
+    _relight(trained / "run", out_dir=out, exr=True)
+    assert any(p.suffix == ".exr" for p in out.iterdir())
+    results = evaluate_folders(out, trained / "data" / "gt", QUICK)
+    assert results["num_images"] == len(ALL_VIEWS) and results["pred_manifest"]["kind"] == "relit"
+    plain = tmp_path / "plain"
+    shutil.copytree(out, plain)
+    (plain / MANIFEST_NAME).unlink()
+    with pytest.raises(ValueError, match=r"plain: non-image files found: .*\.exr"):
+        evaluate_folders(plain, trained / "data" / "gt", QUICK)
+
+
 def test_folder_mode_records_a_checkpoint_that_moved_on(trained, tmp_path, caplog):
     from spotlessgs.training.trainer import train
 
