@@ -55,6 +55,23 @@ def test_16bit_rgb_exact(tmp_path):
     np.testing.assert_allclose(got, a / 65535.0, atol=1e-7)
 
 
+@pytest.mark.parametrize("channels", [3, 4, 1])
+def test_16bit_tiff_exact(tmp_path, channels):
+    """A 16-bit TIFF keeps its 16 bits (Pillow would read colour ones as 8-bit), in RGB order; grey repeats."""
+    import cv2
+
+    a = (np.arange(4 * 5 * channels).reshape(4, 5, channels) * 1357 % 65536).astype(np.uint16)
+    stored = a[..., 0] if channels == 1 else cv2.cvtColor(a, cv2.COLOR_RGB2BGR if channels == 3 else cv2.COLOR_RGBA2BGRA)
+    assert cv2.imwrite(str(tmp_path / "c.tif"), stored)
+    got = load_image(tmp_path / "c.tif")
+    expected = (np.repeat(a, 3, axis=2) if channels == 1 else a[..., :3]) / 65535.0
+    if channels == 4:  # the evaluation composites alpha over black
+        expected = expected * a[..., 3:] / 65535.0
+    np.testing.assert_allclose(got, expected, atol=1e-6)
+    Image.fromarray(np.full((3, 3, 3), 77, np.uint8)).save(tmp_path / "eight.tif")  # 8-bit: as before
+    np.testing.assert_allclose(load_image(tmp_path / "eight.tif"), 77 / 255.0, atol=1e-7)
+
+
 def test_alpha_composited_over_black(tmp_path):
     rgba = np.zeros((2, 2, 4), np.uint8)
     rgba[..., :3] = 200

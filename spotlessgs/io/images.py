@@ -91,7 +91,25 @@ def read_image(path: str | os.PathLike, alpha: str = "drop") -> np.ndarray:
         bit_depth, colour_type = head[24], head[25]
         if bit_depth == 16 and colour_type in (2, 4, 6):
             return _to_rgb(_decode_png16(path), path, alpha)
+    if head[:4] in (b"II*\x00", b"MM\x00*"):  # TIFF: Pillow reads 16-bit colour as 8-bit, OpenCV keeps the bits
+        tiff16 = _decode_tiff16(path)
+        if tiff16 is not None:
+            return _to_rgb(tiff16, path, alpha)
     return _to_rgb(_read_with_pillow(path), path, alpha)
+
+
+def _decode_tiff16(path: Path) -> np.ndarray | None:
+    """A 16-bit TIFF as float32 (H, W) or (H, W, C) in [0, 1] (C = 3 or 4, RGB(A) order), decoded by OpenCV; None for
+    any other TIFF (8-bit ones decode alike with Pillow, which also reads what OpenCV cannot)."""
+    import cv2
+
+    data = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
+    if data is None or data.dtype != np.uint16 or data.ndim not in (2, 3) or (data.ndim == 3
+                                                                             and data.shape[2] not in (1, 3, 4)):
+        return None
+    if data.ndim == 3 and data.shape[2] >= 3:
+        data = cv2.cvtColor(data, cv2.COLOR_BGR2RGB if data.shape[2] == 3 else cv2.COLOR_BGRA2RGBA)
+    return data.astype(np.float32) / 65535.0
 
 
 def _read_with_pillow(path: Path) -> np.ndarray:
