@@ -9,7 +9,7 @@ from pathlib import Path
 
 import click
 
-from spotlessgs.clitools import SafeGroup
+from spotlessgs.clitools import FiniteFloatRange, SafeGroup
 
 
 def _shard(_ctx, _param, value: str) -> tuple[int, int]:
@@ -53,22 +53,22 @@ def main(verbose: bool) -> None:
 @click.option("--frames", default=120, show_default=True, type=click.IntRange(2, 100_000), help="Poses on the loop.")
 @click.option("--width", default=320, show_default=True, type=click.IntRange(8, 8192))
 @click.option("--height", default=240, show_default=True, type=click.IntRange(8, 8192))
-@click.option("--fov", "h_fov_deg", default=75.0, show_default=True, type=click.FloatRange(10, 150),
+@click.option("--fov", "h_fov_deg", default=75.0, show_default=True, type=FiniteFloatRange(10, 150),
               help="Horizontal field of view (degrees).")
 @click.option("--samples", default=32, show_default=True, type=click.IntRange(1, 100_000),
               help="Cycles samples per pixel (see the README's speed-against-error table).")
 @click.option("--no-denoise", is_flag=True, help="Disable OpenImageDenoise.")
 @click.option("--bounces", default=4, show_default=True, type=click.IntRange(0, 32),
               help="Light bounces (0 = direct light only).")
-@click.option("--ambient", default=0.0, show_default=True, type=click.FloatRange(0), 
+@click.option("--ambient", default=0.0, show_default=True, type=FiniteFloatRange(0), 
               help="World light strength in the spotlight-only render.")
-@click.option("--residual-light", default=0.0, show_default=True, type=click.FloatRange(0, 1),
+@click.option("--residual-light", default=0.0, show_default=True, type=FiniteFloatRange(0, 1),
               help="Leave the room's own lights on in the spotlight-only render at this fraction of their power (a "
                    "dimmed ceiling light): light the spotlight does not explain.")
 @click.option("--lambertian", is_flag=True,
               help="Render every surface as an ideal Lambertian reflector (specular layer off, metallic 0): a room "
                    "with only diffuse materials.")
-@click.option("--motion-blur", default=0.0, show_default=True, type=click.FloatRange(0, 1),
+@click.option("--motion-blur", default=0.0, show_default=True, type=FiniteFloatRange(0, 1),
               help="Camera motion blur in the spotlit input: the shutter's open time as a fraction of the time "
                    "between two frames (0: sharp; the ground truth stays sharp).")
 @_ground_truth_option
@@ -197,18 +197,18 @@ def render_many(scene_patterns, out_dir, variants, frames, width, height, sample
               help="A finished dataset with linear renders (exr/).")
 @click.option("--out", "out_dir", required=True, type=click.Path(file_okay=False, path_type=Path),
               help="Folder for the noisy copy (resumed when it holds one made with the same settings).")
-@click.option("--shot", default=0.01, show_default=True, type=click.FloatRange(0),
+@click.option("--shot", default=0.01, show_default=True, type=FiniteFloatRange(0),
               help="Shot-noise variance per unit of linear signal (1e-4 low gain ... 0.012 high gain).")
-@click.option("--read", default=0.012, show_default=True, type=click.FloatRange(0),
+@click.option("--read", default=0.012, show_default=True, type=FiniteFloatRange(0),
               help="Read-noise standard deviation in linear intensity.")
 @click.option("--seed", default=0, show_default=True, type=int)
 @click.option("--robot-camera", is_flag=True,
               help="Also a robot camera's auto-exposure and vignetting (the truth in OUT/camera_effects.json).")
-@click.option("--sensitivity", default=0.25, show_default=True, type=click.FloatRange(0, min_open=True),
+@click.option("--sensitivity", default=0.25, show_default=True, type=FiniteFloatRange(0, min_open=True),
               help="--robot-camera: what the sensor records of the render at gain 1 (a dark scene: < 1).")
-@click.option("--max-gain", default=4.0, show_default=True, type=click.FloatRange(1),
+@click.option("--max-gain", default=4.0, show_default=True, type=FiniteFloatRange(1),
               help="--robot-camera: the largest auto-exposure gain.")
-@click.option("--vignetting", default=0.35, show_default=True, type=click.FloatRange(0, 1, max_open=True),
+@click.option("--vignetting", default=0.35, show_default=True, type=FiniteFloatRange(0, 1, max_open=True),
               help="--robot-camera: darkening at the farthest image corner.")
 @click.option("--lens", default="pinhole", show_default=True, type=click.Choice(["pinhole", "opencv", "fisheye"]),
               help="--robot-camera: resample the renders through this lens (the ground truth too).")
@@ -218,9 +218,9 @@ def render_many(scene_patterns, out_dir, variants, frames, width, height, sample
               help="Leave out the depth-derived point cloud (then: spotless prepare --points OUT).")
 @click.option("--depth-camera", is_flag=True,
               help="Also an RGB-D camera's depth images, registered to the frames (OUT/depth/, 16-bit PNG, mm).")
-@click.option("--depth-noise", default=0.0025, show_default=True, type=click.FloatRange(0),
+@click.option("--depth-noise", default=0.0025, show_default=True, type=FiniteFloatRange(0),
               help="--depth-camera: the depth's standard deviation at 1 m, metres (it grows with depth squared).")
-@click.option("--depth-range", default=6.0, show_default=True, type=click.FloatRange(0, 65.535, min_open=True),
+@click.option("--depth-range", default=6.0, show_default=True, type=FiniteFloatRange(0, 65.535, min_open=True),
               help="--depth-camera: the farthest depth measured, metres (farther pixels hold 0).")
 def add_noise(data_dir, out_dir, shot, read, seed, robot_camera, sensitivity, max_gain, vignetting, lens, distortion,
               no_point_cloud, depth_camera, depth_noise, depth_range):

@@ -9,7 +9,7 @@ from pathlib import Path
 
 import click
 
-from spotlessgs.clitools import SafeGroup
+from spotlessgs.clitools import FiniteFloatRange, SafeGroup
 
 from evaluation.cli import ceiling_command, eval_command, sfm_rings_command
 from spotlessgs.baselines2d.cli import baseline2d
@@ -42,10 +42,10 @@ def main(verbose: bool) -> None:
 @click.option("--resume", is_flag=True, help="Continue from the run's last checkpoint.")
 @click.option("--light-prior", nargs=3, type=float, default=None, metavar="X Y Z",
               help="Prior light position in the camera frame (m, OpenCV axes): adds weight * |t - prior|.")
-@click.option("--light-prior-weight", type=click.FloatRange(0), default=None)
+@click.option("--light-prior-weight", type=FiniteFloatRange(0), default=None)
 @click.option("--linear", "linear_input", is_flag=True, help="The images are linear (RAW), not sRGB.")
 @click.option("--max-gaussians", type=click.IntRange(1), default=None, help="Hard cap on the number of Gaussians.")
-@click.option("--tolerance-db", type=click.FloatRange(0), default=None,
+@click.option("--tolerance-db", type=FiniteFloatRange(0), default=None,
               help="--model auto: held-out PSNR the choice may give up against the best candidate (default 0.25; "
                    "the coordinate search's two decisions, BRDF then SH degree, get half each).")
 @click.option("--selection-search", type=click.Choice(["coordinate", "grid"]), default=None,
@@ -110,7 +110,7 @@ def train(data_dir, run_dir, model, preset, iterations, image_width, seed, resum
 
 @main.command()
 @click.argument("run_dir", type=click.Path(exists=True, file_okay=False, path_type=Path))
-@click.option("--l0", nargs=3, type=click.FloatRange(0), default=None, metavar="R G B",
+@click.option("--l0", nargs=3, type=FiniteFloatRange(0), default=None, metavar="R G B",
               help="Constant linear RGB radiance that replaces the spotlight. Default: automatic (white, scaled so "
                    "that about 1% of relit pixels reach 1; the value used is reported).")
 @click.option("--lamp-l0", is_flag=True,
@@ -171,9 +171,9 @@ def render(run_dir, which, out_dir, exr, data_dir, device, quiet):
 @click.option("--depth-topic", default=None,
               help="--bag with --odometry-topic: an RGB-D camera's depth Image registered to the colour camera "
                    "(16UC1 mm or 32FC1 m, e.g. aligned_depth_to_color): a dense start from it instead of SfM points.")
-@click.option("--every", "min_interval_s", default=0.0, show_default=True, type=click.FloatRange(0),
+@click.option("--every", "min_interval_s", default=0.0, show_default=True, type=FiniteFloatRange(0),
               help="--bag: keep frames at least this many seconds apart.")
-@click.option("--min-motion", "min_motion_m", default=0.0, show_default=True, type=click.FloatRange(0),
+@click.option("--min-motion", "min_motion_m", default=0.0, show_default=True, type=FiniteFloatRange(0),
               help="--bag with --odometry-topic: keep frames at least this many metres apart.")
 @click.option("--points", "posed_dir", default=None,
               type=click.Path(exists=True, file_okay=False, path_type=Path),
@@ -245,7 +245,7 @@ def prepare(images_dir, bag, image_topic, camera_info_topic, odometry_topic, dep
 @main.command()
 @click.argument("run_dir", type=click.Path(exists=True, file_okay=False, path_type=Path))
 @click.option("--out", "out_path", required=True, type=click.Path(dir_okay=False, path_type=Path))
-@click.option("--l0", nargs=3, type=click.FloatRange(0), default=(1.0, 1.0, 1.0), show_default=True, metavar="R G B")
+@click.option("--l0", nargs=3, type=FiniteFloatRange(0), default=(1.0, 1.0, 1.0), show_default=True, metavar="R G B")
 @click.option("--data", "data_dir", type=click.Path(exists=True, file_okay=False, path_type=Path), default=None,
               help="The run's dataset, when it has moved (default: the path recorded in RUN/run.json).")
 def export(run_dir, out_path, l0, data_dir):

@@ -119,3 +119,16 @@ class SafeGroup(click.Group):
             click.echo(f"{name}: error: {one_line(exc)}", err=True)
             sys.exit(code)
 
+
+
+class FiniteFloatRange(click.FloatRange):
+    """click's FloatRange that also refuses NaN and ±inf (FloatRange lets NaN through any bound, and inf through an
+    open upper one), for every numeric option of the command-line programs."""
+
+    name = "finite float range"
+
+    def convert(self, value: Any, param: click.Parameter | None, ctx: click.Context | None) -> Any:
+        number = super().convert(value, param, ctx)
+        if number != number or number in (float("inf"), float("-inf")):
+            self.fail(f"{value!r} is not a finite number.", param, ctx)
+        return number

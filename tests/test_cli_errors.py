@@ -14,6 +14,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Callable
 
+import click
 import pytest
 from click.testing import CliRunner
 
@@ -363,3 +364,19 @@ def test_the_command_line_programs_start_without_torch_or_blender():
     code = "import sys, spotlessgs.cli, simulator.cli; print(sorted(m for m in ('torch', 'bpy') if m in sys.modules))"
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True, cwd=ROOT)
     assert out.stdout.strip() == "[]", out.stdout + out.stderr
+
+
+def test_numeric_options_refuse_nan_and_infinity(tmp_path):
+    """click's FloatRange lets NaN through any bound (and inf through an open one): the CLIs' options refuse both."""
+    from click.testing import CliRunner
+
+    from spotlessgs.cli import main
+    from spotlessgs.clitools import FiniteFloatRange
+
+    assert FiniteFloatRange(0).convert("2.5", None, None) == 2.5
+    for text in ("nan", "inf", "-inf"):
+        with pytest.raises(click.BadParameter, match="not a finite number"):
+            FiniteFloatRange(0 if text != "-inf" else None).convert(text, None, None)
+    result = CliRunner().invoke(main, ["export", str(tmp_path), "--out", str(tmp_path / "x.ply"), "--l0", "nan", "1",
+                                       "1"])
+    assert result.exit_code == 2 and "'nan' is not a finite number" in result.output

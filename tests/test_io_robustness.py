@@ -677,3 +677,15 @@ def test_dark_linear_frames_are_kept_for_training(box, tmp_path):
     reference = load_training_views(box, 40, linear_input=True)
     assert {1, 2} & set(reference.train), reference.train
     assert views.train == reference.train
+
+
+def test_resume_trims_a_damaged_metrics_log_to_the_checkpoints_steps(tmp_path):
+    """Lines after the checkpoint's step go; so do lines that are not a step's record (hand-edited or damaged:
+    a JSON list, a step that is not a number, a line cut by a crash) instead of stopping the resume."""
+    from spotlessgs.training.checkpoint import truncate_metrics
+
+    path = tmp_path / "metrics.jsonl"
+    lines = [json.dumps({"step": s, "loss": 0.1 * s}) for s in range(1, 6)]
+    path.write_text("\n".join([lines[0], "[1]", json.dumps({"step": "x"}), *lines[1:], '{"step": 6, "lo']) + "\n")
+    truncate_metrics(path, 3)
+    assert path.read_text().splitlines() == lines[:3]

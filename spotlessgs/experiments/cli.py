@@ -20,6 +20,7 @@ from typing import Any
 
 import click
 
+from spotlessgs.clitools import FiniteFloatRange
 from spotlessgs.experiments.benchmark import VARIANTS
 
 
@@ -133,9 +134,9 @@ def robot(ideal, robot, out, rows, model, preset, iterations, threads, seed, set
 @click.option("--data", required=True, type=click.Path(exists=True, file_okay=False, path_type=Path),
               help="A dataset with true poses (and ground truth), e.g. a `spotless-sim render` of a room.")
 @click.option("--out", required=True, type=click.Path(file_okay=False, path_type=Path))
-@click.option("--translation-cm", default=3.0, show_default=True, type=click.FloatRange(0),
+@click.option("--translation-cm", default=3.0, show_default=True, type=FiniteFloatRange(0),
               help="Every frame's pose error in the perturbed copy: its centre moved this far in a random direction.")
-@click.option("--rotation-deg", default=0.3, show_default=True, type=click.FloatRange(0),
+@click.option("--rotation-deg", default=0.3, show_default=True, type=FiniteFloatRange(0),
               help="... and turned by this angle about a random axis.")
 @click.option("--error-model", default="independent", show_default=True, type=click.Choice(["independent", "drift"]),
               help="independent: every frame off by exactly the amounts above; drift: a random walk along the frames "

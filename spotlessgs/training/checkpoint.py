@@ -210,10 +210,12 @@ def truncate_metrics(path: Path, last_step: int) -> None:
     if not path.is_file():
         return
     keep = []
-    for line in path.read_text().splitlines():
+    for line in path.read_text(encoding="utf-8", errors="replace").splitlines():
         try:
-            if json.loads(line).get("step", -1) <= last_step:
-                keep.append(line)
-        except json.JSONDecodeError:
+            record = json.loads(line)
+        except (json.JSONDecodeError, RecursionError):
             continue  # a line cut by a crash
+        step = record.get("step") if isinstance(record, dict) else None
+        if isinstance(step, (int, float)) and not isinstance(step, bool) and step <= last_step:
+            keep.append(line)  # a line that is not a step's record (hand-edited, damaged) is dropped with the rest
     write_text(path, "".join(f"{line}\n" for line in keep))
