@@ -103,7 +103,7 @@ class SafeGroup(click.Group):
             if debug:
                 traceback.print_exc()
             click.echo(f"{name}: stopped by signal ({code - 128}); finished outputs are kept, rerun the same "
-                       "command to resume", err=True)
+                       "command to resume (`spotless train` with --resume)", err=True)
             sys.exit(code)
         except BrokenPipeError:  # `spotless ... | head`
             sys.stderr.close()
