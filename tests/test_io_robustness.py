@@ -506,8 +506,8 @@ def test_ctrl_c_after_the_last_step_skips_the_final_evaluation_and_resume_finish
 
 
 def test_a_finished_run_shared_without_its_checkpoint_is_not_trained_over(box, trained, tmp_path):
-    """A colleague's finished run, copied without checkpoints/: training into it again, with or without --resume,
-    is refused and every file stays as it was."""
+    """A colleague's finished run, copied without checkpoints/: training into it again is refused and every file
+    stays as it was (only --resume, which model selection uses on its proxies, trains it again from the start)."""
     from spotlessgs.training.trainer import train
 
     run = tmp_path / "run"
@@ -515,10 +515,9 @@ def test_a_finished_run_shared_without_its_checkpoint_is_not_trained_over(box, t
     shutil.rmtree(run / "checkpoints")
     before = {p.name: p.read_bytes() for p in run.iterdir() if p.is_file()}
     assert "train_summary.json" in before and "metrics.jsonl" in before
-    for resume in (False, True):
-        with pytest.raises(FileExistsError, match=r"run holds a finished training run without its checkpoint "
-                                                  r"\(checkpoints/last.safetensors\).*use a new --out"):
-            train(box, run, "3dgs", _tiny_config(), seed=0, progress=False, resume=resume)
+    with pytest.raises(FileExistsError, match=r"run holds a finished training run without its checkpoint "
+                                              r"\(checkpoints/last.safetensors\).*use a new --out"):
+        train(box, run, "3dgs", _tiny_config(), seed=0, progress=False)
     assert {p.name: p.read_bytes() for p in run.iterdir() if p.is_file()} == before
 
 

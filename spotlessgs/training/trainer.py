@@ -570,10 +570,10 @@ def _train_locked(data_dir: Path, run_dir: Path, variant: str | ModelConfig, con
     has_checkpoint = existing_checkpoint(run_dir) is not None
     if has_checkpoint and not resume:
         raise FileExistsError(f"{run_dir} already holds a training run; pass --resume to continue it or use a new --out")
-    if not has_checkpoint and (run_dir / "train_summary.json").is_file():  # finished, shared without checkpoints/
+    if not has_checkpoint and not resume and (run_dir / "train_summary.json").is_file():  # shared without checkpoints/
         raise FileExistsError(f"{run_dir} holds a finished training run without its checkpoint "
                               f"({checkpoint_path(run_dir).relative_to(run_dir)}); training again would replace it: "
-                              "use a new --out")
+                              "use a new --out (--resume trains it again from the start)")
     if resume and has_checkpoint:
         old = read_json(run_dir / "config.json", "run settings", ("train", "run"))
         if not isinstance(old["run"], dict):
