@@ -40,7 +40,7 @@ def main(verbose: bool) -> None:
               help="Override the training image width (pixels).")
 @click.option("--seed", default=0, show_default=True, type=int)
 @click.option("--resume", is_flag=True, help="Continue from the run's last checkpoint.")
-@click.option("--light-prior", nargs=3, type=float, default=None, metavar="X Y Z",
+@click.option("--light-prior", nargs=3, type=FiniteFloatRange(), default=None, metavar="X Y Z",
               help="Prior light position in the camera frame (m, OpenCV axes): adds weight * |t - prior|.")
 @click.option("--light-prior-weight", type=FiniteFloatRange(0), default=None)
 @click.option("--linear", "linear_input", is_flag=True, help="The images are linear (RAW), not sRGB.")
@@ -73,7 +73,7 @@ def main(verbose: bool) -> None:
                    "option), e.g. --set loss_space=srgb (the photometric loss on sRGB-encoded values) or "
                    "--set falloff_tau=0.01 --set learn_falloff=false (the spotlight's fall-off).")
 @click.option("--threads", type=click.IntRange(1), default=None, help="CPU threads.")
-@click.option("--device", default="auto", show_default=True, type=click.Choice(["auto", "cpu", "cuda"]))
+@click.option("--device", default=None, type=click.Choice(["auto", "cpu", "cuda"]), help="[default: auto]")
 @click.option("-q", "--quiet", is_flag=True, help="No progress bar.")
 def train(data_dir, run_dir, model, preset, iterations, image_width, seed, resume, light_prior, light_prior_weight,
           linear_input, max_gaussians, tolerance_db, selection_search, trusted_start_reflectance, gaussian_budget,
@@ -86,13 +86,17 @@ def train(data_dir, run_dir, model, preset, iterations, image_width, seed, resum
     if model != "auto" and any(v is not None for v in (tolerance_db, selection_search, trusted_start_reflectance)):
         raise click.UsageError("--tolerance-db, --selection-search and --trusted-start-reflectance only apply to "
                                "--model auto")
-    overrides = {**dict(settings), "device": device, "linear_input": linear_input}
-    if refine_poses:
-        overrides["refine_poses"] = True
-    for key, value in (("iterations", iterations), ("image_width", image_width), ("num_threads", threads),
-                       ("light_prior_weight", light_prior_weight), ("max_gaussians", max_gaussians),
-                       ("photometric", photometric), ("low_frequency_shading", low_frequency_shading)):
+    overrides = dict(settings)
+    flags = (("device", "--device", device), ("linear_input", "--linear", True if linear_input else None),
+             ("refine_poses", "--refine-poses", True if refine_poses else None),
+             ("iterations", "--iterations", iterations), ("image_width", "--width", image_width),
+             ("num_threads", "--threads", threads), ("light_prior_weight", "--light-prior-weight", light_prior_weight),
+             ("max_gaussians", "--max-gaussians", max_gaussians), ("photometric", "--photometric", photometric),
+             ("low_frequency_shading", "--low-frequency-shading", low_frequency_shading))
+    for key, flag, value in flags:  # a flag and --set of one setting: the user must choose
         if value is not None:
+            if key in overrides:
+                raise click.UsageError(f"{flag} and --set {key}=... both set {key}; give one of them")
             overrides[key] = value
     spec = RunSpec(data=data_dir, model=model, preset=preset, strategy="budget" if gaussian_budget else "default",
                    seed=seed, overrides=tuple(overrides.items()), light_prior=light_prior or None,

@@ -688,3 +688,67 @@ def test_resume_trims_a_damaged_metrics_log_to_the_checkpoints_steps(tmp_path):
     path.write_text("\n".join([lines[0], "[1]", json.dumps({"step": "x"}), *lines[1:], '{"step": 6, "lo']) + "\n")
     truncate_metrics(path, 3)
     assert path.read_text().splitlines() == lines[:3]
+
+
+def test_black_test_frames_and_a_single_usable_training_frame_are_warned_about(box, tmp_path, caplog):
+    from spotlessgs.io.images import write_png
+    from spotlessgs.training.data import load_training_views
+
+    data = tmp_path / "data"
+    shutil.copytree(box, data)
+    reference = load_training_views(box, 40)
+    names = sorted(p.name for p in (data / "images").glob("*.png"))
+    for k in [reference.test[0], *reference.train[1:]]:  # one test frame and all training frames but one: black
+        write_png(data / "images" / names[k], np.zeros((30, 40, 3), np.float32))
+    with caplog.at_level("WARNING"):
+        views = load_training_views(data, 40)
+    assert views.train == reference.train[:1]
+    assert f"1 test frame(s) are black (no signal); scores against them say nothing of the model: " \
+           f"{names[reference.test[0]]}" in caplog.text
+    assert f"only one usable training frame ({names[reference.train[0]]})" in caplog.text
+
+
+def test_train_settings_by_flag_and_set_and_their_ranges(box, tmp_path, monkeypatch):
+    """--set of a setting that has a flag (device, linear_input) takes effect when the flag is not given, and giving
+    both is a usage error; --set values are typed by the field (none for the optional ones) and checked for range
+    before any image loads; --light-prior refuses NaN."""
+    from click.testing import CliRunner
+
+    import spotlessgs.run as run_module
+    from spotlessgs.cli import main
+
+    seen = {}
+
+    def record_the_spec(spec, *args, **kwargs):
+        seen["spec"] = spec
+        raise SystemExit(0)  # stop before any image loads
+
+    monkeypatch.setattr(run_module, "train", record_the_spec)
+
+    def train(*args):
+        seen.clear()
+        return CliRunner().invoke(main, ["train", "--data", str(box), "--out", str(tmp_path / "run"), "-q", *args])
+
+    result = train("--set", "device=cpu", "--set", "linear_input=true", "--set", "validation_block=none")
+    assert result.exit_code == 0, result.output
+    overrides = dict(seen["spec"].overrides)
+    assert overrides["device"] == "cpu" and overrides["linear_input"] is True and overrides["validation_block"] is None
+    result = train("--device", "cpu", "--set", "device=cuda")
+    assert result.exit_code == 2 and "--device and --set device=... both set device; give one of them" in result.output
+    for setting, message in (("validation_block=x", "validation_block: 'x' is not a whole number or none"),
+                             ("falloff_tau=nan", "falloff_tau: 'nan' is not a finite number")):
+        result = train("--set", setting)
+        assert result.exit_code == 2 and message in result.output, result.output
+    result = train("--light-prior", "nan", "0", "0")
+    assert result.exit_code == 2 and "'nan' is not a finite number" in result.output
+    from spotlessgs.training.config import preset
+
+    for overrides, message in ((dict(iterations=0), "iterations must be >= 1"),
+                               (dict(checkpoint_every=0), "checkpoint_every must be >= 1"),
+                               (dict(lr_means_final=0.0), "lr_means_init and lr_means_final must be > 0"),
+                               (dict(lr_albedo=-0.1), "the learning rate lr_albedo must be >= 0"),
+                               (dict(image_width=4), "image_width must be >= 8"),
+                               (dict(ssim_lambda=float("inf")), "ssim_lambda must be finite")):
+        with pytest.raises(ValueError, match=message):
+            preset("tiny", **overrides)
+    assert preset("tiny", lr_normals=0.0).lr_normals == 0.0  # held normals: a zero rate is a setting

@@ -19,10 +19,12 @@ def test_parse_setting_types_values_like_the_fields():
     assert parse_setting("learn_falloff=1") == ("learn_falloff", True)
     assert parse_setting("max_gaussians=5000") == ("max_gaussians", 5000)
     assert parse_setting("init_points=300") == ("init_points", 300)  # a field whose default may be None
+    assert parse_setting("init_points=none") == ("init_points", None)
     for bad, message in (("nope=1", "not KEY=VALUE"), ("loss_space", "not KEY=VALUE"),
-                         ("falloff_tau=x", "falloff_tau: 'x' is not a float"),
-                         ("learn_falloff=maybe", "learn_falloff: 'maybe' is not a bool"),
-                         ("max_gaussians=2.5", "max_gaussians: '2.5' is not a int")):
+                         ("falloff_tau=x", "falloff_tau: 'x' is not a finite number"),
+                         ("learn_falloff=maybe", "learn_falloff: 'maybe' is not true or false"),
+                         ("max_gaussians=2.5", "max_gaussians: '2.5' is not a whole number"),
+                         ("init_points=many", "init_points: 'many' is not a whole number or none")):
         with pytest.raises(ValueError, match=message):
             parse_setting(bad)
 

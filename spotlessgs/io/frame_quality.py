@@ -107,7 +107,22 @@ def usable_frames(source: str, names: Sequence[str], stats: Sequence[FrameStats]
     if len(stats) > 1 and len({s.digest for s in stats}) == 1:
         raise InputError(f"{source}: all {len(stats)} frames are the same image ({names[0]} repeated): "
                          "nothing to reconstruct from")
+    if len(candidates) > 1 and len(usable) == 1:
+        log.warning("%s: only one usable training frame (%s): a single view does not constrain the geometry", source,
+                    names[usable[0]])
     return usable
+
+
+def warn_unusable_test_frames(source: str, names: Sequence[str], stats: Sequence[FrameStats],
+                              test: Sequence[int]) -> None:
+    """Warn naming the test frames (indices ``test``) that are black or fully saturated: a score against them says
+    nothing of the model (``source``, ``names``, ``stats`` as in :func:`usable_frames`)."""
+    for why in ("black", "saturated"):
+        hit = [names[k] for k in test if problem(stats[k]) == why]
+        if hit:
+            log.warning("%s: %d test frame(s) are %s; scores against them say nothing of the model: %s", source,
+                        len(hit), "black (no signal)" if why == "black" else "fully saturated (clipped)",
+                        _listing(hit))
 
 
 def noise_level(image: np.ndarray) -> float:

@@ -359,7 +359,31 @@ class TrainConfig:
     # Device: "auto" (CUDA when present), "cpu" or "cuda".
     device: str = "auto"
 
+    def _check_general_ranges(self) -> None:
+        """ValueError for a setting out of the range every field of its kind has: numbers finite, learning rates
+        >= 0 (the means' > 0: their schedule is log-linear), step counts and intervals >= 1, sizes >= 1 (an image
+        width >= 8), a positive saturation threshold."""
+        for f in dataclasses.fields(self):
+            value = getattr(self, f.name)
+            if isinstance(value, float) and not math.isfinite(value):
+                raise ValueError(f"TrainConfig: {f.name} must be finite, got {value}")
+            if f.name.startswith("lr_") and value is not None and value < 0:
+                raise ValueError(f"TrainConfig: the learning rate {f.name} must be >= 0, got {value}")
+        at_least = {"iterations": 1, "log_every": 1, "checkpoint_every": 1, "densify_every": 1, "max_gaussians": 1,
+                    "brdf_hidden": 1, "init_points": 1, "num_threads": 1, "image_width": 8, "opacity_reset_every": 0,
+                    "densify_from": 0, "densify_until": 0}
+        for name, low in at_least.items():
+            value = getattr(self, name)
+            if value is not None and value < low:
+                raise ValueError(f"TrainConfig: {name} must be >= {low}, got {value}")
+        if self.lr_means_init <= 0 or self.lr_means_final <= 0:
+            raise ValueError(f"TrainConfig: lr_means_init and lr_means_final must be > 0 (a log-linear schedule), got "
+                             f"{self.lr_means_init} and {self.lr_means_final}")
+        if self.saturation_threshold <= 0:
+            raise ValueError(f"TrainConfig: saturation_threshold must be > 0, got {self.saturation_threshold}")
+
     def __post_init__(self) -> None:
+        self._check_general_ranges()
         if self.photometric not in SWITCH_VALUES:
             raise ValueError(f"TrainConfig: photometric must be 'auto', 'on' or 'off', got {self.photometric!r}")
         if not (math.isfinite(self.normal_axis_weight) and self.normal_axis_weight >= 0):
@@ -474,27 +498,28 @@ def preset(name: str, strategy: str = "default", **overrides: Any) -> TrainConfi
 
 
 def parse_setting(text: str) -> tuple[str, Any]:
-    """``"KEY=VALUE"`` → (KEY, VALUE typed like the TrainConfig field's default: bool from true/false/1/0, int,
-    float or str; a field whose default is None takes an int, else a float, else the text). ValueError naming the
-    problem for an unknown field or a value of the wrong type."""
+    """``"KEY=VALUE"`` → (KEY, VALUE typed as the TrainConfig field is annotated: a bool from true/false/1/0, an int, a
+    finite float or text; a field that may be None also takes ``none``). ValueError naming the problem for an unknown
+    field or a value of the wrong type (its range is TrainConfig's to check)."""
     key, sep, raw = text.partition("=")
-    fields = {f.name: f for f in dataclasses.fields(TrainConfig)}
-    if not sep or key not in fields:
+    hints = typing.get_type_hints(TrainConfig)
+    if not sep or key not in hints:
         raise ValueError(f"{text!r} is not KEY=VALUE with KEY a TrainConfig field "
                          f"(e.g. loss_space=srgb, falloff_tau=0.01)")
-    default = fields[key].default
+    kinds = [k for k in (typing.get_args(hints[key]) or (hints[key],)) if k is not type(None)]
+    if len(kinds) < len(typing.get_args(hints[key])) and raw.lower() in ("none", "null"):
+        return key, None
+    kind = kinds[0]
     try:
-        if isinstance(default, bool):
+        if kind is bool:
             if raw.lower() not in ("true", "false", "1", "0"):
                 raise ValueError(raw)
             return key, raw.lower() in ("true", "1")
-        if isinstance(default, (int, float, str)):
-            return key, type(default)(raw)
-        for kind in (int, float):
-            try:
-                return key, kind(raw)
-            except ValueError:
-                continue
-        return key, raw
+        value = kind(raw)
+        if kind is float and not math.isfinite(value):
+            raise ValueError(raw)
+        return key, value
     except ValueError:
-        raise ValueError(f"{key}: {raw!r} is not a {type(default).__name__}") from None
+        nullable = " or none" if len(kinds) < len(typing.get_args(hints[key])) else ""
+        what = "a finite number" if kind is float else _type_name(kind)
+        raise ValueError(f"{key}: {raw!r} is not {what}{nullable}") from None

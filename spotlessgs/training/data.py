@@ -21,7 +21,7 @@ from spotlessgs.io.camera_batch import Cameras
 from spotlessgs.io.cameras import Intrinsics
 from spotlessgs.io.colorspace import srgb_to_linear
 from spotlessgs.io.dataset import load_initial_points, read_dataset
-from spotlessgs.io.frame_quality import FrameStats, frame_stats, usable_frames
+from spotlessgs.io.frame_quality import FrameStats, frame_stats, usable_frames, warn_unusable_test_frames
 from spotlessgs.io.exposure import frame_exposures
 from spotlessgs.io.images import read_image
 from spotlessgs.io.lens import remap, undistort_maps, working_camera
@@ -201,6 +201,7 @@ def load_training_views(
         masks.append(F.pad(t_sat[0], (0, canvas[1] - camera.size[1], 0, canvas[0] - camera.size[0])))
     names = [p.name for p in dataset.image_paths]
     train = usable_frames(str(dataset.root), names, stats, list(dataset.split.train))
+    warn_unusable_test_frames(str(dataset.root), names, stats, list(dataset.split.test))
     unseen = _per_view({c: s.unseen for c, s in sampling.items()}, dataset.cameras)
     return TrainingViews(
         dataset=dataset,
