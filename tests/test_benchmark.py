@@ -51,7 +51,7 @@ def test_benchmark_settings_reach_every_variant(box, tmp_path):
     assert json.loads((tmp_path / "bench" / "train_benchmark.json").read_text())["settings"] == {
         "loss_space": "srgb", "learn_falloff": False}
     for bad, message in (("falloff=1", "not KEY=VALUE with KEY a TrainConfig field"),
-                         ("falloff_tau=small", "falloff_tau: 'small' is not a float")):
+                         ("falloff_tau=small", "falloff_tau: 'small' is not a finite number")):
         result = CliRunner().invoke(main, ["benchmark", "models", "--data", str(box), "--out", str(tmp_path / "x"),
                                            "--set", bad])
         assert result.exit_code == 2 and message in result.output and not (tmp_path / "x").exists()
