@@ -92,13 +92,7 @@ def usable_frames(source: str, names: Sequence[str], stats: Sequence[FrameStats]
     if repeated:
         log.warning("%s: %d group(s) of identical frames, e.g. %s (a stalled camera or a copying error?)", source,
                     len(repeated), _listing(repeated[0]))
-    bad = {k: problem(stats[k]) for k in candidates}
-    bad = {k: why for k, why in bad.items() if why is not None}
-    for why in ("black", "saturated"):
-        hit = [names[k] for k, w in bad.items() if w == why]
-        if hit:
-            log.warning("%s: %d %s frame(s) left out of training: %s", source, len(hit),
-                        "black (no signal)" if why == "black" else "fully saturated (clipped)", _listing(hit))
+    bad = _warn_bad_frames(source, names, stats, candidates, "%s: %d {what} frame(s) left out of training: %s")
     usable = [k for k in candidates if k not in bad]
     if candidates and not usable:
         kinds = " or ".join(sorted(set(bad.values())))
@@ -117,12 +111,22 @@ def warn_unusable_test_frames(source: str, names: Sequence[str], stats: Sequence
                               test: Sequence[int]) -> None:
     """Warn naming the test frames (indices ``test``) that are black or fully saturated: a score against them says
     nothing of the model (``source``, ``names``, ``stats`` as in :func:`usable_frames`)."""
+    _warn_bad_frames(source, names, stats, test,
+                     "%s: %d test frame(s) are {what}; scores against them say nothing of the model: %s")
+
+
+def _warn_bad_frames(source: str, names: Sequence[str], stats: Sequence[FrameStats], indices: Sequence[int],
+                     message: str) -> dict[int, str]:
+    """{index: "black" or "saturated"} of the frames among ``indices`` that :func:`problem` rejects, and one warning
+    per kind: ``message`` with ``{what}`` (the kind in words) and %-placeholders for the source, the count and the
+    listed names."""
+    bad = {k: why for k in indices if (why := problem(stats[k])) is not None}
     for why in ("black", "saturated"):
-        hit = [names[k] for k in test if problem(stats[k]) == why]
+        hit = [names[k] for k, w in bad.items() if w == why]
         if hit:
-            log.warning("%s: %d test frame(s) are %s; scores against them say nothing of the model: %s", source,
-                        len(hit), "black (no signal)" if why == "black" else "fully saturated (clipped)",
-                        _listing(hit))
+            what = "black (no signal)" if why == "black" else "fully saturated (clipped)"
+            log.warning(message.format(what=what), source, len(hit), _listing(hit))
+    return bad
 
 
 def noise_level(image: np.ndarray) -> float:
