@@ -752,3 +752,47 @@ def test_train_settings_by_flag_and_set_and_their_ranges(box, tmp_path, monkeypa
         with pytest.raises(ValueError, match=message):
             preset("tiny", **overrides)
     assert preset("tiny", lr_normals=0.0).lr_normals == 0.0  # held normals: a zero rate is a setting
+
+
+def test_a_resume_may_change_the_thread_count_and_device_and_records_it(box, tmp_path):
+    """The thread count and the device choose the machine, not the model: a run stopped on one node resumes on
+    another. config.json keeps the settings the run began with and lists each resume's machine settings; a model
+    setting is still refused."""
+    from spotlessgs.training.trainer import train
+
+    run = tmp_path / "run"
+    cfg = _tiny_config(iterations=4, checkpoint_every=2, densify_from=1, densify_every=1, densify_until=4)
+    train(box, run, "3dgs", cfg, seed=0, progress=False, stop_after=2)
+    began = json.loads((run / "config.json").read_text())
+    with pytest.raises(ValueError, match=r"other settings .*\(lr_opacity: run [\d.]+, now 0\.5\)"):
+        train(box, run, "3dgs", cfg.replace(num_threads=2, lr_opacity=0.5), seed=0, progress=False, resume=True)
+    assert json.loads((run / "config.json").read_text()) == began
+    result = train(box, run, "3dgs", cfg.replace(num_threads=2, device="cpu"), seed=0, progress=False, resume=True)
+    assert result.steps == 4
+    saved = json.loads((run / "config.json").read_text())
+    assert saved["train"] == began["train"] and (saved["train"]["num_threads"], saved["train"]["device"]) == (1, "auto")
+    [record] = saved["resumed_with"]
+    assert (record["step"], record["num_threads"], record["device"], record["device_used"]) == (2, 2, "cpu", "cpu")
+    assert record["numerics"]["threads"] == 2
+    # the finished run resumed once more trains no step and records nothing
+    train(box, run, "3dgs", cfg.replace(num_threads=2), seed=0, progress=False, resume=True)
+    assert json.loads((run / "config.json").read_text())["resumed_with"] == [record]
+
+
+def test_a_generator_state_from_another_device_type_seeds_a_fixed_stream():
+    """A CUDA generator's state (16 bytes) cannot set a CPU generator (5,056 bytes), nor the reverse: such a state
+    seeds the generator from its digest, the same stream on every resume; a state of the right form restores it."""
+    from spotlessgs.io.seeding import restore_generator, torch_generator
+
+    source = torch_generator(0, "densify")
+    torch.rand(3, generator=source)
+    own = torch_generator(1, "densify")
+    restore_generator(own, source.get_state())
+    assert torch.equal(torch.rand(4, generator=own), torch.rand(4, generator=source))
+    foreign = torch.arange(16, dtype=torch.uint8)  # the form of a CUDA generator's state
+    a, b = torch_generator(2, "densify"), torch_generator(3, "densify")
+    restore_generator(a, foreign)
+    restore_generator(b, foreign)
+    draws = torch.rand(4, generator=a)
+    assert torch.equal(draws, torch.rand(4, generator=b))
+    assert not torch.equal(draws, torch.rand(4, generator=torch_generator(2, "densify")))

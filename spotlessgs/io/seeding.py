@@ -28,3 +28,15 @@ def torch_generator(seed: int, stage: str, device: str = "cpu"):
     gen = torch.Generator(device=device)
     gen.manual_seed(stage_seed(seed, stage))
     return gen
+
+
+def restore_generator(gen, state) -> None:
+    """Set the ``torch.Generator`` ``gen`` to a saved ``state`` (a uint8 tensor from ``get_state``). A state saved by a
+    generator of another device type (a CPU run resumed on CUDA, or the reverse: their states differ in form and size)
+    seeds ``gen`` from the state's SHA-256 instead: the draws that follow are another stream, the same on every
+    resume from that state."""
+    if state.numel() == gen.get_state().numel():
+        gen.set_state(state)
+        return
+    digest = hashlib.sha256(state.cpu().contiguous().numpy().tobytes()).digest()
+    gen.manual_seed(int.from_bytes(digest[:8], "little") & ((1 << 63) - 1))

@@ -16,6 +16,7 @@ from typing import Callable
 import torch
 from torch import nn
 
+from spotlessgs.io.seeding import restore_generator
 from spotlessgs.models.gaussians import GaussianParams
 from spotlessgs.rasterizer import quat_to_rotmat
 from spotlessgs.training.config import TrainConfig
@@ -89,7 +90,7 @@ class DensifyStrategy:
     def load_state_dict(self, state: dict) -> None:
         self.grad_accum, self.count = state["grad_accum"], state["count"]
         self.last_reset_step = state["last_reset_step"]
-        self.generator.set_state(state["generator"])
+        restore_generator(self.generator, state["generator"])
 
     # ---- hooks -----------------------------------------------------------------------------------------------------
     def step_post_backward(

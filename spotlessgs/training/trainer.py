@@ -87,6 +87,9 @@ class TrainResult:
     validation_psnr_dark: float | None = None
 
 
+#: The TrainConfig fields that choose the machine, not the model: a resume may change them (the run records it).
+EXECUTION_SETTINGS: tuple[str, ...] = ("num_threads", "device")
+
 #: The ModelConfig fields that a TrainConfig sets (the fields the two dataclasses share).
 MODEL_SETTINGS: tuple[str, ...] = tuple(sorted({f.name for f in dataclasses.fields(ModelConfig)}
                                                & {f.name for f in dataclasses.fields(TrainConfig)}))
@@ -568,6 +571,7 @@ def _train_locked(data_dir: Path, run_dir: Path, variant: str | ModelConfig, con
     remove_partial_files(run_dir, recursive=False)
     remove_partial_files(run_dir / "checkpoints", recursive=False)
     has_checkpoint = existing_checkpoint(run_dir) is not None
+    machine_changes: list[str] = []  # the EXECUTION_SETTINGS a resume changes
     if has_checkpoint and not resume:
         raise FileExistsError(f"{run_dir} already holds a training run; pass --resume to continue it or use a new --out")
     if not has_checkpoint and not resume and (run_dir / "train_summary.json").is_file():  # shared without checkpoints/
@@ -590,11 +594,18 @@ def _train_locked(data_dir: Path, run_dir: Path, variant: str | ModelConfig, con
             # the MLP profile where "auto" now resolves to the monotone one
             config = dataclasses.replace(config, rid_model=with_defaults(TrainConfig, old["train"])["rid_model"])
             resolved["train"] = dataclasses.asdict(config)
-        differ = differing_train_settings(old["train"], resolved["train"]) + differing_settings(
+        # the machine's settings may change between sessions (another node, another thread count): not compared,
+        # recorded (they change the last bits of what follows, docs/results.md "Determinism")
+        old_train = with_defaults(TrainConfig, old["train"]) if isinstance(old["train"], dict) else old["train"]
+        machine = {k: resolved["train"][k] for k in EXECUTION_SETTINGS}
+        differ = differing_train_settings(
+            {**old_train, **machine} if isinstance(old_train, dict) else old_train, resolved["train"]
+        ) + differing_settings(
             {k: v for k, v in old_run.items() if k not in moved}, {k: v for k, v in run_info.items() if k not in moved})
         if differ:
             raise ValueError(f"{run_dir}: --resume with other settings than the run was started with "
                              f"({'; '.join(differ)})")
+        machine_changes = differing_settings({k: old_train.get(k) for k in EXECUTION_SETTINGS}, machine)
 
     # what the run trains on, compared on a resume before the images load (a run saved before the fingerprint
     # existed has none to compare, and gets one)
@@ -663,6 +674,10 @@ def _train_locked(data_dir: Path, run_dir: Path, variant: str | ModelConfig, con
         strategy.load_state_dict(ckpt["strategy"])
         truncate_metrics(run_dir / "metrics.jsonl", start)
         log.info("resuming %s at step %d", run_dir, start)
+        if machine_changes and start < config.iterations:  # steps will run on the new settings
+            _record_machine_change(run_dir / "config.json", old, machine, device, start)
+            log.info("resuming on other machine settings (%s): the steps from here differ in their last bits from "
+                     "an uninterrupted run's", "; ".join(machine_changes))
     else:
         run_dir.mkdir(parents=True, exist_ok=True)
         scene = build_scene(views, variant, config, seed, light_prior)
@@ -880,6 +895,16 @@ def _append_line(fh, path: Path, line: str) -> None:
         fh.flush()
     except OSError as exc:
         raise (write_error(path, exc) or exc) from exc
+
+
+def _record_machine_change(path: Path, saved: dict, machine: dict[str, Any], device: torch.device,
+                           step: int) -> None:
+    """Append to a run's config.json (``saved``, as read) the machine settings a resume continues with from ``step``
+    (``resumed_with``: step, the :data:`EXECUTION_SETTINGS`, the device used and the numerics record)."""
+    record = {"step": step, **machine, "device_used": device.type,
+              "numerics": numerics_record(machine["num_threads"], device.type)}
+    earlier = saved.get("resumed_with")
+    write_json(path, {**saved, "resumed_with": [*(earlier if isinstance(earlier, list) else []), record]})
 
 
 def validation_steps(iterations: int, count: int) -> set[int]:
