@@ -2,7 +2,11 @@
 x y z, nx ny nz, f_dc_0..2, f_rest_0..44, opacity (logit), scale_0..2 (log), rot_0..3 (w x y z).
 
 The colour is the *relit* appearance (spotlight replaced by L0), sRGB-encoded and stored in the DC band, so a viewer
-shows the evenly lit scene; higher bands are zero. For ``3dgs`` runs the model's own SH colour is exported."""
+shows the evenly lit scene; higher bands are zero. For ``3dgs`` runs the model's own SH colour is exported.
+
+Positions are the model's: relative to the dataset's working origin, which is the world origin unless the poses lie
+far from it (:func:`spotlessgs.io.cameras.working_origin`, e.g. UTM coordinates). Such a file says so in a header
+comment, ``comment world_origin X Y Z`` (metres, the point to add to every position for world coordinates)."""
 
 from __future__ import annotations
 
@@ -68,6 +72,8 @@ def export_ply(run_dir: str | Path, out_path: str | Path, l0: Sequence[float] = 
     data = np.empty(n, dtype=[(k, "f4") for k in fields])
     for k, v in fields.items():
         data[k] = v
+    origin = views.dataset.working_origin
+    comments = [] if not origin.any() else ["world_origin " + " ".join(repr(float(v)) for v in origin)]
     with atomic_path(out_path) as tmp:
-        PlyData([PlyElement.describe(data, "vertex")]).write(str(tmp))
+        PlyData([PlyElement.describe(data, "vertex")], comments=comments).write(str(tmp))
     return out_path

@@ -56,9 +56,12 @@ class Cameras:
     @classmethod
     def from_dataset(cls, dataset: DatasetDescription,
                      intrinsics: Intrinsics | tuple[Intrinsics, ...] | None = None) -> "Cameras":
-        """All V views of a dataset as float32 (``intrinsics``: other cameras for its views, e.g. at the training
-        size; default: the dataset's own, one per frame)."""
-        c2w = torch.as_tensor(dataset.c2w_opencv, dtype=torch.float32)
+        """All V views of a dataset as float32, relative to its :attr:`~DatasetDescription.working_origin`
+        (``intrinsics``: other cameras for its views, e.g. at the training size; default: the dataset's own, one per
+        frame)."""
+        c2w = dataset.c2w_opencv.copy()
+        c2w[:, :3, 3] -= dataset.working_origin
+        c2w = torch.as_tensor(c2w, dtype=torch.float32)
         return cls(c2w, tuple(dataset.cameras) if intrinsics is None else intrinsics)
 
     @property

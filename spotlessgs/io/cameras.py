@@ -134,6 +134,28 @@ def _check_poses(c2w: np.ndarray, name: str) -> np.ndarray:
     return c2w
 
 
+#: World coordinates become float32 tensors for training, whose rounding is about 6e-8 of a coordinate. When the
+#: camera centres lie farther from the world origin than this many times their spread (the largest distance of a
+#: centre from their mean, at least 1 mm), that rounding would exceed 1e-5 of the scene (e.g. UTM coordinates,
+#: ~5e6 m: camera centres ~0.25 m off); such poses are trained about their mean instead (:func:`working_origin`).
+FAR_FROM_ORIGIN_RATIO = 168.0
+
+
+def working_origin(c2w: np.ndarray) -> np.ndarray:
+    """(3,) float64 point that world coordinates are taken relative to before they become float32: zeros for poses
+    near the origin (every shipped and simulated dataset: their numbers stay as they were), else the mean camera
+    centre (:data:`FAR_FROM_ORIGIN_RATIO`).
+
+    Args:
+        c2w: (N, 4, 4) camera-to-world matrices (either camera-axes convention), float64.
+    """
+    centres = np.asarray(c2w, dtype=np.float64)[:, :3, 3]
+    mean = centres.mean(axis=0)
+    spread = max(float(np.linalg.norm(centres - mean, axis=1).max()), 1e-3)
+    far = float(np.linalg.norm(centres, axis=1).max())
+    return mean if far > FAR_FROM_ORIGIN_RATIO * spread else np.zeros(3)
+
+
 def opengl_to_opencv_c2w(c2w: np.ndarray) -> np.ndarray:
     """Camera-to-world (4, 4) or (N, 4, 4) with OpenGL camera axes -> the same poses with OpenCV camera axes."""
     return _check_poses(c2w, "opengl_to_opencv_c2w") @ _GL_CV_FLIP

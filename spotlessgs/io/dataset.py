@@ -172,17 +172,19 @@ def true_exposure_gains(dataset: DatasetDescription) -> tuple[float, ...] | None
 
 
 def load_initial_points(dataset: DatasetDescription) -> PointCloud | None:
-    """The initial point cloud: the PLY named by the dataset, else the COLMAP model's 3D points, else None. Points
+    """The initial point cloud: the PLY named by the dataset, else the COLMAP model's 3D points, else None; relative
+    to the dataset's :attr:`~spotlessgs.io.transforms.DatasetDescription.working_origin`, as its cameras. Points
     whose position (or normal) is not finite (a depth camera's invalid pixels, exported as NaN) are left out with a
     warning; InputError naming the file where none is left."""
+    origin = dataset.working_origin
     if dataset.ply_path is not None:
-        source, cloud = dataset.ply_path, read_point_cloud(dataset.ply_path)
+        source, cloud = dataset.ply_path, read_point_cloud(dataset.ply_path, origin)
     elif dataset.meta.get("sparse_dir") is not None:
         points = read_colmap_model(dataset.meta["sparse_dir"]).points
         if not len(points.ids):
             return None
-        source, cloud = model_files(dataset.meta["sparse_dir"])[2], PointCloud(points.xyz.astype(np.float32),
-                                                                                points.rgb, None)
+        source = model_files(dataset.meta["sparse_dir"])[2]
+        cloud = PointCloud((points.xyz.astype(np.float64) - origin).astype(np.float32), points.rgb, None)
     else:
         return None
     finite = np.isfinite(cloud.xyz).all(axis=1)

@@ -1,6 +1,8 @@
 """Point clouds as PLY files in the layout that 3D Gaussian Splatting reads as its initial point cloud.
 
 Vertex properties, in order: ``x y z nx ny nz`` (float32) and ``red green blue`` (uint8); binary little endian.
+Positions that float32 would round by a millimetre or more (a coordinate of 16,384 m or more: georeferenced clouds)
+are written as float64 instead.
 """
 
 from __future__ import annotations
@@ -13,13 +15,15 @@ import numpy as np
 
 from spotlessgs.io.atomic import atomic_path
 
-_VERTEX_DTYPE = np.dtype(
-    [
-        ("x", "<f4"), ("y", "<f4"), ("z", "<f4"),
-        ("nx", "<f4"), ("ny", "<f4"), ("nz", "<f4"),
-        ("red", "u1"), ("green", "u1"), ("blue", "u1"),
-    ]
-)
+#: A position coordinate at least this large (metres) is written as float64: float32's spacing there is 2 mm.
+FLOAT64_POSITIONS_FROM = 2.0**14
+
+
+def _vertex_dtype(position: str) -> np.dtype:
+    """The vertex layout with positions of numpy type ``position`` (``<f4`` or ``<f8``)."""
+    return np.dtype([("x", position), ("y", position), ("z", position),
+                     ("nx", "<f4"), ("ny", "<f4"), ("nz", "<f4"),
+                     ("red", "u1"), ("green", "u1"), ("blue", "u1")])
 
 
 class PointCloud(NamedTuple):
@@ -43,7 +47,7 @@ def write_point_cloud(
 
     Args:
         path: output file.
-        xyz: (N, 3) finite positions (stored as float32).
+        xyz: (N, 3) finite positions (stored as float32; as float64 from :data:`FLOAT64_POSITIONS_FROM`).
         rgb: (N, 3) uint8 colours.
         normals: (N, 3) finite normals, or None (zeros are stored, as 3DGS expects the properties to exist).
     """
@@ -66,7 +70,8 @@ def write_point_cloud(
             raise ValueError(f"{path}: normals must be ({n}, 3) like xyz, got shape {normals.shape}")
         if not np.isfinite(normals).all():
             raise ValueError(f"{path}: normals contain NaN or inf")
-    vertices = np.zeros(n, dtype=_VERTEX_DTYPE)
+    far = n > 0 and float(np.abs(xyz).max()) >= FLOAT64_POSITIONS_FROM
+    vertices = np.zeros(n, dtype=_vertex_dtype("<f8" if far else "<f4"))
     for k, axis in enumerate("xyz"):
         vertices[axis] = xyz[:, k]
         if normals is not None:
@@ -78,10 +83,11 @@ def write_point_cloud(
         ply.write(str(tmp))
 
 
-def read_point_cloud(path: str | os.PathLike) -> PointCloud:
+def read_point_cloud(path: str | os.PathLike, origin: np.ndarray | None = None) -> PointCloud:
     """Read a PLY point cloud (binary or ASCII) with ``x y z``, ``red green blue`` and optionally ``nx ny nz``.
 
-    Positions and normals are returned as float32, colours as uint8 (16-bit or float colours are rejected).
+    Positions and normals are returned as float32, colours as uint8 (16-bit or float colours are rejected); positions
+    relative to ``origin`` ((3,) float64, subtracted before they become float32) when given.
     """
     from plyfile import PlyData
 
@@ -102,7 +108,8 @@ def read_point_cloud(path: str | os.PathLike) -> PointCloud:
     for colour in ("red", "green", "blue"):
         if vertex[colour].dtype != np.uint8:
             raise ValueError(f"{path}: PLY property {colour!r} must be uchar, got {vertex[colour].dtype}")
-    xyz = np.stack([vertex[a] for a in "xyz"], axis=1).astype(np.float32)
+    xyz = np.stack([vertex[a] for a in "xyz"], axis=1).astype(np.float64)
+    xyz = (xyz if origin is None else xyz - np.asarray(origin, dtype=np.float64)).astype(np.float32)
     rgb = np.stack([vertex[c] for c in ("red", "green", "blue")], axis=1).astype(np.uint8)
     normals = None
     if {"nx", "ny", "nz"} <= names:

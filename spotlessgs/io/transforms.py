@@ -26,7 +26,7 @@ from typing import Any
 import numpy as np
 
 from spotlessgs.io.atomic import write_json
-from spotlessgs.io.cameras import Intrinsics, opengl_to_opencv_c2w, world_to_camera
+from spotlessgs.io.cameras import Intrinsics, opengl_to_opencv_c2w, working_origin, world_to_camera
 from spotlessgs.io.depth_images import DEFAULT_DEPTH_SCALE
 from spotlessgs.io.errors import InputError
 from spotlessgs.io.lens import check_invertible
@@ -440,6 +440,13 @@ class DatasetDescription:
             raise DatasetError(f"{self.source}: the frames use {len(distinct)} different cameras; this step needs "
                                "one camera for every frame")
         return distinct[0]
+
+    @property
+    def working_origin(self) -> np.ndarray:
+        """(3,) float64 world point that training, relighting and rendering take coordinates relative to (the cameras,
+        the start point cloud, the model): zeros unless the poses lie far from the origin
+        (:func:`~spotlessgs.io.cameras.working_origin`)."""
+        return working_origin(self.c2w_opencv)
 
     def view_matrices(self) -> np.ndarray:
         """(N, 4, 4) world-to-camera matrices, OpenCV camera axes."""

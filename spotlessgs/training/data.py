@@ -26,6 +26,7 @@ from spotlessgs.io.exposure import frame_exposures
 from spotlessgs.io.images import read_image
 from spotlessgs.io.lens import remap, undistort_maps, working_camera
 from spotlessgs.io.ply import PointCloud
+from spotlessgs.io.pose_layout import warn_pose_layout, warn_unseen_points
 from spotlessgs.io.transforms import DatasetDescription, LightTruth
 
 log = logging.getLogger(__name__)
@@ -67,8 +68,13 @@ class TrainingViews:
     @functools.cached_property
     def start_points(self) -> PointCloud | None:
         """The dataset's initial point cloud (:func:`~spotlessgs.io.dataset.load_initial_points`), read once; None
-        when it has none. Treat it as read-only: the start-up decisions and the initial Gaussians share it."""
-        return load_initial_points(self.dataset)
+        when it has none; a warning when most of its points lie outside every camera's image
+        (:func:`~spotlessgs.io.pose_layout.warn_unseen_points`). Treat it as read-only: the start-up decisions and
+        the initial Gaussians share it."""
+        points = load_initial_points(self.dataset)
+        if points is not None:
+            warn_unseen_points(self.dataset, points, str(self.dataset.ply_path or self.dataset.source))
+        return points
 
     def scene_extent(self) -> float:
         """Radius of the camera centres around their mean × 1.1 (3DGS's 'cameras extent'); at least 0.1 m."""
@@ -200,6 +206,7 @@ def load_training_views(
         imgs.append(F.pad(t_img[0], (0, 0, 0, canvas[1] - camera.size[1], 0, canvas[0] - camera.size[0])))
         masks.append(F.pad(t_sat[0], (0, canvas[1] - camera.size[1], 0, canvas[0] - camera.size[0])))
     names = [p.name for p in dataset.image_paths]
+    warn_pose_layout(dataset)
     train = usable_frames(str(dataset.root), names, stats, list(dataset.split.train))
     warn_unusable_test_frames(str(dataset.root), names, stats, list(dataset.split.test))
     unseen = _per_view({c: s.unseen for c, s in sampling.items()}, dataset.cameras)
