@@ -143,3 +143,50 @@ def test_cameras_at_one_position_and_points_no_camera_sees_are_warned_about(box_
     with caplog.at_level(logging.WARNING, logger="spotlessgs"):
         load_training_views(turned)
     assert any("all 14 cameras are at one position (1.000, " in r.getMessage() for r in caplog.records)
+
+
+def _masked_copy(root: Path, where: Path, under_mask: str, clear_frame: int | None = None) -> Path:
+    """A copy of ``root`` whose frames are RGBA PNGs, transparent in their left 10 columns, storing ``under_mask``
+    ("kept": the frame's own colour, "white") there; frame ``clear_frame`` transparent everywhere."""
+    from PIL import Image
+
+    shutil.copytree(root, where)
+    for k, path in enumerate(sorted((where / "images").glob("*.png"))):
+        rgb = np.asarray(Image.open(path).convert("RGB")).copy()
+        alpha = np.full(rgb.shape[:2], 255, np.uint8)
+        alpha[:, :10] = 0
+        if under_mask == "white":
+            rgb[:, :10] = 255
+        if k == clear_frame:
+            alpha[:] = 0
+        Image.fromarray(np.dstack([rgb, alpha]), "RGBA").save(path)
+    return where
+
+
+def test_an_alpha_mask_leaves_its_pixels_out_whatever_colour_they_store(box_with_points, tmp_path, caplog):
+    """Training frames with an alpha mask (the robot's own body cut out): two copies that differ only in the colour
+    stored under the mask train to the same model, bit for bit; a fully transparent frame is left out with a
+    warning naming it."""
+    from spotlessgs.io.tensor_file import load_tree
+    from spotlessgs.training.checkpoint import CHECKPOINT_FORMAT, checkpoint_path
+    from spotlessgs.training.config import preset
+    from spotlessgs.training.data import load_training_views
+    from spotlessgs.training.trainer import train
+
+    kept = _masked_copy(box_with_points, tmp_path / "kept", "kept", clear_frame=1)
+    white = _masked_copy(box_with_points, tmp_path / "white", "white", clear_frame=1)
+    with caplog.at_level(logging.WARNING, logger="spotlessgs"):
+        views = load_training_views(kept)
+    assert views.unseen is not None and views.unseen[:, :, :10].all() and not views.unseen[0, :, 10:].any()
+    assert views.unseen[1].all() and 1 not in views.train
+    assert any("1 fully transparent (alpha 0 everywhere) frame(s) left out of training: frame_00001.png"
+               in r.getMessage() for r in caplog.records)
+    cfg = preset("tiny", iterations=4, image_width=40, num_threads=1, validation_blocks=0, log_every=1)
+    for data in (kept, white):
+        train(data, tmp_path / f"run-{data.name}", "darkgs", cfg, seed=0, progress=False)
+    a, b = (load_tree(checkpoint_path(tmp_path / f"run-{n}"), CHECKPOINT_FORMAT) for n in ("kept", "white"))
+    for table in ("gaussians", "appearance"):
+        for name, tensor in a[table].items():
+            assert torch.equal(tensor, b[table][name]), f"{table}.{name}"
+    # the inputs differ under the mask (white there): only the mask keeps them out of the fit
+    assert not torch.equal(load_training_views(white).images, views.images)

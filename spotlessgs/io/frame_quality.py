@@ -1,4 +1,4 @@
-"""Degenerate input frames: black, fully saturated, or all alike.
+"""Degenerate input frames: black, fully saturated, fully transparent (an alpha mask keeping no pixel), or all alike.
 
 A camera that was covered, a lamp that was off, an exposure that clipped everything, or a dataset written with one
 frame copied N times trains to nonsense that looks fine (an all-black sequence reaches "55 dB"). These checks run on
@@ -38,9 +38,11 @@ class FrameStats:
     bright_level: float  # 99th percentile over pixels of the brightest channel, sRGB encoding
     saturated_fraction: float  # fraction of clipped pixels
     digest: str  # sha256 of the decoded pixels
+    opaque_fraction: float = 1.0  # fraction of pixels an alpha mask keeps (1 without one)
 
 
-def frame_stats(image: np.ndarray, saturated: np.ndarray, linear: bool = False) -> FrameStats:
+def frame_stats(image: np.ndarray, saturated: np.ndarray, linear: bool = False,
+                opaque: np.ndarray | None = None) -> FrameStats:
     """Statistics of one (H, W, 3) image in [0, 1] (as read from its file) and its (H, W) clipped mask.
 
     Args:
@@ -48,20 +50,29 @@ def frame_stats(image: np.ndarray, saturated: np.ndarray, linear: bool = False) 
         saturated: True where a pixel is clipped.
         linear: the file holds linear values (``--linear``), not sRGB-encoded ones: its brightness is converted to
             sRGB for the black-frame test.
+        opaque: (H, W) bool, the pixels an alpha mask keeps (None: all); the brightness and the clipped fraction are
+            those of these pixels.
     """
-    brightest = image.max(axis=2)
+    kept = (slice(None),) if opaque is None or not opaque.any() else (opaque,)
+    brightest = image.max(axis=2)[kept]
     level = float(np.percentile(brightest, 99.0))
     if linear:  # monotonic: the converted percentile is that of the converted pixels (up to interpolation)
         level = float(linear_to_srgb(np.float64(level)))
+    digest = hashlib.sha256(np.ascontiguousarray(image, dtype=np.float32).tobytes())
+    if opaque is not None:  # two frames alike in colour but masked otherwise are not one image
+        digest.update(np.packbits(opaque).tobytes())
     return FrameStats(
         bright_level=level,
-        saturated_fraction=float(saturated.mean()),
-        digest=hashlib.sha256(np.ascontiguousarray(image, dtype=np.float32).tobytes()).hexdigest(),
+        saturated_fraction=float(saturated[kept].mean()),
+        digest=digest.hexdigest(),
+        opaque_fraction=1.0 if opaque is None else float(opaque.mean()),
     )
 
 
 def problem(stats: FrameStats) -> str | None:
-    """``"black"``, ``"saturated"`` or None for a usable frame."""
+    """``"transparent"`` (an alpha mask keeps no pixel), ``"black"``, ``"saturated"`` or None for a usable frame."""
+    if stats.opaque_fraction == 0.0:
+        return "transparent"
     if stats.bright_level < BLACK_LEVEL:
         return "black"
     if stats.saturated_fraction >= SATURATED_FRACTION:
@@ -117,14 +128,16 @@ def warn_unusable_test_frames(source: str, names: Sequence[str], stats: Sequence
 
 def _warn_bad_frames(source: str, names: Sequence[str], stats: Sequence[FrameStats], indices: Sequence[int],
                      message: str) -> dict[int, str]:
-    """{index: "black" or "saturated"} of the frames among ``indices`` that :func:`problem` rejects, and one warning
+    """{index: "black", "saturated" or "transparent"} of the frames among ``indices`` that :func:`problem` rejects,
+    and one warning
     per kind: ``message`` with ``{what}`` (the kind in words) and %-placeholders for the source, the count and the
     listed names."""
     bad = {k: why for k in indices if (why := problem(stats[k])) is not None}
-    for why in ("black", "saturated"):
+    words = {"black": "black (no signal)", "saturated": "fully saturated (clipped)",
+             "transparent": "fully transparent (alpha 0 everywhere)"}
+    for why, what in words.items():
         hit = [names[k] for k, w in bad.items() if w == why]
         if hit:
-            what = "black (no signal)" if why == "black" else "fully saturated (clipped)"
             log.warning(message.format(what=what), source, len(hit), _listing(hit))
     return bad
 

@@ -7,6 +7,8 @@ it replaced took 1.75 s); everything else goes through Pillow.
 Alpha: by default an alpha channel is dropped (the colour is kept as stored). ``alpha="over_black"`` composites it
 over black instead (straight alpha: ``rgb * a``), so transparent pixels become black and opaque ones are unchanged; the
 evaluation reads every image this way, because renderers with a transparent film write exactly this convention.
+:func:`read_image_with_alpha` returns the colour as stored and the alpha channel apart (training takes transparent
+pixels as a mask: pixels left out of the fit).
 
 :data:`IMAGE_SUFFIXES` lists the file suffixes the project treats as images when it lists a folder.
 """
@@ -83,6 +85,28 @@ def read_image(path: str | os.PathLike, alpha: str = "drop") -> np.ndarray:
     if alpha not in _ALPHA_MODES:
         raise ValueError(f"read_image: alpha must be one of {_ALPHA_MODES}, got {alpha!r}")
     path = Path(path)
+    return _to_rgb(_decode(path), path, alpha)
+
+
+def read_image_with_alpha(path: str | os.PathLike) -> tuple[np.ndarray, np.ndarray | None]:
+    """Read an image file as :func:`read_image` does (alpha dropped: the colour as stored), and its alpha channel.
+
+    Returns:
+        (H, W, 3) float32 sRGB values in [0, 1], and (H, W) float32 alpha in [0, 1] (straight alpha, 1 = opaque), or
+        None for a file without an alpha channel.
+
+    Raises:
+        As :func:`read_image`.
+    """
+    path = Path(path)
+    data = _decode(path)
+    alpha = np.ascontiguousarray(data[:, :, -1], dtype=np.float32) if data.ndim == 3 and data.shape[2] in (2, 4) \
+        else None
+    return _to_rgb(data, path, "drop"), alpha
+
+
+def _decode(path: Path) -> np.ndarray:
+    """The pixels of an image file as float32 (H, W) or (H, W, C) in [0, 1], C = 1..4 (alpha last when present)."""
     if not path.is_file():
         raise FileNotFoundError(f"{path}: image file not found")
     with open(path, "rb") as fh:
@@ -90,12 +114,12 @@ def read_image(path: str | os.PathLike, alpha: str = "drop") -> np.ndarray:
     if head.startswith(_PNG_SIGNATURE) and len(head) >= 33 and head[12:16] == b"IHDR":
         bit_depth, colour_type = head[24], head[25]
         if bit_depth == 16 and colour_type in (2, 4, 6):
-            return _to_rgb(_decode_png16(path), path, alpha)
+            return _decode_png16(path)
     if head[:4] in (b"II*\x00", b"MM\x00*"):  # TIFF: Pillow reads 16-bit colour as 8-bit, OpenCV keeps the bits
         tiff16 = _decode_tiff16(path)
         if tiff16 is not None:
-            return _to_rgb(tiff16, path, alpha)
-    return _to_rgb(_read_with_pillow(path), path, alpha)
+            return tiff16
+    return _read_with_pillow(path)
 
 
 def _decode_tiff16(path: Path) -> np.ndarray | None:

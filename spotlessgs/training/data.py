@@ -23,7 +23,7 @@ from spotlessgs.io.colorspace import srgb_to_linear
 from spotlessgs.io.dataset import load_initial_points, read_dataset
 from spotlessgs.io.frame_quality import FrameStats, frame_stats, usable_frames, warn_unusable_test_frames
 from spotlessgs.io.exposure import frame_exposures
-from spotlessgs.io.images import read_image
+from spotlessgs.io.images import read_image_with_alpha
 from spotlessgs.io.lens import remap, undistort_maps, working_camera
 from spotlessgs.io.ply import PointCloud
 from spotlessgs.io.pose_layout import warn_pose_layout, warn_unseen_points
@@ -45,9 +45,11 @@ class TrainingViews:
             dataset's own, or for a distorted lens its working camera; one shared camera, or one per view when the
             frames come from several cameras (all of the canvas size H × W).
         unseen: (N, H, W) bool, True where a working-camera pixel has no sample of the input image (outside the
-            distorted image's edges, or outside a smaller camera's image on the canvas); None when there is none.
+            distorted image's edges, or outside a smaller camera's image on the canvas) or samples a transparent
+            pixel of the frame's alpha mask (alpha below 1); None when there is none.
         radius: (N, H, W) float32 distance of each pixel's sample from the principal point in the input image, 1 at
-            the farthest corner (what vignetting depends on). With one camera both are views of one (H, W) tensor.
+            the farthest corner (what vignetting depends on). With one camera both are views of one (H, W) tensor
+            (``unseen`` unless a frame has an alpha mask).
         exposures: the frames' known exposures (shutter time × gain, ``spotlessgs.io.exposure``), or None.
         train: indices of training views; test: indices of held-out views.
         light: the true spotlight (simulated data) or None.
@@ -83,12 +85,16 @@ class TrainingViews:
         return max(1.1 * radius, 0.1)
 
 
-def _load_linear(path: Path, linear_input: bool, threshold: float) -> tuple[np.ndarray, np.ndarray, FrameStats]:
-    """(H, W, 3) linear image, (H, W) clipped mask and the quality statistics of one file."""
-    img = read_image(path)
+def _load_linear(path: Path, linear_input: bool,
+                 threshold: float) -> tuple[np.ndarray, np.ndarray, np.ndarray | None, FrameStats]:
+    """(H, W, 3) linear image, (H, W) clipped mask, (H, W) transparent mask (alpha below 1; None for a file without
+    alpha) and the quality statistics of one file."""
+    img, alpha = read_image_with_alpha(path)
     saturated = img.max(axis=2) >= threshold
+    transparent = None if alpha is None else alpha < 1.0
     linear = img if linear_input else srgb_to_linear(img).astype(np.float32)
-    return linear.astype(np.float32), saturated, frame_stats(img, saturated, linear=linear_input)
+    stats = frame_stats(img, saturated, linear=linear_input, opaque=None if transparent is None else ~transparent)
+    return linear.astype(np.float32), saturated, transparent, stats
 
 
 def _downscale(images: torch.Tensor, masks: torch.Tensor, size: tuple[int, int]) -> tuple[torch.Tensor, torch.Tensor]:
@@ -173,10 +179,11 @@ def load_training_views(
 ) -> TrainingViews:
     """Read a dataset folder and prepare its views for training.
 
-    Black and fully saturated frames are left out of ``train`` with a warning naming them
+    Black, fully saturated and fully transparent frames are left out of ``train`` with a warning naming them
     (:mod:`spotlessgs.io.frame_quality`); a dataset with no usable training frame, or whose frames are all one image,
     raises InputError. Frames of several cameras (sizes, lenses) share one training image size, the largest working
-    image; each is drawn at its top-left, and the rest is unseen.
+    image; each is drawn at its top-left, and the rest is unseen. A frame's alpha channel is a mask: its transparent
+    pixels (alpha below 1, e.g. the robot's own body) are unseen too, whatever colour they store.
 
     Args:
         data: our dataset folder, a nerfstudio folder or a COLMAP folder, or its description as
@@ -192,24 +199,36 @@ def load_training_views(
     factor = _training_scale(natives, image_width)
     canvas = _canvas(natives, factor)
     sampling = {native: _camera_sampling(native, factor, canvas) for native in natives}
-    imgs, masks, stats = [], [], []
-    for path, native in zip(dataset.image_paths, dataset.cameras):
-        img, sat, quality = _load_linear(path, linear_input, saturation_threshold)
+    imgs, masks, stats, transparent = [], [], [], {}
+    for k, (path, native) in enumerate(zip(dataset.image_paths, dataset.cameras)):
+        img, sat, clear, quality = _load_linear(path, linear_input, saturation_threshold)
         stats.append(quality)
         if img.shape[:2] != (native.height, native.width):
             raise ValueError(f"{path}: image is {img.shape[1]}x{img.shape[0]}, the camera says "
                              f"{native.width}x{native.height}")
         camera = sampling[native]
+        pad = (0, canvas[1] - camera.size[1], 0, canvas[0] - camera.size[0])
         if camera.maps is not None:  # a working pixel is clipped when any input pixel it samples is
             img, sat = remap(img, *camera.maps), remap(sat.astype(np.float32), *camera.maps) > 0
         t_img, t_sat = _downscale(torch.from_numpy(img)[None], torch.from_numpy(sat)[None], camera.size)
-        imgs.append(F.pad(t_img[0], (0, 0, 0, canvas[1] - camera.size[1], 0, canvas[0] - camera.size[0])))
-        masks.append(F.pad(t_sat[0], (0, canvas[1] - camera.size[1], 0, canvas[0] - camera.size[0])))
+        imgs.append(F.pad(t_img[0], (0, 0, *pad)))
+        masks.append(F.pad(t_sat[0], pad))
+        if clear is not None and clear.any():  # likewise transparent, where any input pixel it samples is
+            if camera.maps is not None:
+                clear = remap(clear.astype(np.float32), *camera.maps) > 0
+            t_clear = F.adaptive_max_pool2d(torch.from_numpy(clear)[None, None].float(), camera.size)[0, 0] > 0
+            transparent[k] = F.pad(t_clear, pad)
     names = [p.name for p in dataset.image_paths]
     warn_pose_layout(dataset)
     train = usable_frames(str(dataset.root), names, stats, list(dataset.split.train))
     warn_unusable_test_frames(str(dataset.root), names, stats, list(dataset.split.test))
     unseen = _per_view({c: s.unseen for c, s in sampling.items()}, dataset.cameras)
+    if transparent:  # alpha masks: each frame's own unseen pixels
+        log.info("%s: %d frame(s) carry an alpha mask; their transparent pixels are left out of the fit and the "
+                 "scores", dataset.root, len(transparent))
+        unseen = unseen.clone(memory_format=torch.contiguous_format)
+        for k, clear in transparent.items():
+            unseen[k] |= clear
     return TrainingViews(
         dataset=dataset,
         names=names,
