@@ -47,7 +47,7 @@ def match_folders(
         non_images: what :func:`image_names` does with other files in ``pred_dir`` and in ``gt_dir``.
 
     Returns:
-        the pairs, in the order of ``names`` or sorted by name.
+        the pairs, in the order of ``names`` or in the natural order of the names (``frame_2`` before ``frame_10``).
 
     Raises:
         ValueError: the folders hold different image counts or names (missing and extra names are listed), or a

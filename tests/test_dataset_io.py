@@ -1101,3 +1101,38 @@ def test_merge_point_clouds_voxel_average_and_cap():
         merge_point_clouds([a], 0.0, None, np.random.default_rng(0))
     with pytest.raises(ValueError, match="no point clouds given"):
         merge_point_clouds([], 0.1, None, np.random.default_rng(0))
+
+
+def test_frames_numbered_without_leading_zeros_come_in_video_order(tmp_path):
+    """frame_2 before frame_10 in a folder listing, a COLMAP dataset and prepare's SfM copies (whose names COLMAP's
+    sequential matcher takes in text order: renamed with an index only where that order differs)."""
+    from spotlessgs.io.cameras import Intrinsics
+    from spotlessgs.io.colmap_text import model_from_poses, write_colmap_text
+    from spotlessgs.io.images import natural_order
+    from spotlessgs.prepare.images import copy_names
+
+    names = [f"frame_{k}.png" for k in (10, 2, 1, 11, 0)]
+    video = [f"frame_{k}.png" for k in (0, 1, 2, 10, 11)]
+    assert sorted(names, key=natural_order) == video
+    padded = [f"frame_{k:05d}.png" for k in (10, 2, 1, 11, 0)]
+    assert sorted(padded, key=natural_order) == sorted(padded)  # zero-padded names keep their text order
+    folder = tmp_path / "frames"
+    folder.mkdir()
+    for name in names:
+        write_png(folder / name, np.zeros((4, 6, 3), np.float32))
+    listed = list_image_files(folder)
+    assert [p.name for p in listed] == video
+    assert copy_names(listed) == [f"{k:06d}_{name}" for k, name in enumerate(video)]
+    assert sorted(copy_names(listed)) == copy_names(listed)
+    assert copy_names([folder / n for n in sorted(padded)]) == sorted(padded)  # already in text order: kept
+
+    data = tmp_path / "colmap"
+    (data / "images").mkdir(parents=True)
+    for name in names:
+        write_png(data / "images" / name, np.zeros((4, 6, 3), np.float32))
+    poses = np.tile(np.eye(4), (len(names), 1, 1))
+    poses[:, 0, 3] = [int(n[6:-4]) for n in names]  # x = the frame number
+    write_colmap_text(data / "sparse" / "0", model_from_poses(Intrinsics(5.0, 5.0, 3.0, 2.0, 6, 4), names, poses))
+    dataset = read_dataset(data)
+    assert list(dataset.file_paths) == [f"images/{n}" for n in video]
+    assert dataset.c2w_opencv[:, 0, 3].tolist() == [0.0, 1.0, 2.0, 10.0, 11.0]

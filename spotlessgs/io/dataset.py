@@ -20,7 +20,7 @@ import numpy as np
 from spotlessgs.io.cameras import opencv_to_opengl_c2w
 from spotlessgs.io.colmap_text import model_files, read_colmap_model
 from spotlessgs.io.errors import InputError
-from spotlessgs.io.images import is_image_name
+from spotlessgs.io.images import is_image_name, natural_order
 from spotlessgs.io.json_files import read_json
 from spotlessgs.io.lens import check_invertible
 from spotlessgs.io.ply import PointCloud, read_point_cloud
@@ -46,7 +46,7 @@ def read_colmap_dataset(folder: str | os.PathLike, check_files: bool = False) ->
     model = read_colmap_model(sparse)
     if not model.images:
         raise DatasetError(f"{sparse}: COLMAP model has no registered images")
-    images = sorted(model.images.values(), key=lambda im: im.name)
+    images = sorted(model.images.values(), key=lambda im: natural_order(im.name))  # frame_2 before frame_10
     for im in images:  # names are relative to the images folder: one that leaves it is damage, not a frame
         if not im.name or Path(im.name).is_absolute() or ".." in Path(im.name).parts:
             raise DatasetError(f"{model_files(sparse)[1]}: image {im.image_id} is named {im.name!r}; COLMAP names a "

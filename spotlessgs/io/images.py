@@ -16,6 +16,7 @@ pixels as a mask: pixels left out of the fit).
 from __future__ import annotations
 
 import os
+import re
 from pathlib import Path
 
 import cv2
@@ -28,6 +29,8 @@ _PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
 # How read_image treats an alpha channel (see the module docstring).
 _ALPHA_MODES = ("drop", "over_black")
 
+_DIGIT_RUNS = re.compile(r"(\d+)")
+
 #: File suffixes (lower case) of the image files the project reads from folders.
 IMAGE_SUFFIXES: tuple[str, ...] = (".png", ".jpg", ".jpeg", ".tif", ".tiff", ".bmp", ".webp")
 
@@ -37,8 +40,15 @@ def is_image_name(name: str | os.PathLike) -> bool:
     return Path(name).suffix.lower() in IMAGE_SUFFIXES
 
 
+def natural_order(name: str) -> tuple:
+    """Sort key of a file name in natural order: runs of digits compare as numbers, so that ``frame_2.png`` comes
+    before ``frame_10.png`` (video frames numbered without leading zeros); zero-padded names keep their text order."""
+    return tuple((0, int(part), part) if part.isdigit() else (1, 0, part) for part in _DIGIT_RUNS.split(name) if part)
+
+
 def list_image_files(folder: str | os.PathLike, non_images: str = "skip") -> list[Path]:
-    """The image files (:data:`IMAGE_SUFFIXES`) directly inside ``folder``, sorted by name.
+    """The image files (:data:`IMAGE_SUFFIXES`) directly inside ``folder``, in the :func:`natural_order` of their
+    names.
 
     Hidden files (names starting with ".") and sub-folders are always passed over.
 
@@ -56,7 +66,7 @@ def list_image_files(folder: str | os.PathLike, non_images: str = "skip") -> lis
     if not folder.is_dir():
         raise FileNotFoundError(f"{folder}: image folder not found")
     images, others = [], []
-    for entry in sorted(folder.iterdir()):
+    for entry in sorted(folder.iterdir(), key=lambda entry: natural_order(entry.name)):
         if entry.name.startswith(".") or entry.is_dir():
             continue
         (images if is_image_name(entry.name) else others).append(entry)

@@ -160,7 +160,7 @@ def prepare_images(
     step("brightened copies")
     noise, blur = brightening_blur([read_image(frames[k]) for k in evenly_spaced(range(len(frames)), NOISE_SAMPLE)])
     brightened = out / "sfm" / "input"
-    sfm_names = [f"{p.stem}.png" for p in frames]
+    sfm_names = copy_names(frames)
     write_brightened_copies(brightened, list(zip(sfm_names, frames)), read_image, blur)
     # every sub-model the mapper can build (it starts a new one where registration breaks off), the largest kept: with
     # one model only, a mapper whose first initial pair was poor stopped there (the robot camera's noisy frames: 2 of
@@ -187,7 +187,7 @@ def prepare_images(
                              f"used ({exc}); try a simpler --camera-model such as {_simpler_model(camera_model)}"
                              ) from None
         if truth is not None:
-            summary["pose_error"] = pose_error(out, Path(truth))
+            summary["pose_error"] = pose_error(out, Path(truth), {c: f"{p.stem}.png" for c, p in zip(sfm_names, frames)})
     write_json(out / SUMMARY_FILE, summary)
     if summary["registered"] < 2:
         raise InputError(f"{images_dir}: structure from motion registered {summary['registered']} of {len(names)} "
@@ -198,6 +198,17 @@ def prepare_images(
     if summary["registered"] < MIN_REGISTERED_SHARE * len(names):
         log.warning("%s: only %.0f%% of the frames registered", images_dir, 100 * summary["registered"] / len(names))
     return summary
+
+
+def copy_names(frames: list[Path]) -> list[str]:
+    """The names of the frames' PNG copies, for SfM and the dataset (``frames`` in natural order): the file stems,
+    as ``NNNNNN_stem.png`` when their text order differs from the frames' order (``frame_2`` before ``frame_10``),
+    since COLMAP's sequential matcher and the dataset's frames follow the text order of the names."""
+    names = [f"{p.stem}.png" for p in frames]
+    if names == sorted(names):
+        return names
+    width = max(6, len(str(len(frames) - 1)))
+    return [f"{k:0{width}d}_{name}" for k, name in enumerate(names)]
 
 
 def _check_copy_names(images_dir: Path, frames: list[Path]) -> None:
@@ -247,15 +258,16 @@ def _write_dataset(frames: list[Path], sfm_names: list[str], model_dir: Path, ou
         raise
 
 
-def pose_error(out: Path, truth: Path) -> dict[str, Any] | None:
+def pose_error(out: Path, truth: Path, truth_names: dict[str, str] | None = None) -> dict[str, Any] | None:
     """ATE (m, after similarity alignment) and mean relative rotation error of the dataset's poses against the
-    poses of the same file names in ``truth``."""
+    poses of the same file names in ``truth`` (``truth_names``: the name in ``truth`` of a dataset frame named
+    otherwise, e.g. a :func:`copy_names` copy)."""
     mine, true = read_dataset(out), read_dataset(truth)
     true_by_name = {p.name: c for p, c in zip(true.image_paths, true.c2w_opencv)}
-    common = [i for i, p in enumerate(mine.image_paths) if p.name in true_by_name]
+    names = [(truth_names or {}).get(p.name, p.name) for p in mine.image_paths]
+    common = [i for i, name in enumerate(names) if name in true_by_name]
     if len(common) < 3:
         return None
-    errors = trajectory_errors(mine.c2w_opencv[common], np.stack([true_by_name[mine.image_paths[i].name]
-                                                                  for i in common]))
+    errors = trajectory_errors(mine.c2w_opencv[common], np.stack([true_by_name[names[i]] for i in common]))
     return {"poses": len(common), "ate_rmse_m": errors.ate_rmse, "ate_mean_m": errors.ate_mean,
             "rre_mean_deg": errors.rre_mean_deg, "sim3_scale": errors.alignment.scale}
