@@ -61,21 +61,27 @@ def _training_content(record: object) -> object:
     return kept
 
 
-def _file_digest(path: Path, description: Path, drop: tuple[str, ...] = ()) -> str:
-    """SHA-256 (hex) of what training reads of ``path``: ``description`` (the dataset's ``transforms.json``) as its
-    training content in canonical JSON, without its top-level keys ``drop``, any other file as its bytes."""
+def _file_digests(path: Path, description: Path) -> tuple[str, str]:
+    """SHA-256 (hex) of what training reads of ``path``, whole and without a start point cloud's name: for
+    ``description`` (the dataset's ``transforms.json``) its training content in canonical JSON, and the same without
+    its top-level ``ply_file_path``; for any other file its bytes, twice."""
     if path == description and path.suffix == ".json":
         try:
             record = json.loads(path.read_text(encoding="utf-8"))
         except (UnicodeDecodeError, json.JSONDecodeError) as exc:
             raise InputError(f"{path}: not a readable dataset description ({exc})") from None
         content = _training_content(record)
-        if isinstance(content, dict):
-            content = {k: v for k, v in content.items() if k not in drop}
-        canonical = json.dumps(content, sort_keys=True, separators=(",", ":"))
-        return hashlib.sha256(canonical.encode()).hexdigest()
+        without_cloud = {k: v for k, v in content.items() if k != "ply_file_path"} if isinstance(content, dict) \
+            else content
+        return _json_digest(content), _json_digest(without_cloud)
     with open(path, "rb") as f:
-        return hashlib.file_digest(f, "sha256").hexdigest()
+        digest = hashlib.file_digest(f, "sha256").hexdigest()
+    return digest, digest
+
+
+def _json_digest(content: object) -> str:
+    """SHA-256 (hex) of ``content`` as canonical JSON (sorted keys, no spaces)."""
+    return hashlib.sha256(json.dumps(content, sort_keys=True, separators=(",", ":")).encode()).hexdigest()
 
 
 def dataset_fingerprint(dataset: DatasetDescription) -> str:
@@ -105,11 +111,7 @@ def dataset_fingerprints(dataset: DatasetDescription) -> tuple[str, str]:
     whole, views = hashlib.sha256(), hashlib.sha256()
     for path in training_input_files(dataset):
         try:
-            digest = _file_digest(path, description)
-            if path == description and path.suffix == ".json":
-                digest_without_cloud = _file_digest(path, description, drop=("ply_file_path",))
-            else:
-                digest_without_cloud = digest
+            digest, digest_without_cloud = _file_digests(path, description)
         except OSError as exc:
             raise InputError(f"{path}: cannot read the dataset file ({exc.strerror or exc})") from None
         name = Path(os.path.relpath(path, root)).as_posix()
