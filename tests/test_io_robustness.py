@@ -774,9 +774,13 @@ def test_a_resume_may_change_the_thread_count_and_device_and_records_it(box, tmp
     [record] = saved["resumed_with"]
     assert (record["step"], record["num_threads"], record["device"], record["device_used"]) == (2, 2, "cpu", "cpu")
     assert record["numerics"]["threads"] == 2
-    # the finished run resumed once more trains no step and records nothing
+    # the finished run resumed once more trains no step and records nothing; it loads as any run
     train(box, run, "3dgs", cfg.replace(num_threads=2), seed=0, progress=False, resume=True)
     assert json.loads((run / "config.json").read_text())["resumed_with"] == [record]
+    from spotlessgs.training.trainer import load_run
+
+    scene, _views, config, _info = load_run(run, device="cpu")
+    assert config.num_threads == 1 and len(scene.gaussians) > 0
 
 
 def test_a_generator_state_from_another_device_type_seeds_a_fixed_stream():
