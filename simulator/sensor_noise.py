@@ -42,6 +42,7 @@ from spotlessgs.io.depth_images import DEFAULT_DEPTH_SCALE, MAX_DEPTH_UNITS, wri
 from spotlessgs.io.exr import FrameEXR, read_frame_exr, write_frame_exr
 from spotlessgs.io.folder_lock import folder_lock
 from spotlessgs.io.images import write_png
+from spotlessgs.io.json_files import read_json
 from spotlessgs.io.lens import check_invertible, distort_maps, remap, remap_nearest, undistort
 from spotlessgs.io.paths import refuse_overlap
 from spotlessgs.io.seeding import numpy_rng
@@ -51,7 +52,8 @@ NOISE_RECORD = "sensor_noise.json"
 EFFECTS_RECORD = "camera_effects.json"
 #: The folder of a depth camera's images in the copy (same file names as images/).
 DEPTH_DIR = "depth"
-# Everything of a dataset folder that the noisy copy takes over unchanged (images/ is written anew).
+# Everything of a dataset folder that the noisy copy takes over unchanged (images/ is written anew; transforms.json,
+# rewritten for the copy's camera where it changes, last: it marks the copy as finished).
 COPIED = ("gt", UNIFORM_GT_DIR, "exr", "sparse", "points3d.ply", "plan.json", "transforms.json")
 
 
@@ -255,9 +257,12 @@ def add_sensor_noise_to_dataset(data: str | Path, out: str | Path, noise: Sensor
     record = json.loads(json.dumps(record))  # as the file holds it (a lens's distortion tuple reads back as a list)
     record_path = out / NOISE_RECORD
     if record_path.is_file():
-        old = json.loads(record_path.read_text())
+        old = read_json(record_path, "a noisy copy's record")
         if old != record:
             raise ValueError(f"{out}: holds a noisy copy made with other settings ({old}); use a new folder")
+    elif out.is_dir() and any(not p.name.startswith(".") for p in out.iterdir()):
+        raise ValueError(f"{out}: holds files but no {NOISE_RECORD}: not a noisy copy this command began; use a new "
+                         "or empty folder")
     frames = []
     for index, frame in enumerate(meta.frames()):
         if frame.exr_file_path is None:
@@ -283,9 +288,7 @@ def add_sensor_noise_to_dataset(data: str | Path, out: str | Path, noise: Sensor
                 **asdict(effects), "camera": asdict(camera)})
         for name in COPIED:
             src, dst = data / name, out / name
-            if name == "transforms.json" and (effects is not None or not point_cloud or depth_camera is not None):
-                if not dst.exists():
-                    _write_transforms(src, dst, effects, camera, point_cloud, depth_camera)
+            if name == "transforms.json":  # written last: it marks the copy as finished
                 continue
             if name in ("points3d.ply", "sparse") and not point_cloud:  # the COLMAP model holds the depth points too
                 continue
@@ -334,6 +337,12 @@ def add_sensor_noise_to_dataset(data: str | Path, out: str | Path, noise: Sensor
                 linear, noise, numpy_rng(seed, f"sensor-noise/{index}"))
             write_png(target, linear_to_srgb(recorded))
             written += 1
+        src, dst = data / "transforms.json", out / "transforms.json"
+        if effects is not None or not point_cloud or depth_camera is not None:
+            _write_transforms(src, dst, effects, camera, point_cloud, depth_camera)
+        else:
+            with atomic_path(dst) as tmp:
+                shutil.copy2(src, tmp)
         return written
 
 

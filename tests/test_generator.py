@@ -9,6 +9,7 @@ from __future__ import annotations
 import hashlib
 import json
 import math
+import shutil
 from pathlib import Path
 
 import numpy as np
@@ -546,6 +547,19 @@ def test_error_paths(tmp_path):
     a_file.write_text("x")
     with pytest.raises(FileExistsError, match="not a room made by this generator"):
         generate_room("bedroom", a_file, 0, TINY)
+    # a generated room with a dataset rendered into its folder: replacing the room would delete the dataset
+    room = tmp_path / "room"
+    generate_room("bedroom", room, 0, TINY)
+    (room / "my_render").mkdir()
+    (room / "my_render" / "notes.txt").write_text("keep me")
+    house = (room / "house.json").read_bytes()
+    with pytest.raises(FileExistsError, match=r"room: holds a generated room and also my_render, which replacing the "
+                                              r"room would delete; refusing to replace it"):
+        generate_room("bedroom", room, 1, TINY)
+    assert (room / "my_render" / "notes.txt").read_text() == "keep me" and (room / "house.json").read_bytes() == house
+    shutil.rmtree(room / "my_render")
+    generate_room("bedroom", room, 1, TINY)  # the room alone is replaced
+    assert (room / "house.json").read_bytes() != house
     with pytest.raises(ValueError, match="texture_size must be an even number >= 32"):
         GeneratorConfig(texture_size=31)
     with pytest.raises(ValueError, match="unknown texture kind 'marble'"):

@@ -223,3 +223,31 @@ def test_the_uniform_ground_truth_travels_with_the_copy_and_through_a_lens(tmp_p
         assert not np.allclose(copied, source, atol=0.05)  # really resampled
         png = read_image(lensed / "gt_uniform" / f"{name}.png")
         np.testing.assert_allclose(png, linear_to_srgb(np.clip(copied, 0, 1)), atol=1 / 255 + 1e-6)
+
+
+def test_a_noisy_copy_never_takes_over_another_folder_and_is_finished_only_with_its_last_frame(tmp_path):
+    """``--out`` holding another dataset is refused, its files untouched; a copy that fails on a frame has no
+    transforms.json (which marks a finished dataset), and the run after the repair completes it."""
+    from spotlessgs.io.errors import InputError
+
+    _dataset(tmp_path / "data")
+    _dataset(tmp_path / "other")
+    before = {p: p.read_bytes() for p in (tmp_path / "other").rglob("*") if p.is_file()}
+    with pytest.raises(ValueError, match=r"other: holds files but no sensor_noise.json: not a noisy copy this command "
+                                         r"began; use a new or empty folder"):
+        add_sensor_noise_to_dataset(tmp_path / "data", tmp_path / "other", SensorNoise(), seed=1)
+    assert {p: p.read_bytes() for p in (tmp_path / "other").rglob("*") if p.is_file()} == before
+
+    exr = tmp_path / "data" / "exr" / "frame_00002.exr"
+    exr.rename(exr.with_suffix(".moved"))
+    with pytest.raises((OSError, ValueError), match="frame_00002.exr"):
+        add_sensor_noise_to_dataset(tmp_path / "data", tmp_path / "copy", SensorNoise(), seed=1)
+    assert (tmp_path / "copy" / "images" / "frame_00001.png").is_file()
+    assert not (tmp_path / "copy" / "transforms.json").exists()
+    exr.with_suffix(".moved").rename(exr)
+    assert add_sensor_noise_to_dataset(tmp_path / "data", tmp_path / "copy", SensorNoise(), seed=1) == 1
+    assert (tmp_path / "copy" / "transforms.json").read_bytes() == (tmp_path / "data" / "transforms.json").read_bytes()
+
+    (tmp_path / "copy" / NOISE_RECORD).write_text("{damaged")
+    with pytest.raises(InputError, match=r"copy/sensor_noise.json: .*JSON"):
+        add_sensor_noise_to_dataset(tmp_path / "data", tmp_path / "copy", SensorNoise(), seed=1)

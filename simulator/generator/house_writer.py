@@ -42,31 +42,41 @@ class HouseFiles:
     textures: tuple[tuple[str, np.ndarray], ...]
 
 
-def _is_replaceable(out_dir: Path) -> bool:
-    """An absent or empty folder, or one holding a room made by this generator (its house.json has our
-    ``spotlessgs`` block), may be replaced; anything else (a real 3D-FRONT house, user files) may not."""
+#: What a generated room's folder holds (:func:`write_house`); a folder with anything else is not replaced.
+ROOM_ENTRIES = frozenset({"house.json", "models", "textures"})
+
+
+def _refusal(out_dir: Path) -> str | None:
+    """Why ``out_dir`` may not be replaced, or None: an absent or empty folder, or one holding a room made by this
+    generator (its house.json has our ``spotlessgs`` block) and nothing else, may be; anything else (a real 3D-FRONT
+    house, user files, a dataset rendered into the room's folder) may not."""
     if not out_dir.exists():
-        return True
-    if not out_dir.is_dir():
-        return False
-    if not any(out_dir.iterdir()):
-        return True
-    try:
-        house = json.loads((out_dir / "house.json").read_text(encoding="utf-8"))
-    except (OSError, ValueError):
-        return False
-    return isinstance(house, dict) and isinstance(house.get("spotlessgs"), dict)
+        return None
+    if not out_dir.is_dir() or any(out_dir.iterdir()):
+        try:
+            house = json.loads((out_dir / "house.json").read_text(encoding="utf-8"))
+        except (OSError, ValueError):
+            house = None
+        if not (isinstance(house, dict) and isinstance(house.get("spotlessgs"), dict)):
+            return "exists and is not a room made by this generator"
+        others = sorted(p.name for p in out_dir.iterdir() if p.name not in ROOM_ENTRIES)
+        if others:
+            shown = ", ".join(others[:5]) + (f" and {len(others) - 5} more" if len(others) > 5 else "")
+            return f"holds a generated room and also {shown}, which replacing the room would delete"
+    return None
 
 
 def write_house(out_dir: Path, files: HouseFiles) -> Path:
     """Write ``files`` into ``out_dir`` (replacing a previously generated room there); returns ``house.json``'s path.
 
     Raises:
-        FileExistsError: ``out_dir`` exists and is neither empty nor a room made by this generator.
+        FileExistsError: ``out_dir`` exists and is neither empty nor a room made by this generator, or holds other
+            entries than :data:`ROOM_ENTRIES` beside one.
     """
     out_dir = Path(out_dir)
-    if not _is_replaceable(out_dir):
-        raise FileExistsError(f"{out_dir}: exists and is not a room made by this generator; refusing to replace it")
+    refusal = _refusal(out_dir)
+    if refusal is not None:
+        raise FileExistsError(f"{out_dir}: {refusal}; refusing to replace it (use another --out)")
     out_dir.parent.mkdir(parents=True, exist_ok=True)
     tmp = Path(tempfile.mkdtemp(prefix=f".{out_dir.name}.tmp-", dir=out_dir.parent))
     try:
