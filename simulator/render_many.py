@@ -17,7 +17,8 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Iterable, Sequence
 
-from simulator.render_pipeline import ExecutionOptions, RenderConfig, frame_done, render_dataset
+from simulator.render_pipeline import (ExecutionOptions, RenderConfig, check_plan_settings, frame_done,
+                                       render_dataset)
 from simulator.trajectory import PATHS
 from spotlessgs.io.atomic import write_json
 from spotlessgs.io.errors import InputError
@@ -193,6 +194,8 @@ def render_many(scene_files: Sequence[Path], variants: Sequence[str], root: str 
     except ValueError as exc:
         raise InputError(str(exc)) from exc
     jobs = plan_jobs(scene_files, variants, root)
+    for job in jobs:  # a dataset of other settings is refused before any task runs (a rerun skips finished tasks)
+        check_plan_settings(job.out_dir, job.scene_file, render_config(job.variant, settings))
     graph = build_render_graph(jobs, settings, frames_per_task)
     executor.check()  # a cluster that is not there is said before anything is written
     root.mkdir(parents=True, exist_ok=True)

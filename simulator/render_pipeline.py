@@ -49,6 +49,7 @@ from simulator.child_process import silenced_output
 from simulator.front3d import LoadOptions, load_house
 from simulator.lighting import SPOTLIGHT_PRESETS, GroundTruthLighting, SpotlightConfig, with_ground_truth_lighting
 from simulator.pointcloud import backproject_depth, merge_point_clouds
+from simulator.scene_model import content_sha256
 from simulator.trajectory import TrajectoryConfig, sample_trajectory, shutter_poses
 from spotlessgs.io.atomic import PARTIAL_MARK, remove_partial_files, to_jsonable, write_json
 from spotlessgs.io.cameras import Intrinsics
@@ -58,6 +59,7 @@ from spotlessgs.io.errors import FolderLockedError, InputError, OutputOverlapErr
 from spotlessgs.io.exr import FrameEXR, read_frame_exr, write_frame_exr
 from spotlessgs.io.folder_lock import folder_lock
 from spotlessgs.io.images import read_image, write_png
+from spotlessgs.io.json_files import read_json
 from spotlessgs.io.paths import refuse_overlap
 from spotlessgs.io.processes import die_with_parent, drop_blender_script_paths
 from spotlessgs.io.dataset import UNIFORM_GT_DIR
@@ -245,15 +247,47 @@ def _file_sha256(path: Path) -> str:
     return hashlib.sha256(path.read_bytes()).hexdigest()
 
 
-def _fingerprint(scene_path: Path, config: RenderConfig) -> dict[str, Any]:
+def _fingerprint(scene_path: Path, config: RenderConfig, room_sha256: str | None) -> dict[str, Any]:
     """The settings that determine the output (JSON-able): the scene (its path, and its content's sha256, which is
-    what identifies it) and the render settings."""
+    what identifies it), the room as loaded (``room_sha256``: :func:`~simulator.scene_model.content_sha256`, the
+    models and textures included; None: not known, left out) and the render settings."""
     cfg = dataclasses.asdict(config)
     for option in ("lambertian", "motion_blur", "uniform_gt", "residual_light"):
         if not cfg[option]:
             del cfg[option]  # recorded only when set: datasets rendered before the option existed still resume
-    return {"scene": str(scene_path.resolve()), "scene_sha256": _file_sha256(scene_path),
+    room = {} if room_sha256 is None else {"room_sha256": room_sha256}
+    return {"scene": str(scene_path.resolve()), "scene_sha256": _file_sha256(scene_path), **room,
             "config": to_jsonable(cfg)}
+
+
+def _plan_differences(old: dict[str, Any], new: dict[str, Any]) -> list[str]:
+    """What differs between a stored plan's fingerprint ``old`` (as read; any form) and ``new``
+    (:func:`_fingerprint`): the scene first, then the names of the settings. The room as loaded is compared where
+    both record it (a plan from before 2026-12-07 does not)."""
+    old_cfg = old.get("config", {}) if isinstance(old.get("config"), dict) else {}
+    diff = sorted(k for k in set(old_cfg) | set(new["config"]) if old_cfg.get(k) != new["config"].get(k))
+    scene = _scene_difference(old, new)
+    if scene is None and "room_sha256" in new and old.get("room_sha256", new["room_sha256"]) != new["room_sha256"]:
+        scene = "the room's models or textures (their files, or --future-dir, --texture-dir, --allow-missing)"
+    return diff if scene is None else [scene, *diff]
+
+
+def _read_plan(plan_path: Path) -> tuple[dict[str, Any], dict[str, Any]]:
+    """A dataset's plan.json and its fingerprint ({} where it has none); InputError naming a damaged file."""
+    plan = read_json(plan_path, "a dataset's render plan")
+    return plan, plan["fingerprint"] if isinstance(plan.get("fingerprint"), dict) else {}
+
+
+def check_plan_settings(out_dir: Path, scene_path: Path, config: RenderConfig) -> None:
+    """DatasetFolderError when ``out_dir`` holds a plan.json made from another scene file or with other settings
+    (nothing when it has none; the room as loaded is compared when the dataset renders): for a job that checks its
+    datasets before it runs any task (``spotless-sim render-many``, whose finished tasks a rerun skips)."""
+    plan_path = Path(out_dir) / "plan.json"
+    if plan_path.is_file():
+        diff = _plan_differences(_read_plan(plan_path)[1], _fingerprint(scene_path, config, None))
+        if diff:
+            raise DatasetFolderError(f"{out_dir} holds a dataset rendered with other settings (differs in: "
+                                     f"{', '.join(diff)}); use another --out or delete the folder")
 
 
 def _scene_difference(old: dict[str, Any], new: dict[str, Any]) -> str | None:
@@ -274,25 +308,28 @@ def _scene_difference(old: dict[str, Any], new: dict[str, Any]) -> str | None:
         f"scene: {old.get('scene')} then, {new['scene']} now, another file content"
 
 
-def _prepare_plan(out_dir: Path, scene_path: Path, config: RenderConfig, poses: np.ndarray) -> None:
-    """Write ``plan.json`` or check that an existing one was made with the same scene, settings and poses."""
+def _prepare_plan(out_dir: Path, scene_path: Path, config: RenderConfig, poses: np.ndarray, room_sha256: str) -> None:
+    """Write ``plan.json`` or check that an existing one was made with the same scene, room as loaded (models and
+    textures: a plan from before 2026-12-07 has no record of them, and gets one), settings and poses."""
     plan_path = out_dir / "plan.json"
-    fingerprint = _fingerprint(scene_path, config)
+    fingerprint = _fingerprint(scene_path, config, room_sha256)
     if plan_path.is_file():
-        old = json.loads(plan_path.read_text())
-        old_fp = old.get("fingerprint", {}) if isinstance(old.get("fingerprint"), dict) else {}
-        old_cfg = old_fp.get("config", {}) if isinstance(old_fp.get("config"), dict) else {}
-        diff = sorted(k for k in set(old_cfg) | set(fingerprint["config"])
-                      if old_cfg.get(k) != fingerprint["config"].get(k))
-        scene = _scene_difference(old_fp, fingerprint)
-        if scene is not None:
-            diff.insert(0, scene)
+        old, old_fp = _read_plan(plan_path)
+        diff = _plan_differences(old_fp, fingerprint)
         if diff:
             raise DatasetFolderError(
                 f"{out_dir} holds a dataset rendered with other settings (differs in: {', '.join(diff)}); "
                 "use another --out or delete the folder"
             )
-        if not np.allclose(np.asarray(old["poses"]), poses, atol=1e-9):
+        stored = old.get("poses")
+        try:
+            stored = np.asarray(stored, dtype=np.float64)
+        except (TypeError, ValueError):
+            stored = None
+        if stored is None or stored.shape != poses.shape:
+            raise DatasetFolderError(f"{plan_path}: damaged render plan: 'poses' is not a list of {len(poses)} 4x4 "
+                                     "matrices; use another --out or delete the folder")
+        if not np.allclose(stored, poses, atol=1e-9):
             raise DatasetFolderError(f"{plan_path}: stored poses differ from the ones this command computes")
         if old_fp != fingerprint:  # the same scene from another path, or a plan from before the content hash
             write_json(plan_path, {**old, "fingerprint": fingerprint})
@@ -553,7 +590,8 @@ def _render_planned(scene_path: Path, out_dir: Path, config: RenderConfig, execu
                     objects, poses: np.ndarray) -> dict[str, Any]:
     """:func:`render_dataset` once the room is checked and ``out_dir`` is locked."""
     part = execution.part
-    _prepare_plan(out_dir, scene_path, config, poses)  # first: a folder of another dataset is left untouched
+    # first: a folder of another dataset is left untouched
+    _prepare_plan(out_dir, scene_path, config, poses, content_sha256(objects, scene.lights))
     mine = part.frames(len(poses))
     remove_leftovers(out_dir, part, mine)
 

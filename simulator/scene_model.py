@@ -7,6 +7,7 @@ convention). The 3D-FRONT parser (``simulator.front3d``) produces a :class:`Scen
 
 from __future__ import annotations
 
+import hashlib
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -167,3 +168,27 @@ class Scene:
         lo = np.min([o.bounds()[0] for o in self.objects], axis=0)
         hi = np.max([o.bounds()[1] for o in self.objects], axis=0)
         return lo, hi
+
+
+def content_sha256(objects: list[MeshObject], lights: list[LightFixture]) -> str:
+    """Hex SHA-256 of what a render of ``objects`` under ``lights`` draws: every object's name, kind, geometry (the
+    vertex, face, UV and normal arrays' bytes) and material, each texture by its file's content (not its path). Two
+    loads agree when their models, textures and the options that chose them (``--future-dir``, ``--texture-dir``,
+    ``--allow-missing``) give the same room."""
+    digest = hashlib.sha256()
+
+    def add(*parts: object) -> None:
+        for part in parts:
+            data = part.tobytes() if isinstance(part, np.ndarray) else repr(part).encode()
+            digest.update(len(data).to_bytes(8, "little") + data)
+
+    for obj in objects:
+        m = obj.material
+        texture = None if m.texture is None else hashlib.sha256(Path(m.texture).read_bytes()).hexdigest()
+        add(obj.name, obj.source, obj.category, obj.is_light, obj.vertices.shape, obj.vertices, obj.faces.shape,
+            obj.faces, obj.uvs is None, obj.uvs if obj.uvs is not None else b"", obj.normals is None,
+            obj.normals if obj.normals is not None else b"",
+            (m.name, m.base_color, m.uv_scale, m.roughness, m.metallic, m.emission, m.emission_color, texture))
+    for light in lights:
+        add(light)
+    return digest.hexdigest()

@@ -182,6 +182,24 @@ def test_a_dataset_resumes_from_a_copy_of_its_scene_elsewhere_and_refuses_anothe
     with pytest.raises(DatasetFolderError, match=r"scene: .*gone/house\.json then, .* cannot be compared"):
         render(SCENE)
     (copy / "plan.json").write_text(json.dumps(plan))  # the plan with the content hash
+    # the same house.json with other textures: another room as loaded, refused; a plan from before the room's hash
+    # resumes and records it
+    from PIL import Image
+
+    textures = sorted((moved_scene.parent / "textures").rglob("*.png"))
+    kept = {t: t.read_bytes() for t in textures}
+    for texture in textures:
+        pixels = np.asarray(Image.open(texture).convert("RGB")).copy()
+        pixels[0, 0] = 255 - pixels[0, 0]
+        Image.fromarray(pixels).save(texture)
+    with pytest.raises(DatasetFolderError, match=r"differs in: the room's models or textures"):
+        render(moved_scene)
+    for texture, data in kept.items():
+        texture.write_bytes(data)
+    stripped = {**plan, "fingerprint": {k: v for k, v in plan["fingerprint"].items() if k != "room_sha256"}}
+    (copy / "plan.json").write_text(json.dumps(stripped))
+    assert render(moved_scene)["rendered"] == 0
+    assert json.loads((copy / "plan.json").read_text())["fingerprint"]["room_sha256"] == plan["fingerprint"]["room_sha256"]
     edited = json.loads(moved_scene.read_text())
     edited["uid"] = "another"
     moved_scene.write_text(json.dumps(edited))

@@ -113,3 +113,27 @@ def test_a_cluster_that_is_not_there_is_said_at_once_and_nothing_is_written(tmp_
                                        "--ray-address", address])
     assert result.exit_code == 1 and "no Ray cluster answers there" in result.output
     assert not repro.exists()
+
+
+def test_a_rerun_with_other_settings_is_refused_before_any_task_runs(tmp_path):
+    """A dataset of the root rendered with other settings (its plan.json says which) is refused in one line naming
+    it and the settings, before any task runs: a rerun would otherwise skip the finished tasks and report the old
+    dataset complete."""
+    import json
+
+    from simulator.render_pipeline import _fingerprint
+
+    scene = SCENES / "white_room" / "house.json"
+    first = {"frames": 2, "width": 16, "height": 16, "samples": 1, "seed": 0, "path": "paper"}
+    dataset = tmp_path / "out" / "white_room-uneven"
+    dataset.mkdir(parents=True)
+    plan = {"schema": 1, "fingerprint": _fingerprint(scene, render_config("uneven", first), None), "poses": []}
+    (dataset / "plan.json").write_text(json.dumps(plan))
+    base = ["render-many", "--scenes", str(scene), "--out", str(tmp_path / "out"), "--frames", "2", "--samples", "1",
+            "--path", "paper"]
+    result = CliRunner().invoke(sim_main, [*base, "--width", "32", "--height", "24", "--seed", "7"])
+    assert result.exit_code != 0 and len(result.output.strip().splitlines()) == 1, result.output
+    assert "white_room-uneven holds a dataset rendered with other settings (differs in: height, seed, width)" in \
+        result.output
+    assert sorted(p.name for p in (tmp_path / "out").iterdir()) == ["white_room-uneven"]
+    assert json.loads((dataset / "plan.json").read_text()) == plan
