@@ -279,6 +279,8 @@ def benchmark(scene_path, out_dir, samples, reference_samples, width, height, th
         counts = [int(s) for s in samples.split(",") if s.strip()]
     except ValueError:
         raise click.BadParameter(f"{samples!r}: expected comma-separated integers", param_hint="--samples") from None
+    if not counts or min(counts) < 1:
+        raise click.BadParameter(f"{samples!r}: expected sample counts of at least 1", param_hint="--samples")
     rows = run_benchmark(scene_path, out_dir, counts, reference_samples, width, height, threads)
     click.echo(markdown_table(rows, width, height))
 

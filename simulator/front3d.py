@@ -32,6 +32,8 @@ log = logging.getLogger(__name__)
 
 #: Mesh types that emit light in the ground-truth render (ceiling light strips).
 LIGHT_MESH_TYPES = ("lightband",)
+#: A vertex farther than this from the house's origin (metres, any axis) is an error: no house is 100 km across.
+MAX_COORDINATE_M = 1e5
 #: Words in a furniture category/title that make it a lamp (an emitter in the ground-truth render).
 LAMP_WORDS = ("lamp", "light", "chandelier", "sconce")
 
@@ -103,10 +105,39 @@ class _Ctx:
             raise self.fail(entry, f"missing key {key!r}")
         return obj[key]
 
+    def items(self, obj: Any, key: str, entry: str) -> list:
+        """``obj[key]`` when it is a list (a JSON array)."""
+        value = self.key(obj, key, entry)
+        if not isinstance(value, list):
+            raise self.fail(f"{entry}.{key}" if entry != "top level" else key,
+                            f"expected a list, got {type(value).__name__}")
+        return value
+
+    def number(self, obj: dict, key: str, entry: str, default: float) -> float:
+        """``obj[key]`` (``default`` when absent) when it is a finite number."""
+        value = obj.get(key, default)
+        try:
+            number = float(value) if isinstance(value, (int, float)) and not isinstance(value, bool) else math.nan
+        except OverflowError:  # an integer beyond the float range
+            number = math.inf
+        if not math.isfinite(number):
+            shown = repr(value) if len(repr(value)) < 40 else f"{repr(value)[:37]}..."
+            raise self.fail(f"{entry}.{key}", f"expected a finite number, got {shown}")
+        return number
+
+    def plain_name(self, value: Any, entry: str) -> str:
+        """``value`` as text when it can name a folder inside a models or textures root: not empty, no path
+        separator, not ``.`` or ``..`` (a file may not reach outside its roots)."""
+        name = str(value)
+        if not name or name in (".", "..") or "/" in name or "\\" in name or Path(name).is_absolute():
+            raise self.fail(entry, f"{name!r} is not a plain name (no path separators, not '..'): it names a folder "
+                                   "under the models or textures root")
+        return name
+
     def floats(self, values: Any, entry: str, count: int | None = None, group: int = 1) -> np.ndarray:
         try:
             arr = np.asarray(values, dtype=np.float64).reshape(-1)
-        except (TypeError, ValueError) as exc:
+        except (TypeError, ValueError, OverflowError) as exc:
             raise self.fail(entry, f"not a list of numbers ({exc})") from None
         if count is not None and arr.size != count:
             raise self.fail(entry, f"expected {count} numbers, got {arr.size}")
@@ -118,8 +149,8 @@ class _Ctx:
         return arr
 
 
-def _room_entry(room: dict, index: int) -> str:
-    return f"scene.room[{index}] ({room.get('instanceid', '?')})"
+def _room_entry(room: Any, index: int) -> str:
+    return f"scene.room[{index}] ({room.get('instanceid', '?')})" if isinstance(room, dict) else f"scene.room[{index}]"
 
 
 # --------------------------------------------------------------------------------------------------------------------
@@ -128,29 +159,46 @@ def _room_entry(room: dict, index: int) -> str:
 
 def _parse_materials(ctx: _Ctx, data: dict, texture_dir: Path | None, missing: list[str]) -> dict[str, Material]:
     materials: dict[str, Material] = {}
-    for i, entry in enumerate(ctx.key(data, "material", "top level")):
+    first: dict[str, int] = {}
+    for i, entry in enumerate(ctx.items(data, "material", "top level")):
         name = f"material[{i}]"
         uid = str(ctx.key(entry, "uid", name))
         name = f"material[{i}] ({uid})"
+        if uid in first:
+            raise ctx.fail(name, f"uid {uid!r} repeats material[{first[uid]}]'s; each material needs its own")
+        first[uid] = i
         color = ctx.floats(entry.get("color", [204, 204, 204, 255]), f"{name}.color")
         if color.size not in (3, 4):
             raise ctx.fail(f"{name}.color", f"expected [r, g, b, a], got {color.size} numbers")
         base = tuple(float(c) for c in srgb_to_linear(np.clip(color[:3] / 255.0, 0.0, 1.0)))
-        rough = float(entry.get("roughness", 0.6))
-        metal = float(entry.get("metallic", 0.0))
+        rough = ctx.number(entry, "roughness", name, 0.6)
+        metal = ctx.number(entry, "metallic", name, 0.0)
         for key, val in (("roughness", rough), ("metallic", metal)):
-            if not (0.0 <= val <= 1.0) or not math.isfinite(val):
+            if not (0.0 <= val <= 1.0):
                 raise ctx.fail(f"{name}.{key}", f"must be in [0, 1], got {val}")
         texture = None
         if entry.get("texture"):
-            jid = str(entry.get("jid") or uid)
+            jid = ctx.plain_name(entry.get("jid") or uid, f"{name}.jid")
             candidate = texture_dir / jid / "texture.png" if texture_dir is not None else None
             if candidate is not None and candidate.is_file():
-                texture = candidate
+                texture = check_texture(candidate)
             else:
                 missing.append(f"texture of {name}: {candidate or f'<no texture dir>/{jid}/texture.png'}")
         materials[uid] = Material(name=uid, base_color=base, texture=texture, roughness=rough, metallic=metal)
     return materials
+
+
+def check_texture(path: Path) -> Path:
+    """``path`` when it is an image file that decodes (its PNG chunks' checksums verified); Front3DError naming it
+    otherwise. Blender would render an undecodable texture as magenta without failing."""
+    from PIL import Image, UnidentifiedImageError
+
+    try:
+        with Image.open(path) as image:
+            image.verify()
+    except (UnidentifiedImageError, OSError, SyntaxError, ValueError, Image.DecompressionBombError) as exc:
+        raise Front3DError(f"{path}: texture does not decode as an image ({exc})") from None
+    return path
 
 
 def _uv_transform(ctx: _Ctx, entry: dict, name: str) -> np.ndarray | None:
@@ -165,11 +213,18 @@ def _uv_transform(ctx: _Ctx, entry: dict, name: str) -> np.ndarray | None:
 
 def _parse_meshes(ctx: _Ctx, data: dict, materials: dict[str, Material], uv_transforms: dict) -> dict[str, MeshObject]:
     meshes: dict[str, MeshObject] = {}
-    for i, entry in enumerate(ctx.key(data, "mesh", "top level")):
+    first: dict[str, int] = {}
+    for i, entry in enumerate(ctx.items(data, "mesh", "top level")):
         uid = str(ctx.key(entry, "uid", f"mesh[{i}]"))
         name = f"mesh[{i}] ({uid})"
+        if uid in first:
+            raise ctx.fail(name, f"uid {uid!r} repeats mesh[{first[uid]}]'s; each mesh needs its own")
+        first[uid] = i
         mtype = str(ctx.key(entry, "type", name))
         xyz = ctx.floats(ctx.key(entry, "xyz", name), f"{name}.xyz", group=3).reshape(-1, 3)
+        if xyz.size and np.abs(xyz).max() > MAX_COORDINATE_M:
+            raise ctx.fail(f"{name}.xyz", f"a vertex lies {np.abs(xyz).max():.3g} m from the origin (more than "
+                                          f"{MAX_COORDINATE_M:.0e} m: not a house)")
         faces_raw = ctx.floats(ctx.key(entry, "faces", name), f"{name}.faces", group=3)
         if np.any(faces_raw != np.round(faces_raw)):
             raise ctx.fail(f"{name}.faces", "face indices must be integers")
@@ -243,6 +298,8 @@ def read_mtl(path: Path) -> dict[str, Any]:
             continue
         try:
             if key == "Kd":
+                if len(args) < 3:
+                    raise ValueError
                 out["Kd"] = tuple(float(a) for a in args[:3])
             elif key in ("Ns", "Pr", "Pm"):
                 out[key] = float(args[0])
@@ -250,6 +307,11 @@ def read_mtl(path: Path) -> dict[str, Any]:
                 out["map_Kd"] = args[-1]
         except (ValueError, IndexError):
             raise Front3DError(f"{path}: line {lineno}: cannot parse {line.strip()!r}") from None
+        numbers = out.get(key, ()) if key == "Kd" else (out[key],) if key in ("Ns", "Pr", "Pm") else ()
+        if not all(math.isfinite(v) for v in numbers):
+            raise Front3DError(f"{path}: line {lineno}: {key} must be finite, got {line.strip()!r}")
+        if key == "map_Kd" and (Path(out["map_Kd"]).is_absolute() or ".." in Path(out["map_Kd"]).parts):
+            raise Front3DError(f"{path}: line {lineno}: map_Kd {out['map_Kd']!r} leaves the model's folder")
     return out
 
 
@@ -267,7 +329,7 @@ def _material_from_mtl(jid: str, model_dir: Path, mtl: dict[str, Any]) -> Materi
     return Material(
         name=jid,
         base_color=tuple(float(c) for c in np.clip(kd, 0.0, 1.0)) if not texture.is_file() else (1.0, 1.0, 1.0),
-        texture=texture if texture.is_file() else None,
+        texture=check_texture(texture) if texture.is_file() else None,
         roughness=float(np.clip(rough, 0.0, 1.0)),
         metallic=float(np.clip(mtl.get("Pm", 0.0), 0.0, 1.0)),
     )
@@ -320,12 +382,16 @@ def _floor_polygon(ctx: _Ctx, floors: list[MeshObject], entry: str) -> np.ndarra
             if poly.area > 1e-9:
                 tris.append(poly)
     area = float(sum(t.area for t in tris))
+    if not math.isfinite(area):
+        raise ctx.fail(entry, "its floor meshes' coordinates are too large: the floor area is not finite")
     if area < 1e-4:
         raise ctx.fail(entry, f"zero-area room: its floor meshes cover {area:.2e} m^2")
     union = unary_union(tris).buffer(1e-4).buffer(-1e-4)
     if union.geom_type == "MultiPolygon":
         union = max(union.geoms, key=lambda g: g.area)
     union = union.simplify(1e-3)
+    if union.is_empty or union.area < 1e-4:  # slivers whose union thins away
+        raise ctx.fail(entry, f"zero-area room: its floor meshes' outline covers {union.area:.2e} m^2")
     if not union.exterior.is_ccw:
         union = Polygon(list(union.exterior.coords)[::-1])
     return np.asarray(union.exterior.coords, dtype=np.float64)[:-1]
@@ -341,15 +407,21 @@ def _parse_rooms(
     missing: list[str],
 ) -> tuple[list[Room], list[MeshObject]]:
     scene = ctx.key(data, "scene", "top level")
-    rooms_raw = ctx.key(scene, "room", "scene")
+    rooms_raw = ctx.items(scene, "room", "scene")
     models: dict[str, FurnitureModel] = {}
     instances: list[MeshObject] = []
     rooms: list[Room] = []
+    room_ids: dict[str, int] = {}
     for r, room in enumerate(rooms_raw):
         entry = _room_entry(room, r)
         room_id = str(ctx.key(room, "instanceid", entry))
+        if room_id in room_ids:
+            raise ctx.fail(entry, f"instanceid {room_id!r} repeats scene.room[{room_ids[room_id]}]'s; each room needs "
+                                  "its own")
+        room_ids[room_id] = r
         names: list[str] = []
-        for c, child in enumerate(ctx.key(room, "children", entry)):
+        child_ids: dict[str, int] = {}
+        for c, child in enumerate(ctx.items(room, "children", entry)):
             centry = f"{entry}.children[{c}]"
             ref = str(ctx.key(child, "ref", centry))
             if ref in meshes:
@@ -359,7 +431,7 @@ def _parse_rooms(
                 missing.append(f"{centry}: unknown ref {ref!r}")
                 continue
             fentry = furniture[ref]
-            jid = str(fentry.get("jid", ""))
+            jid = ctx.plain_name(fentry.get("jid", ""), f"furniture ({ref}).jid")
             if jid not in models:
                 model_dir = future_dir / jid if future_dir is not None else None
                 if model_dir is None or not (model_dir / "raw_model.obj").is_file():
@@ -377,7 +449,11 @@ def _parse_rooms(
                 raise ctx.fail(f"{centry}.rot", str(exc)) from None
             if np.any(scale <= 0):
                 raise ctx.fail(f"{centry}.scale", f"scale must be positive, got {scale.tolist()}")
-            world = (model.vertices * scale) @ rmat.T + pos
+            with np.errstate(over="ignore", invalid="ignore"):  # huge values are refused just below
+                world = (model.vertices * scale) @ rmat.T + pos
+            if not np.isfinite(world).all() or np.abs(world).max() > MAX_COORDINATE_M:
+                raise ctx.fail(centry, f"its scale {scale.tolist()} and position {pos.tolist()} put the model's "
+                                       f"vertices more than {MAX_COORDINATE_M:.0e} m from the origin (not a house)")
             normals = None
             if model.normals is not None:
                 # normals transform with the inverse transpose of R diag(scale)
@@ -385,7 +461,12 @@ def _parse_rooms(
                 normals = yup_to_zup(n / np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-12))
             category = str(fentry.get("category") or "")
             title = str(fentry.get("title") or "")
-            obj_name = f"{room_id}/{child.get('instanceid', c)}"
+            child_id = str(child.get("instanceid", c))
+            if child_id in child_ids:
+                raise ctx.fail(centry, f"instanceid {child_id!r} repeats {entry}.children[{child_ids[child_id]}]'s; "
+                                       "each piece of furniture in a room needs its own")
+            child_ids[child_id] = c
+            obj_name = f"{room_id}/{child_id}"
             lamp = is_lamp(category, title)
             instances.append(
                 MeshObject(
@@ -437,6 +518,8 @@ def load_house(path: str | Path, options: LoadOptions = LoadOptions()) -> Scene:
         data = json.loads(path.read_text(encoding="utf-8"))
     except (json.JSONDecodeError, UnicodeDecodeError) as exc:
         raise Front3DError(f"{path}: invalid JSON ({exc})") from None
+    except RecursionError:
+        raise Front3DError(f"{path}: invalid JSON (nested too deeply)") from None
     if not isinstance(data, dict):
         raise ctx.fail("top level", f"expected an object, got {type(data).__name__}")
     house_dir = path.parent
@@ -452,7 +535,7 @@ def load_house(path: str | Path, options: LoadOptions = LoadOptions()) -> Scene:
             uv_transforms[str(entry["uid"])] = m
     meshes = _parse_meshes(ctx, data, materials, uv_transforms)
     furniture = {}
-    for i, entry in enumerate(ctx.key(data, "furniture", "top level")):
+    for i, entry in enumerate(ctx.items(data, "furniture", "top level")):
         uid = str(ctx.key(entry, "uid", f"furniture[{i}]"))
         ctx.key(entry, "jid", f"furniture[{i}] ({uid})")
         if entry.get("valid", True) is False:

@@ -54,12 +54,14 @@ def scene_name(scene_file: Path) -> str:
     return scene_file.parent.name if scene_file.stem == "house" else scene_file.stem
 
 
-def find_scenes(patterns: Iterable[str]) -> list[Path]:
+def find_scenes(patterns: Iterable[str], _lists: tuple[Path, ...] = ()) -> list[Path]:
     """The house files that ``patterns`` name: a glob (``scenes/*/house.json``), a file, a comma-separated list of
-    either, or a ``.txt`` file with one per line (relative paths from the list's folder; ``#`` starts a comment).
+    either, or a ``.txt`` file with one per line (relative paths from the list's folder; ``#`` starts a comment;
+    ``_lists``: the list files being read, which a list may not name again).
 
     Raises:
-        InputError: a pattern that matches nothing, or a path that is not a file (named).
+        InputError: a pattern that matches nothing, a path that is not a file, a list that is not UTF-8 text or
+            names itself through other lists (named).
     """
     found: list[Path] = []
     for value in patterns:
@@ -68,12 +70,19 @@ def find_scenes(patterns: Iterable[str]) -> list[Path]:
                 continue
             path = Path(pattern)
             if path.suffix == ".txt" and path.is_file():
-                lines = [line.split("#", 1)[0].strip() for line in path.read_text(encoding="utf-8").splitlines()]
+                if path.resolve() in _lists:
+                    raise InputError(f"{path}: the scene list names itself (through {_lists[-1]})")
+                try:
+                    text = path.read_text(encoding="utf-8")
+                except UnicodeDecodeError as exc:
+                    raise InputError(f"{path}: the scene list is not UTF-8 text ({exc.reason} at byte "
+                                     f"{exc.start})") from None
+                lines = [line.split("#", 1)[0].strip() for line in text.splitlines()]
                 entries = [str((path.parent / line) if not Path(line).is_absolute() else Path(line))
                            for line in lines if line]
                 if not entries:
                     raise InputError(f"{path}: the scene list names no house file")
-                found += find_scenes(entries)
+                found += find_scenes(entries, (*_lists, path.resolve()))
             elif glob.has_magic(pattern):
                 matches = sorted(Path(m) for m in glob.glob(pattern, recursive=True) if Path(m).is_file())
                 if not matches:

@@ -349,15 +349,21 @@ def plan_poses(scene_path: Path, config: RenderConfig, load: LoadOptions):
     scene = with_ground_truth_lighting(scene, objects, config.ground_truth)
     objects = scene.objects_in(room)
     traj_cfg = dataclasses.replace(config.trajectory, n_frames=config.frames)
-    poses = sample_trajectory(
-        room.floor_polygon,
-        room.floor_z,
-        room.ceiling_z,
-        scene.furniture_boxes(room),
-        traj_cfg,
-        numpy_rng(config.seed, "trajectory"),
-        label=f"{scene_path} room {room.instance_id}",
-    )
+    label = f"{scene_path} room {room.instance_id}"
+    try:
+        poses = sample_trajectory(
+            room.floor_polygon,
+            room.floor_z,
+            room.ceiling_z,
+            scene.furniture_boxes(room),
+            traj_cfg,
+            numpy_rng(config.seed, "trajectory"),
+            label=label,
+        )
+    except ValueError as exc:  # a room the camera path does not fit: name the scene and the room
+        if str(exc).startswith(label):
+            raise
+        raise InputError(f"{label}: {exc}") from None
     return scene, room, objects, poses
 
 

@@ -151,7 +151,7 @@ class Scene:
             if room.instance_id == instance_id:
                 return room
         known = ", ".join(r.instance_id for r in self.rooms)
-        raise KeyError(f"{self.source}: no room {instance_id!r} (rooms: {known})")
+        raise ValueError(f"{self.source}: no room {instance_id!r} (rooms: {known})")
 
     def objects_in(self, room: Room) -> list[MeshObject]:
         """The mesh objects that belong to ``room``."""

@@ -5,6 +5,7 @@ from __future__ import annotations
 import copy
 import json
 import math
+import re
 
 import numpy as np
 import pytest
@@ -195,6 +196,37 @@ def test_invalid_json_and_missing_file(tmp_path):
         (lambda h: h["mesh"][0].__setitem__("xyz", [0.0] * 18), r"zero-area room"),
         (lambda h: h["scene"]["room"][0]["children"].append({"ref": "ghost", "instanceid": "g"}),
          r"unknown ref 'ghost'"),
+        # wrong types: one line naming the entry, not a traceback
+        (lambda h: h.__setitem__("material", 3), r"house\.json: material: expected a list, got int"),
+        (lambda h: h.__setitem__("furniture", None), r"furniture: expected a list, got NoneType"),
+        (lambda h: h["scene"].__setitem__("room", 1), r"scene\.room: expected a list, got int"),
+        (lambda h: h["scene"]["room"].__setitem__(0, "room"), r"scene\.room\[0\]: expected an object, got str"),
+        (lambda h: h["scene"]["room"][0].__setitem__("children", 5), r"\(Bedroom-1\)\.children: expected a list"),
+        (lambda h: h["material"][1].__setitem__("roughness", None), r"roughness: expected a finite number, got None"),
+        (lambda h: h["material"][1].__setitem__("metallic", 10**400),
+         r"metallic: expected a finite number, got 1000"),
+        (lambda h: h["mesh"][0]["xyz"].__setitem__(0, 10**400), r"floor-1\)\.xyz: not a list of numbers"),
+        # duplicated ids would replace or mix objects
+        (lambda h: h["material"].append(dict(h["material"][0])), r"material\[2\] \(m-floor\): uid 'm-floor' "
+                                                                   r"repeats material\[0\]'s"),
+        (lambda h: h["mesh"].append(dict(h["mesh"][0])), r"mesh\[2\] \(floor-1\): uid 'floor-1' repeats mesh\[0\]'s"),
+        (lambda h: h["scene"]["room"].append(copy.deepcopy(h["scene"]["room"][0])),
+         r"scene\.room\[1\] \(Bedroom-1\): instanceid 'Bedroom-1' repeats scene\.room\[0\]'s"),
+        (lambda h: h["scene"]["room"][0]["children"][3].__setitem__("instanceid", "c2"),
+         r"children\[3\]: instanceid 'c2' repeats .*children\[2\]'s"),
+        # files named outside the models and textures roots
+        (lambda h: h["furniture"][0].__setitem__("jid", "../outside"), r"furniture \(f-cab\)\.jid: '\.\./outside' "
+                                                                        r"is not a plain name"),
+        (lambda h: h["furniture"][0].__setitem__("jid", "/etc"), r"jid: '/etc' is not a plain name"),
+        (lambda h: h["material"][0].update(texture="t.png", jid="../../x"), r"material\[0\] \(m-floor\)\.jid: "
+                                                                           r"'\.\./\.\./x' is not a plain name"),
+        # geometry beyond any house
+        (lambda h: h["scene"]["room"][0]["children"][2].__setitem__("scale", [1e308] * 3),
+         r"children\[2\]: its scale .* more than 1e\+05 m from the origin"),
+        (lambda h: h["mesh"][0].__setitem__("xyz", [v * 1e200 for v in h["mesh"][0]["xyz"]]),
+         r"floor-1\)\.xyz: a vertex lies 4e\+200 m from the origin"),
+        (lambda h: h["mesh"][0].update(xyz=_flat([(x, 0, 0) for x in range(6)] + [(0, 0, 1e-5)])[:18]),
+         r"zero-area room"),
     ],
 )
 def test_error_paths_name_file_entry_and_problem(tmp_path, mutate, match):
@@ -232,3 +264,36 @@ def test_uv_transform_applied(tmp_path):
     floor = next(o for o in scene.objects if o.name == "floor-1")
     np.testing.assert_allclose(floor.uvs[1], [2 * 4 + 0.5, 0.0])
     np.testing.assert_allclose(floor.uvs[5], [0.5, 9.0])
+
+
+def test_bad_model_files_and_textures_name_the_file(tmp_path):
+    """An MTL line with a non-finite or short value, a map_Kd leaving the model's folder and a texture that does not
+    decode (Blender would render it magenta) are each one line naming the file."""
+    house, root = make_house(tmp_path)
+    mtl = root / "models" / "model-cab" / "model.mtl"
+    for text, match in (("newmtl m\nPr nan\n", r"model\.mtl: line 2: Pr must be finite"),
+                        ("newmtl m\nKd 0.5\n", r"model\.mtl: line 2: cannot parse 'Kd 0\.5'"),
+                        ("newmtl m\nKd 0.5 0.5 inf\n", r"model\.mtl: line 2: Kd must be finite"),
+                        ("newmtl m\nmap_Kd ../../tex.png\n", r"line 2: map_Kd '\.\./\.\./tex\.png' leaves the "
+                                                            r"model's folder")):
+        mtl.write_text(text)
+        with pytest.raises(Front3DError, match=match):
+            load_house(write(root, house))
+    mtl.write_text(MTL)
+    (root / "models" / "model-cab" / "texture.png").write_bytes(b"this is not a png")
+    with pytest.raises(Front3DError, match=r"model-cab/texture\.png: texture does not decode as an image"):
+        load_house(write(root, house))
+
+
+def test_a_room_the_camera_path_does_not_fit_is_named(tmp_path):
+    """The trajectory's refusals (a room too small for the camera's margin) name the house file and the room."""
+    from simulator.render_pipeline import RenderConfig, plan_poses
+    from spotlessgs.io.errors import InputError
+
+    house, root = make_house(tmp_path, lamp=True)
+    for mesh in house["mesh"]:  # the L-shaped room shrunk to 0.8 m x 0.6 m (the ceiling stays 2.8 m up)
+        mesh["xyz"] = [v * 0.2 if axis != 1 else v for v, axis in zip(mesh["xyz"], [0, 1, 2] * 6)]
+    house["scene"]["room"][0]["children"] = house["scene"]["room"][0]["children"][:2]
+    path = write(root, house)
+    with pytest.raises(InputError, match=rf"{re.escape(str(path))} room Bedroom-1: .*too small"):
+        plan_poses(path, RenderConfig(frames=4, width=16, height=12, samples=1), LoadOptions())

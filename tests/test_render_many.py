@@ -137,3 +137,22 @@ def test_a_rerun_with_other_settings_is_refused_before_any_task_runs(tmp_path):
         result.output
     assert sorted(p.name for p in (tmp_path / "out").iterdir()) == ["white_room-uneven"]
     assert json.loads((dataset / "plan.json").read_text()) == plan
+
+
+def test_scene_lists_that_name_themselves_or_are_not_text_are_one_line(tmp_path):
+    loop = tmp_path / "a.txt"
+    loop.write_text("b.txt\n")
+    (tmp_path / "b.txt").write_text("a.txt  # back to the first\n")
+    with pytest.raises(InputError, match=r"a\.txt: the scene list names itself \(through .*b\.txt\)"):
+        find_scenes([str(loop)])
+    binary = tmp_path / "c.txt"
+    binary.write_bytes(b"\xff\xfe\x00scenes")
+    with pytest.raises(InputError, match=r"c\.txt: the scene list is not UTF-8 text"):
+        find_scenes([str(binary)])
+
+
+def test_benchmark_refuses_sample_counts_below_one(tmp_path):
+    result = CliRunner().invoke(sim_main, ["benchmark", "--scene", str(SCENES / "office" / "house.json"),
+                                           "--out", str(tmp_path / "bench"), "--samples", "4,0,-3"])
+    assert result.exit_code == 2 and "expected sample counts of at least 1" in result.output, result.output
+    assert not (tmp_path / "bench").exists()
