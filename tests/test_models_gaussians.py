@@ -137,6 +137,29 @@ def test_activations_stay_in_their_open_intervals_with_finite_gradients():
     assert logit_roughness(0.5) == pytest.approx(math.log(0.41 / 0.49), rel=1e-12)
 
 
+@pytest.mark.parametrize("backend", ["torch", "cpp"])
+def test_a_log_scale_beyond_float32s_range_covers_the_view_with_finite_gradients(backend):
+    """e^88.8 overflows float32: without the limit the rasterizer's R·S is 0·inf = NaN, the Gaussian silently
+    vanishes and every gradient of it is NaN. At the limit (e^30 m) it covers the view like any huge Gaussian."""
+    from spotlessgs.rasterizer import rasterize
+
+    g = GaussianParams.from_point_cloud(np.array([[0.0, 0.0, 2.0]]), np.full((1, 3), 200, np.uint8))
+    K = torch.tensor([[30.0, 0.0, 16.0], [0.0, 30.0, 12.0], [0.0, 0.0, 1.0]])
+    alphas = {}
+    for log_scale in (20.0, 88.8):
+        with torch.no_grad():
+            g.params["log_scales"].fill_(log_scale)
+        g.zero_grad()
+        out = rasterize(g.means, g.quats, g.scales, g.opacities, torch.ones(1, 3), torch.eye(4), K, 32, 24,
+                        backend=backend)
+        out.image.sum().backward()
+        alphas[log_scale] = out.alpha.detach()
+        for name in ("means", "quats", "log_scales", "opacity_logits"):
+            assert torch.isfinite(g.params[name].grad).all(), (log_scale, name)
+    assert float(alphas[88.8].min()) > 0.05  # every pixel covered (the initial opacity is 0.1)
+    torch.testing.assert_close(alphas[88.8], alphas[20.0])
+
+
 def test_parameter_dict_supports_indexing_for_densification():
     xyz, rgb = _cloud(6)
     g = GaussianParams.from_point_cloud(xyz, rgb)

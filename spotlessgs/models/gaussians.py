@@ -58,6 +58,11 @@ def _logit(p: np.ndarray) -> np.ndarray:
     return np.log(p) - np.log1p(-p)
 
 
+#: The largest log-scale :attr:`GaussianParams.scales` uses: e^30 ≈ 1e13 m, far beyond any scene, far below float32's
+#: overflow at e^88.7.
+MAX_LOG_SCALE = 30.0
+
+
 class GaussianParams(nn.Module):
     """Container of the per-Gaussian parameters (see module docstring for names, shapes and activations).
 
@@ -172,8 +177,9 @@ class GaussianParams(nn.Module):
 
     @property
     def scales(self) -> torch.Tensor:
-        """(N, 3) standard deviations, metres."""
-        return torch.exp(self.params["log_scales"])
+        """(N, 3) standard deviations, metres; log-scales above :data:`MAX_LOG_SCALE` count as that (e^88.7
+        overflows float32: the rasterizer's R·S would be NaN, and so every gradient of that Gaussian)."""
+        return torch.exp(self.params["log_scales"].clamp(max=MAX_LOG_SCALE))
 
     @property
     def opacities(self) -> torch.Tensor:
