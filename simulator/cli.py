@@ -231,6 +231,15 @@ def add_noise(data_dir, out_dir, shot, read, seed, robot_camera, sensitivity, ma
     """
     from simulator.sensor_noise import CameraEffects, DepthCamera, SensorNoise, add_sensor_noise_to_dataset
 
+    context = click.get_current_context()
+    for flag, needs, given in (("robot_camera", "--robot-camera", robot_camera),
+                               ("depth_camera", "--depth-camera", depth_camera)):
+        dependent = ("sensitivity", "max_gain", "vignetting", "lens", "distortion") if flag == "robot_camera" else \
+            ("depth_noise", "depth_range")
+        unused = [f"--{name.replace('_', '-')}" for name in dependent
+                  if context.get_parameter_source(name) is click.core.ParameterSource.COMMANDLINE]
+        if unused and not given:  # they would be ignored without a word
+            raise click.UsageError(f"{', '.join(unused)} only {'apply' if len(unused) > 1 else 'applies'} with {needs}")
     try:
         coefficients = tuple(float(v) for v in distortion.split(",") if v.strip())
     except ValueError:

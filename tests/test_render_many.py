@@ -156,3 +156,26 @@ def test_benchmark_refuses_sample_counts_below_one(tmp_path):
                                            "--out", str(tmp_path / "bench"), "--samples", "4,0,-3"])
     assert result.exit_code == 2 and "expected sample counts of at least 1" in result.output, result.output
     assert not (tmp_path / "bench").exists()
+
+
+@pytest.mark.parametrize("plan, problem", [
+    ("[1]", r"plan\.json: .*not a JSON object|plan\.json: .*expected"),
+    ("{not json", r"plan\.json: .*JSON"),
+    ('{"fingerprint": {}, "poses": "abc"}', r"plan\.json: damaged render plan: 'poses'"),
+])
+def test_a_damaged_plan_json_is_one_line_naming_it(tmp_path, plan, problem):
+    """A render into a folder whose plan.json is damaged names the file (was a KeyError or AttributeError)."""
+    import json
+
+    from simulator.render_pipeline import ExecutionOptions, _fingerprint, render_dataset
+
+    scene = SCENES / "white_room" / "house.json"
+    config = render_config("uneven", {"frames": 2, "width": 16, "height": 16, "samples": 1})
+    out = tmp_path / "out"
+    out.mkdir()
+    if "poses" in plan:  # the settings match: only the poses are damaged
+        plan = json.dumps({**json.loads(plan), "fingerprint": _fingerprint(scene, config, None)})
+    (out / "plan.json").write_text(plan)
+    with pytest.raises((InputError, RuntimeError), match=problem):
+        render_dataset(scene, out, config, execution=ExecutionOptions(progress=False))
+    assert (out / "plan.json").read_text() == plan

@@ -251,3 +251,19 @@ def test_a_noisy_copy_never_takes_over_another_folder_and_is_finished_only_with_
     (tmp_path / "copy" / NOISE_RECORD).write_text("{damaged")
     with pytest.raises(InputError, match=r"copy/sensor_noise.json: .*JSON"):
         add_sensor_noise_to_dataset(tmp_path / "data", tmp_path / "copy", SensorNoise(), seed=1)
+
+
+@pytest.mark.parametrize("args, message", [
+    (["--lens", "fisheye", "--distortion", "0.1,0,0,0"], "--lens, --distortion only apply with --robot-camera"),
+    (["--vignetting", "0.5"], "--vignetting only applies with --robot-camera"),
+    (["--depth-range", "3"], "--depth-range only applies with --depth-camera"),
+])
+def test_camera_options_without_their_camera_are_a_usage_error(tmp_path, args, message):
+    """Before, they were ignored without a word: the copy had a pinhole camera or no depth."""
+    from simulator.cli import main as sim_main
+
+    _dataset(tmp_path / "data")
+    result = CliRunner().invoke(sim_main, ["add-noise", "--data", str(tmp_path / "data"), "--out",
+                                           str(tmp_path / "copy"), *args])
+    assert result.exit_code == 2 and message in result.output, result.output
+    assert not (tmp_path / "copy").exists()
