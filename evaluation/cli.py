@@ -7,6 +7,8 @@ from pathlib import Path
 
 import click
 
+from spotlessgs.clitools import THREAD_COUNT
+
 
 @click.command("eval", context_settings={"help_option_names": ["-h", "--help"]})
 @click.argument("run", required=False, type=click.Path(exists=True, file_okay=False, path_type=Path))
@@ -27,7 +29,7 @@ import click
               help="RUN mode: score against the dataset's lamps-on ground truth or its uniform one (even, shadow-free "
                    "light; a dataset rendered with `spotless-sim render --gt uniform`).")
 @click.option("--no-lpips", is_flag=True, help="Skip LPIPS.")
-@click.option("--threads", type=click.IntRange(min=1), default=None, help="CPU threads for metrics and SfM.")
+@click.option("--threads", type=THREAD_COUNT, default=None, help="CPU threads for metrics and SfM.")
 @click.option("--quiet", is_flag=True, help="No progress bars.")
 def eval_command(run, pred, gt, data_dir, sfm, matcher, out_dir, json_path, ground_truth, no_lpips, threads,
                  quiet) -> None:
@@ -97,7 +99,7 @@ def sfm_rings_command(runs: dict[str, Path], bins: int) -> None:
               help="Fit and score against the lamps-on ground truth or the uniform one (`spotless-sim render --gt "
                    "uniform`).")
 @click.option("--no-lpips", is_flag=True, help="Skip LPIPS.")
-@click.option("--threads", type=click.IntRange(min=1), default=None, help="CPU threads for the metrics.")
+@click.option("--threads", type=THREAD_COUNT, default=None, help="CPU threads for the metrics.")
 @click.option("--quiet", is_flag=True, help="No progress bars.")
 def ceiling_command(data: Path, out_dir: Path, ground_truth: str, no_lpips: bool, threads: int | None,
                     quiet: bool) -> None:

@@ -9,7 +9,7 @@ from pathlib import Path
 
 import click
 
-from spotlessgs.clitools import FiniteFloatRange, SafeGroup
+from spotlessgs.clitools import THREAD_COUNT, FiniteFloatRange, SafeGroup
 
 
 def _shard(_ctx, _param, value: str) -> tuple[int, int]:
@@ -80,7 +80,7 @@ def main(verbose: bool) -> None:
               help="Spotlight strength: uneven, or saturated (clips highlights).")
 @click.option("--shard", default="0/1", show_default=True, callback=_shard,
               help="Render only frames k with k %% N == I (N jobs can share a scene).")
-@click.option("--threads", default=2, show_default=True, type=click.IntRange(1, 1024), help="CPU render threads.")
+@click.option("--threads", default=2, show_default=True, type=THREAD_COUNT, help="CPU render threads.")
 @click.option("--device", default="auto", show_default=True, type=click.Choice(["auto", "cpu", "gpu"]))
 @click.option("-q", "--quiet", is_flag=True, help="No progress bar, and no messages from Blender's device probing.")
 def render(scene_path, out_dir, future_dir, texture_dir, allow_missing, room, frames, width, height, h_fov_deg, samples,
@@ -158,7 +158,7 @@ def generate(kind, out_dir, seed):
               help="local executor: tasks run in parallel.")
 @click.option("--ray-address", default="auto", show_default=True,
               help="--executor ray: auto, HOST:PORT of the head node, or local (a private Ray instance here).")
-@click.option("--threads", type=click.IntRange(1), default=None,
+@click.option("--threads", type=THREAD_COUNT, default=None,
               help="Render threads per task (default: cores // jobs locally, 1 on Ray, where a task asks for as many "
                    "CPUs).")
 @click.option("-q", "--quiet", is_flag=True, help="No progress bar.")
@@ -279,7 +279,7 @@ def inspect(scene_path, future_dir, texture_dir, allow_missing):
 @click.option("--reference-samples", default=512, show_default=True, type=click.IntRange(1))
 @click.option("--width", default=320, show_default=True, type=click.IntRange(8))
 @click.option("--height", default=240, show_default=True, type=click.IntRange(8))
-@click.option("--threads", default=2, show_default=True, type=click.IntRange(1))
+@click.option("--threads", default=2, show_default=True, type=THREAD_COUNT)
 def benchmark(scene_path, out_dir, samples, reference_samples, width, height, threads):
     """Render speed against error: one view at several sample counts against a high-sample reference."""
     from simulator.benchmark import markdown_table, run_benchmark

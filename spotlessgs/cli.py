@@ -9,7 +9,7 @@ from pathlib import Path
 
 import click
 
-from spotlessgs.clitools import FiniteFloatRange, SafeGroup
+from spotlessgs.clitools import THREAD_COUNT, FiniteFloatRange, SafeGroup
 
 from evaluation.cli import ceiling_command, eval_command, sfm_rings_command
 from spotlessgs.baselines2d.cli import baseline2d
@@ -72,7 +72,7 @@ def main(verbose: bool) -> None:
               help="Any other trainer setting (a TrainConfig field of spotlessgs/training/config.py; repeat the "
                    "option), e.g. --set loss_space=srgb (the photometric loss on sRGB-encoded values) or "
                    "--set falloff_tau=0.01 --set learn_falloff=false (the spotlight's fall-off).")
-@click.option("--threads", type=click.IntRange(1), default=None, help="CPU threads.")
+@click.option("--threads", type=THREAD_COUNT, default=None, help="CPU threads.")
 @click.option("--device", default=None, type=click.Choice(["auto", "cpu", "cuda"]), help="[default: auto]")
 @click.option("-q", "--quiet", is_flag=True, help="No progress bar.")
 def train(data_dir, run_dir, model, preset, iterations, image_width, seed, resume, light_prior, light_prior_weight,
@@ -197,7 +197,7 @@ def render(run_dir, which, out_dir, exr, data_dir, device, quiet):
               help="Image pairs to match: each frame with its successors (video), or every pair.")
 @click.option("--truth", "truth_dir", type=click.Path(exists=True, file_okay=False, path_type=Path), default=None,
               help="A dataset with the true poses of these frames (by file name): the summary gets the pose error.")
-@click.option("--threads", type=click.IntRange(1), default=1, show_default=True)
+@click.option("--threads", type=THREAD_COUNT, default=1, show_default=True)
 @click.option("--seed", default=0, show_default=True, type=int)
 @click.option("-q", "--quiet", is_flag=True)
 def prepare(images_dir, bag, image_topic, camera_info_topic, odometry_topic, depth_topic, min_interval_s, min_motion_m,
@@ -278,7 +278,7 @@ def _scales(_ctx, _param, values: tuple[str, ...]) -> dict[str, float]:
 @click.option("--nodes", default="1,4,16", show_default=True, help="Comma-separated node counts to project onto.")
 @click.option("--cores-per-node", default=2, show_default=True, type=click.IntRange(1),
               help="CPU cores of one node; a node runs cores // threads stages at once.")
-@click.option("--threads", type=click.IntRange(1), default=None,
+@click.option("--threads", type=THREAD_COUNT, default=None,
               help="Threads per stage (default: what the markers recorded).")
 @click.option("--scale", "scales", multiple=True, callback=_scales, metavar="PATTERN=FACTOR",
               help="Multiply the measured time of the stages whose name matches PATTERN (fnmatch; the first match "

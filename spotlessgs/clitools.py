@@ -102,8 +102,9 @@ class SafeGroup(click.Group):
             code = exit_code(interrupt)
             if debug:
                 traceback.print_exc()
+            resume = " (with --resume)" if "train" in argv and "train" in getattr(self, "commands", {}) else ""
             click.echo(f"{name}: stopped by signal ({code - 128}); finished outputs are kept, rerun the same "
-                       "command to resume (`spotless train` with --resume)", err=True)
+                       f"command to resume{resume}", err=True)
             sys.exit(code)
         except BrokenPipeError:  # `spotless ... | head`
             sys.stderr.close()
@@ -132,3 +133,9 @@ class FiniteFloatRange(click.FloatRange):
         if number != number or number in (float("inf"), float("-inf")):
             self.fail(f"{value!r} is not a finite number.", param, ctx)
         return number
+
+
+#: The most threads a command-line option accepts: torch and OpenMP crash or hang when asked for tens of thousands.
+MAX_THREADS = 1024
+#: The type of every ``--threads`` option: a whole number in 1..MAX_THREADS.
+THREAD_COUNT = click.IntRange(1, MAX_THREADS)

@@ -243,7 +243,7 @@ def test_enhance_folder_errors(tmp_path, scene):
         enhance_folder("sharpen", tmp_path / "in", tmp_path / "out")
     with pytest.raises(ValueError, match=r"unknown options \['sigma'\] for method 'clahe'"):
         enhance_folder("clahe", tmp_path / "in", tmp_path / "out", sigma=3)
-    with pytest.raises(ValueError, match="needs checkpoint="):
+    with pytest.raises(ValueError, match=r"needs a checkpoint \(--checkpoint"):
         enhance_folder("cyclegan", tmp_path / "in", tmp_path / "out")
     with pytest.raises(FileNotFoundError, match="image folder not found"):
         enhance_folder("msrcr", tmp_path / "missing", tmp_path / "out")
@@ -253,3 +253,35 @@ def test_enhance_folder_errors(tmp_path, scene):
     write_png(tmp_path / "in" / "a.jpg", uneven)  # written as PNG bytes; only the name matters here
     with pytest.raises(ValueError, match="would overwrite its output PNG"):
         enhance_folder("msrcr", tmp_path / "in", tmp_path / "out")
+
+
+def test_an_output_replaces_an_earlier_one_whole_and_never_a_foreign_folder(tmp_path, scene):
+    """OUT_DIR with other files (e.g. a dataset's gt/) is refused, its files untouched; an earlier output is replaced
+    whole (a rerun on fewer images leaves none of the old ones); a failed run leaves the earlier output as it was;
+    stems that differ only in letter case are refused (one file on macOS and Windows)."""
+    from spotlessgs.io.errors import InputError
+
+    _, uneven = scene
+    for name in ("a", "b"):
+        write_png(tmp_path / "in" / f"{name}.png", uneven)
+    write_png(tmp_path / "gt" / "a.png", np.full_like(uneven, 0.5))
+    before = (tmp_path / "gt" / "a.png").read_bytes()
+    with pytest.raises(InputError, match=r"gt: holds files that are not an earlier output of this command \(a\.png; "
+                                         r"no baseline2d_provenance\.json\)"):
+        enhance_folder("clahe", tmp_path / "in", tmp_path / "gt")
+    assert (tmp_path / "gt" / "a.png").read_bytes() == before
+
+    assert [p.name for p in enhance_folder("clahe", tmp_path / "in", tmp_path / "out")] == ["a.png", "b.png"]
+    (tmp_path / "in" / "b.png").unlink()
+    assert [p.name for p in enhance_folder("msrcr", tmp_path / "in", tmp_path / "out")] == ["a.png"]
+    assert sorted(p.name for p in (tmp_path / "out").iterdir()) == ["a.png", "baseline2d_provenance.json"]
+    kept = {p.name: p.read_bytes() for p in (tmp_path / "out").iterdir()}
+    (tmp_path / "in" / "c.png").write_bytes(b"damaged")
+    with pytest.raises(ValueError, match=r"c\.png: cannot decode image"):
+        enhance_folder("clahe", tmp_path / "in", tmp_path / "out")
+    assert {p.name: p.read_bytes() for p in (tmp_path / "out").iterdir()} == kept
+    assert not [p for p in tmp_path.iterdir() if p.name.startswith(".out")]  # no temporary folder left
+    (tmp_path / "in" / "c.png").unlink()
+    write_png(tmp_path / "in" / "A.png", uneven)
+    with pytest.raises(ValueError, match=r"a\.png: has the same name as .*A\.png \(up to letter case\)"):
+        enhance_folder("clahe", tmp_path / "in", tmp_path / "out2")

@@ -365,3 +365,74 @@ def test_enhance_folder_and_cli_with_cyclegan(unpaired, trained, tmp_path):
     assert result.exit_code != 0 and "options ['clip_limit'] do not apply to method 'msrcr'" in result.output
     result = runner.invoke(baseline2d, ["enhance", "clahe", str(root / "even"), str(tmp_path / "c"), "--tiles", "4"])
     assert result.exit_code == 0 and len(list((tmp_path / "c").glob("*.png"))) == COUNT
+
+
+def _edited(trained: Path, where: Path, edit) -> Path:
+    """A copy of the trained run's checkpoint, changed by ``edit(state)`` (the file's dict), at ``where``."""
+    state = torch.load(trained, map_location="cpu", weights_only=True)
+    edit(state)
+    torch.save(state, where)
+    return where
+
+
+@pytest.mark.parametrize("edit, problem", [
+    (lambda s: s["networks"]["G_ab"].update({k: v[:1] for k, v in list(s["networks"]["G_ab"].items())[:1]}),
+     r"its network G_ab does not fit this model \(Error\(s\) in loading state_dict"),
+    (lambda s: s["networks"].pop("D_b"), r"it lacks the network\(s\) \['D_b'\]"),
+    (lambda s: next(iter(s["networks"]["G_ab"].values())).fill_(float("nan")), r"G_ab\..* not finite"),
+    (lambda s: s.update(step=10**6), r"step 1000000 is outside the run's 0\.\.\d+"),
+    (lambda s: s.update(step=-3), r"step -3 is outside"),
+    (lambda s: s.update(seed="abc"), r"seed 'abc' is not a whole number"),
+    (lambda s: s.update(config=[1, 2]), r"config is not a table of settings"),
+    (lambda s: s.update(pools=5), r"pools is not a table"),
+])
+def test_a_damaged_checkpoint_is_one_line_naming_it(trained, unpaired, tmp_path, edit, problem):
+    """Translating with, or resuming from, a hand-edited checkpoint names the file and the problem (were tracebacks,
+    a multi-line state-dict message, or a resume that trained nothing or trained past its steps)."""
+    from spotlessgs.io.errors import InputError
+
+    root, _ = unpaired
+    bad = _edited(trained, tmp_path / "checkpoint.pt", edit)
+    with pytest.raises(InputError, match=rf"checkpoint\.pt: .*{problem}") as info:
+        translate_folder(bad, root / "uneven", tmp_path / "out")
+    assert "\n" not in str(info.value)
+    run = tmp_path / "run"
+    run.mkdir()
+    bad.rename(run / "checkpoint.pt")
+    with pytest.raises(InputError, match=rf"checkpoint\.pt: .*{problem}"):
+        train_cyclegan(root / "uneven", root / "even", run, preset("tiny"), seed=0, progress=False)
+
+
+def test_a_damaged_metrics_log_or_a_foreign_out_folder_is_refused_before_training(trained, unpaired, tmp_path):
+    import shutil
+
+    from spotlessgs.io.errors import InputError
+
+    root, _ = unpaired
+    run = shutil.copytree(trained.parent, tmp_path / "run")
+    for line, problem in (("5", "line 1 is not a record with a whole-number step"),
+                          ('{"step": "x"}', "line 1 is not a record with a whole-number step"),
+                          ('{"step": 1, "loss_G": NaN}', "line 1 holds a value that is not finite")):
+        (run / "metrics.jsonl").write_text(line + "\n")
+        stamp = (run / "checkpoint.pt").stat().st_mtime_ns
+        with pytest.raises(InputError, match=rf"metrics\.jsonl: {problem}"):
+            train_cyclegan(root / "uneven", root / "even", run, preset("tiny"), seed=0, progress=False)
+        assert (run / "checkpoint.pt").stat().st_mtime_ns == stamp
+
+    other = tmp_path / "other"
+    other.mkdir()
+    (other / "metrics.jsonl").write_text('{"step": 1}\n')  # another tool's run
+    with pytest.raises(InputError, match=r"other: holds files but no Cycle-GAN run"):
+        train_cyclegan(root / "uneven", root / "even", other, preset("tiny"), seed=0, progress=False)
+    assert (other / "metrics.jsonl").read_text() == '{"step": 1}\n'
+
+
+@pytest.mark.parametrize("command", [["enhance", "cyclegan", "IN", "OUT", "--checkpoint", "CKPT"],
+                                     ["train-cyclegan", "--uneven", "IN", "--even", "IN", "--out", "OUT"]])
+def test_a_thread_count_beyond_the_limit_is_a_usage_error(trained, unpaired, tmp_path, command):
+    """torch crashed (enhance) or hung (train) when asked for 100,000 threads."""
+    root, _ = unpaired
+    paths = {"IN": str(root / "uneven"), "OUT": str(tmp_path / "out"), "CKPT": str(trained)}
+    result = CliRunner().invoke(baseline2d, [paths.get(a, a) for a in command] + ["--threads", "100000"])
+    assert result.exit_code == 2 and "100000 is not in the range 1<=x<=1024" in result.output, result.output
+    assert not (tmp_path / "out").exists()

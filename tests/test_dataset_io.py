@@ -329,6 +329,13 @@ def test_image_errors(tmp_path):
                                         + chunk(b"IDAT", zlib.compress(b"")) + chunk(b"IEND", b""))
     with pytest.raises(ValueError, match="huge.png: cannot decode image .*decompression bomb"):
         read_image(tmp_path / "huge.png")
+    # the 16-bit colour PNGs that OpenCV decodes (bypassing Pillow's check) are refused from their header too
+    header16 = struct.pack(">IIBBBBB", 20000, 20000, 16, 2, 0, 0, 0)
+    (tmp_path / "huge16.png").write_bytes(b"\x89PNG\r\n\x1a\n" + chunk(b"IHDR", header16)
+                                          + chunk(b"IDAT", zlib.compress(b"")) + chunk(b"IEND", b""))
+    with pytest.raises(ValueError, match=r"huge16.png: cannot decode image \(20000x20000 = 400000000 pixels exceeds "
+                                         r"the limit .*decompression bomb"):
+        read_image(tmp_path / "huge16.png")
     with pytest.raises(ValueError, match=r"o.png: write_png expects an \(H, W, 3\) image, got shape \(4, 4\)"):
         write_png(tmp_path / "o.png", np.zeros((4, 4)))
     with pytest.raises(ValueError, match="o.png: write_png image contains NaN"):

@@ -93,7 +93,11 @@ def test_bad_frames_are_refused_naming_the_file(room, tmp_path):
     shutil.copy(room / "images" / "frame_00001.png", frames / "frame_00002.png")
     write_png(frames / "frame_00001.jpg", np.zeros((180, 240, 3)))  # its PNG copy would be frame_00001.png
     with pytest.raises(InputError, match=r"frames: frame_00001\.jpg and frame_00001\.png would both become "
-                                         r"frame_00001\.png in the dataset; rename one of them"):
+                                         r"frame_00001\.png in the dataset \(up to letter case\); rename one of them"):
+        prepare_images(frames, tmp_path / "a")
+    (frames / "frame_00001.jpg").rename(frames / "FRAME_00001.jpg")  # one file on macOS and Windows
+    with pytest.raises(InputError, match=r"FRAME_00001\.jpg and frame_00001\.png would both become frame_00001\.png "
+                                         r"in the dataset \(up to letter case\)"):
         prepare_images(frames, tmp_path / "a")
     assert not (tmp_path / "a").exists() and not (tmp_path / "b").exists()  # nothing written before the checks
 

@@ -6,6 +6,8 @@ from pathlib import Path
 
 import click
 
+from spotlessgs.clitools import THREAD_COUNT
+
 
 @click.group("baseline2d", context_settings={"help_option_names": ["-h", "--help"]})
 def baseline2d() -> None:
@@ -22,7 +24,7 @@ def baseline2d() -> None:
 @click.option("--tiles", type=int, help="clahe: tiles along each image axis.")
 @click.option("--low-percent", type=float, help="msrcr: percentile clipped to black.")
 @click.option("--high-percent", type=float, help="msrcr: percentile clipped to white.")
-@click.option("--threads", type=int, help="cyclegan: torch threads.")
+@click.option("--threads", type=THREAD_COUNT, help="cyclegan: torch threads.")
 def enhance_command(method, in_dir, out_dir, checkpoint, clip_limit, tiles, low_percent, high_percent, threads):
     """Enhance every image of IN_DIR with METHOD; write OUT_DIR/<name>.png."""
     from spotlessgs.baselines2d.enhance import enhance_folder
@@ -56,7 +58,7 @@ def enhance_command(method, in_dir, out_dir, checkpoint, clip_limit, tiles, low_
 @click.option("--preset", "preset_name", default="quick", show_default=True,
               type=click.Choice(["tiny", "quick", "paper"]))
 @click.option("--steps", type=int, help="Override the preset's number of steps.")
-@click.option("--threads", type=int, help="Override the preset's torch thread count.")
+@click.option("--threads", type=THREAD_COUNT, help="Override the preset's torch thread count.")
 @click.option("--seed", type=int, default=0, show_default=True)
 @click.option("--no-progress", is_flag=True, help="Hide the progress bar.")
 def train_command(uneven_dirs, even_dirs, out_dir, preset_name, steps, threads, seed, no_progress):

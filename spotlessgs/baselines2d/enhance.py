@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import dataclasses
 import os
+import shutil
 from pathlib import Path
 from typing import Any, Callable
 
@@ -12,7 +13,8 @@ import numpy as np
 from spotlessgs.baselines2d.clahe import ClaheConfig, clahe
 from spotlessgs.baselines2d.folders import refuse_name_clashes
 from spotlessgs.baselines2d.msrcr import MsrcrConfig, msrcr
-from spotlessgs.io.atomic import write_json
+from spotlessgs.io.atomic import partial_sibling, swap_in_folder, write_json
+from spotlessgs.io.errors import InputError
 from spotlessgs.io.images import list_image_files, read_image, write_png
 from spotlessgs.io.paths import refuse_overlap
 from spotlessgs.io.provenance import provenance
@@ -36,6 +38,11 @@ def _classic(method: str, opts: dict[str, Any]) -> tuple[Callable[[np.ndarray], 
 def enhance_folder(method: str, in_dir: str | os.PathLike, out_dir: str | os.PathLike, **opts: Any) -> list[Path]:
     """Enhance every image of ``in_dir`` independently and write ``out_dir/<input stem>.png`` (same size).
 
+    Every image is written into a hidden sibling folder that then replaces ``out_dir`` whole: a reader never sees a
+    half-written output, an interrupted or failed run leaves ``out_dir`` as it was, and a rerun replaces an earlier
+    output instead of mixing two (``out_dir`` may be new, empty, or an earlier output of this function: it holds
+    baseline2d_provenance.json).
+
     Args:
         method: 'clahe', 'msrcr' (options: the fields of ClaheConfig / MsrcrConfig) or 'cyclegan' (options:
             ``checkpoint`` (required), ``direction``, ``num_threads``; see ``translate_folder``).
@@ -45,34 +52,59 @@ def enhance_folder(method: str, in_dir: str | os.PathLike, out_dir: str | os.Pat
         the written image paths, in input order.
     Raises:
         ValueError for an unknown method or option, FileNotFoundError for a missing folder or checkpoint,
-        OutputOverlapError when ``out_dir`` is, holds or lies inside ``in_dir`` (never write into an input).
+        OutputOverlapError when ``out_dir`` is, holds or lies inside ``in_dir`` (never write into an input),
+        InputError when ``out_dir`` is a file or holds files but is not an earlier output.
     """
     if method not in METHODS:
         raise ValueError(f"enhance_folder: unknown method {method!r}; choose one of {list(METHODS)}")
     out_dir = Path(out_dir)
     refuse_overlap(out_dir, {"IN_DIR": in_dir}, "OUT_DIR")
+    _refuse_foreign_output(out_dir)
+    if method == "cyclegan" and "checkpoint" not in opts:
+        raise ValueError("enhance_folder: method 'cyclegan' needs a checkpoint (--checkpoint, the checkpoint.pt "
+                         "written by train-cyclegan)")
+    out_dir.parent.mkdir(parents=True, exist_ok=True)
+    tmp = partial_sibling(out_dir)
+    tmp.mkdir()
+    try:
+        names, settings = _enhance_into(method, Path(in_dir), tmp, opts)
+        write_json(tmp / PROVENANCE_NAME,
+                   provenance(method=method, settings=settings, input_dir=str(in_dir), images=names))
+        swap_in_folder(tmp, out_dir)
+    except BaseException:
+        shutil.rmtree(tmp, ignore_errors=True)
+        raise
+    return [out_dir / name for name in names]
+
+
+def _refuse_foreign_output(out_dir: Path) -> None:
+    """InputError when ``out_dir`` is a file, or a folder with files that is not an earlier output (no
+    baseline2d_provenance.json): replacing it would delete them."""
+    if out_dir.exists() and not out_dir.is_dir():
+        raise InputError(f"{out_dir}: OUT_DIR is a file, not a folder")
+    if out_dir.is_dir() and any(out_dir.iterdir()) and not (out_dir / PROVENANCE_NAME).is_file():
+        shown = ", ".join(sorted(p.name for p in out_dir.iterdir())[:3])
+        raise InputError(f"{out_dir}: holds files that are not an earlier output of this command ({shown}; no "
+                         f"{PROVENANCE_NAME}); the output replaces the whole folder: choose an empty or new OUT_DIR")
+
+
+def _enhance_into(method: str, in_dir: Path, out_dir: Path, opts: dict[str, Any]) -> tuple[list[str], dict]:
+    """Write the enhanced images of ``in_dir`` into the existing folder ``out_dir``; (their names, the settings)."""
     if method == "cyclegan":
         from spotlessgs.baselines2d.cyclegan.translate import translate_folder  # deferred: torch, only for Cycle-GAN
 
-        if "checkpoint" not in opts:
-            raise ValueError("enhance_folder: method 'cyclegan' needs checkpoint=<path of a trained checkpoint.pt>")
         unknown = sorted(set(opts) - {"checkpoint", "direction", "num_threads"})
         if unknown:
             raise ValueError(f"enhance_folder: unknown options {unknown} for method 'cyclegan'")
         written = translate_folder(opts["checkpoint"], in_dir, out_dir, opts.get("direction", "uneven_to_even"),
                                    opts.get("num_threads"))  # fmt: skip
         settings = {k: str(v) if isinstance(v, os.PathLike) else v for k, v in opts.items()}
-    else:
-        function, settings = _classic(method, opts)
-        files = list_image_files(in_dir)
-        refuse_name_clashes(files)
-        written = []
-        for path in files:
-            out_path = out_dir / f"{path.stem}.png"
-            write_png(out_path, function(read_image(path)))
-            written.append(out_path)
-    write_json(
-        out_dir / PROVENANCE_NAME,
-        provenance(method=method, settings=settings, input_dir=str(in_dir), images=[p.name for p in written]),
-    )
-    return written
+        return [p.name for p in written], settings
+    function, settings = _classic(method, opts)
+    files = list_image_files(in_dir)
+    refuse_name_clashes(files)
+    names = []
+    for path in files:
+        write_png(out_dir / f"{path.stem}.png", function(read_image(path)))
+        names.append(f"{path.stem}.png")
+    return names, settings

@@ -20,7 +20,7 @@ from typing import Any
 
 import click
 
-from spotlessgs.clitools import FiniteFloatRange
+from spotlessgs.clitools import THREAD_COUNT, FiniteFloatRange
 from spotlessgs.experiments.benchmark import VARIANTS
 
 
@@ -58,7 +58,7 @@ def benchmark() -> None:
 @click.option("--variants", default=",".join(VARIANTS), show_default=True)
 @click.option("--preset", default="quick", show_default=True, type=click.Choice(["tiny", "quick", "paper"]))
 @click.option("--iterations", default=1500, show_default=True, type=click.IntRange(1))
-@click.option("--threads", default=1, show_default=True, type=click.IntRange(1))
+@click.option("--threads", default=1, show_default=True, type=THREAD_COUNT)
 @click.option("--seed", default=0, show_default=True, type=int)
 @click.option("--low-frequency-shading", type=click.Choice(["spot_cosine", "irradiance"]), default=None,
               help="Train every variant with this low-frequency shading (see `spotless train`).")
@@ -89,7 +89,7 @@ def models(data, out, variants, preset, iterations, threads, seed, low_frequency
 @click.option("--iterations", type=click.IntRange(1), default=None, help="Override the preset's iteration count.")
 @click.option("--width", "image_width", type=click.IntRange(8), default=None,
               help="Override the training image width (pixels).")
-@click.option("--threads", default=1, show_default=True, type=click.IntRange(1))
+@click.option("--threads", default=1, show_default=True, type=THREAD_COUNT)
 @click.option("--seed", "seeds", default=(0,), show_default=True, type=int, multiple=True,
               help="Seed of training, selection holdout and view order; repeat to measure several seeds and "
                    "summarise them (OUT/seed-<s>/ each).")
@@ -115,7 +115,7 @@ def selection(data_dirs, out, preset, iterations, image_width, threads, seeds, m
 @click.option("--model", default="spotless", show_default=True)
 @click.option("--preset", default="quick", show_default=True, type=click.Choice(["tiny", "quick", "paper"]))
 @click.option("--iterations", type=click.IntRange(1), default=None, help="Override the preset's iteration count.")
-@click.option("--threads", default=1, show_default=True, type=click.IntRange(1))
+@click.option("--threads", default=1, show_default=True, type=THREAD_COUNT)
 @click.option("--seed", default=0, show_default=True, type=int)
 @click.option("--set", "settings", multiple=True, metavar="KEY=VALUE", callback=trainer_settings,
               help="Train every row with this trainer setting (a TrainConfig field; repeat the option; a row's own "
@@ -148,7 +148,7 @@ def robot(ideal, robot, out, rows, model, preset, iterations, threads, seed, set
 @click.option("--model", default="spotless", show_default=True)
 @click.option("--preset", default="quick", show_default=True, type=click.Choice(["tiny", "quick", "paper"]))
 @click.option("--iterations", type=click.IntRange(1), default=None, help="Override the preset's iteration count.")
-@click.option("--threads", default=1, show_default=True, type=click.IntRange(1))
+@click.option("--threads", default=1, show_default=True, type=THREAD_COUNT)
 @click.option("--seed", default=0, show_default=True, type=int, help="Seed of training and of the perturbation.")
 def poses(data, out, translation_cm, rotation_deg, error_model, points, rows, model, preset, iterations, threads,
           seed):

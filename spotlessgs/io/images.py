@@ -124,12 +124,34 @@ def _decode(path: Path) -> np.ndarray:
     if head.startswith(_PNG_SIGNATURE) and len(head) >= 33 and head[12:16] == b"IHDR":
         bit_depth, colour_type = head[24], head[25]
         if bit_depth == 16 and colour_type in (2, 4, 6):
+            _refuse_bomb(path, int.from_bytes(head[16:20], "big"), int.from_bytes(head[20:24], "big"))
             return _decode_png16(path)
     if head[:4] in (b"II*\x00", b"MM\x00*"):  # TIFF: Pillow reads 16-bit colour as 8-bit, OpenCV keeps the bits
+        from PIL import Image
+
+        try:
+            with Image.open(path) as im:  # the header only
+                width, height = im.size
+        except Image.DecompressionBombError as exc:
+            raise ValueError(f"{path}: cannot decode image ({exc})") from None
+        except Exception:  # noqa: BLE001 - a TIFF Pillow cannot open: OpenCV or Pillow below names the problem
+            width = height = 0
+        _refuse_bomb(path, width, height)
         tiff16 = _decode_tiff16(path)
         if tiff16 is not None:
             return tiff16
     return _read_with_pillow(path)
+
+
+def _refuse_bomb(path: Path, width: int, height: int) -> None:
+    """ValueError naming ``path`` when its header's size exceeds Pillow's decompression-bomb limit (the files OpenCV
+    decodes, 16-bit PNGs and TIFFs, bypass Pillow's own check)."""
+    from PIL import Image
+
+    limit = Image.MAX_IMAGE_PIXELS
+    if limit is not None and width * height > limit:
+        raise ValueError(f"{path}: cannot decode image ({width}x{height} = {width * height} pixels exceeds the limit "
+                         f"of {limit} pixels: a decompression bomb?)")
 
 
 def _decode_tiff16(path: Path) -> np.ndarray | None:

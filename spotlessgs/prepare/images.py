@@ -213,14 +213,15 @@ def copy_names(frames: list[Path]) -> list[str]:
 
 def _check_copy_names(images_dir: Path, frames: list[Path]) -> None:
     """InputError where two frames would share a name in the dataset: their PNG copies are named by the file stem
-    (``a.jpg`` and ``a.png``, ``a.JPG`` and ``a.jpg`` both become ``a.png``)."""
+    (``a.jpg`` and ``a.png``, ``a.JPG`` and ``a.jpg`` both become ``a.png``; ``a.png`` and ``A.png`` are one file on
+    macOS and Windows)."""
     seen: dict[str, Path] = {}
     for path in frames:
         name = f"{path.stem}.png"
-        if name in seen:
-            raise InputError(f"{images_dir}: {seen[name].name} and {path.name} would both become {name} in the "
-                             "dataset; rename one of them")
-        seen[name] = path
+        if name.casefold() in seen:
+            raise InputError(f"{images_dir}: {seen[name.casefold()].name} and {path.name} would both become {name} "
+                             "in the dataset (up to letter case); rename one of them")
+        seen[name.casefold()] = path
 
 
 def _simpler_model(camera_model: str) -> str:

@@ -7,12 +7,13 @@ from __future__ import annotations
 
 import os
 from pathlib import Path
-from typing import Any
+from typing import Any, Callable
 
 import torch
 
 from spotlessgs.baselines2d.cyclegan.config import CycleGANConfig
 from spotlessgs.io.atomic import atomic_path
+from spotlessgs.io.errors import InputError
 from spotlessgs.io.tensor_file import load_plain_torch_file
 
 CHECKPOINT_FORMAT = "spotlessgs-cyclegan-v1"
@@ -28,16 +29,60 @@ def save_checkpoint(path: str | os.PathLike, state: dict[str, Any]) -> None:
 
 
 def load_checkpoint(path: str | os.PathLike) -> dict[str, Any]:
-    """Read and check a checkpoint; raises FileNotFoundError / ValueError naming the file and the problem."""
+    """Read and check a checkpoint (:func:`check_checkpoint`); raises FileNotFoundError / InputError naming the file
+    and the problem."""
     path = Path(path)
     if not path.is_file():
         raise FileNotFoundError(f"{path}: Cycle-GAN checkpoint not found")
     state = load_plain_torch_file(path, "Cycle-GAN checkpoint")
     if not isinstance(state, dict) or state.get("format") != CHECKPOINT_FORMAT:
         found = state.get("format") if isinstance(state, dict) else type(state).__name__
-        raise ValueError(f"{path}: not a Cycle-GAN checkpoint (format {found!r}, expected {CHECKPOINT_FORMAT!r})")
+        raise InputError(f"{path}: not a Cycle-GAN checkpoint (format {found!r}, expected {CHECKPOINT_FORMAT!r})")
     missing = [k for k in ("config", "step", "seed", "networks") if k not in state]
     if missing:
-        raise ValueError(f"{path}: Cycle-GAN checkpoint lacks entries {missing}")
-    state["config"] = CycleGANConfig.from_dict(state["config"])
+        raise InputError(f"{path}: Cycle-GAN checkpoint lacks entries {missing}")
+    if not isinstance(state["config"], dict):
+        raise InputError(f"{path}: damaged Cycle-GAN checkpoint: config is not a table of settings")
+    try:
+        state["config"] = CycleGANConfig.from_dict(state["config"])
+    except (TypeError, ValueError) as exc:
+        raise InputError(f"{path}: damaged Cycle-GAN checkpoint: {exc}") from None
+    check_checkpoint(state, path)
     return state
+
+
+def check_checkpoint(state: dict[str, Any], path: Path) -> None:
+    """InputError naming ``path`` unless ``state`` holds whole numbers ``step`` (0..the config's steps) and ``seed``,
+    and the four networks (:data:`NETWORK_KEYS`) as tables of finite tensors; optimiser and pool state, when present,
+    as tables. (Each network's names and shapes are checked when it is loaded: :func:`restore`.)"""
+    for key in ("step", "seed"):
+        if isinstance(state[key], bool) or not isinstance(state[key], int):
+            raise InputError(f"{path}: damaged Cycle-GAN checkpoint: {key} {state[key]!r} is not a whole number")
+    steps = state["config"].steps
+    if not 0 <= state["step"] <= steps:
+        raise InputError(f"{path}: damaged Cycle-GAN checkpoint: step {state['step']} is outside the run's 0..{steps}")
+    networks = state["networks"]
+    absent = [k for k in NETWORK_KEYS if not isinstance(networks, dict) or not isinstance(networks.get(k), dict)]
+    if absent:
+        raise InputError(f"{path}: damaged Cycle-GAN checkpoint: it lacks the network(s) {absent}")
+    for name in NETWORK_KEYS:
+        for key, tensor in networks[name].items():
+            if not isinstance(tensor, torch.Tensor):
+                raise InputError(f"{path}: damaged Cycle-GAN checkpoint: {name}.{key} is not a tensor")
+            if tensor.is_floating_point() and not torch.isfinite(tensor).all():
+                raise InputError(f"{path}: damaged Cycle-GAN checkpoint: {name}.{key} holds values that are not "
+                                 "finite")
+    for key in ("optimizers", "pools"):
+        if key in state and not isinstance(state[key], dict):
+            raise InputError(f"{path}: damaged Cycle-GAN checkpoint: {key} is not a table")
+
+
+def restore(path: Path, what: str, load: Callable[[], None]) -> None:
+    """Run ``load`` (``load_state_dict`` of a network, optimiser or pool from a checkpoint read from ``path``); its
+    failures (names or shapes that do not fit, missing entries) become one InputError naming the file and ``what``."""
+    try:
+        load()
+    except (KeyError, TypeError, ValueError, RuntimeError, IndexError, AttributeError) as exc:
+        first = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
+        raise InputError(f"{path}: damaged Cycle-GAN checkpoint: its {what} does not fit this model "
+                         f"({first[:200]})") from None

@@ -28,6 +28,7 @@ from spotlessgs.baselines2d.cyclegan.checkpoint import (
     CHECKPOINT_FORMAT,
     CHECKPOINT_NAME,
     load_checkpoint,
+    restore,
     save_checkpoint,
 )
 from spotlessgs.baselines2d.cyclegan.config import PRESETS, CycleGANConfig
@@ -35,6 +36,8 @@ from spotlessgs.baselines2d.cyclegan.data import ImageDomain, domain_fingerprint
 from spotlessgs.baselines2d.cyclegan.networks import build_discriminator, build_generator, init_weights
 from spotlessgs.baselines2d.cyclegan.pool import ImagePool
 from spotlessgs.io.atomic import write_json, write_text
+from spotlessgs.io.errors import InputError
+from spotlessgs.io.folder_lock import folder_lock
 from spotlessgs.io.paths import refuse_overlap
 from spotlessgs.io.provenance import provenance
 from spotlessgs.io.seeding import numpy_rng, torch_generator
@@ -170,14 +173,19 @@ class CycleGANTrainer:
             "pools": {"a": self.pool_a.state(), "b": self.pool_b.state()},
         }
 
-    def load_state(self, state: dict[str, Any]) -> None:
-        """Restore from ``state()`` (networks, optimisers, pools, step)."""
+    def load_state(self, state: dict[str, Any], source: Path) -> None:
+        """Restore from ``state()`` (networks, optimisers, pools, step), as read from ``source`` (named by the
+        InputError a part that does not fit raises)."""
         for name, net in self.nets.items():
-            net.load_state_dict(state["networks"][name])
-        self.opt_g.load_state_dict(state["optimizers"]["G"])
-        self.opt_d.load_state_dict(state["optimizers"]["D"])
-        self.pool_a.load_state(state["pools"]["a"])
-        self.pool_b.load_state(state["pools"]["b"])
+            restore(source, f"network {name}", lambda: net.load_state_dict(state["networks"][name]))
+        for key, opt in (("G", self.opt_g), ("D", self.opt_d)):
+            restore(source, f"optimiser {key}", lambda: opt.load_state_dict(state["optimizers"][key]))
+            moments = [v for group in opt.state.values() for v in group.values() if isinstance(v, torch.Tensor)]
+            if any(v.is_floating_point() and not torch.isfinite(v).all() for v in moments):
+                raise InputError(f"{source}: damaged Cycle-GAN checkpoint: optimiser {key} holds values that are "
+                                 "not finite")
+        for key, pool in (("a", self.pool_a), ("b", self.pool_b)):
+            restore(source, f"image pool {key}", lambda: pool.load_state(state["pools"][key]))
         self.step = int(state["step"])
 
 
@@ -202,6 +210,8 @@ def _check_resume(state: dict[str, Any], config: CycleGANConfig, seed: int, fing
 
 
 def _read_metrics(path: Path, up_to_step: int) -> list[dict[str, Any]]:
+    """The records of ``metrics.jsonl`` up to ``up_to_step``; InputError naming the file and line for a record that
+    is not a JSON object with a whole-number ``step`` and finite numbers (checked before anything is trained)."""
     if not path.is_file():
         return []
     records = []
@@ -211,8 +221,13 @@ def _read_metrics(path: Path, up_to_step: int) -> list[dict[str, Any]]:
         try:
             record = json.loads(line)
         except json.JSONDecodeError as exc:
-            raise ValueError(f"{path}: line {number} is not JSON ({exc})") from exc
-        if record.get("step", math.inf) <= up_to_step:
+            raise InputError(f"{path}: line {number} is not JSON ({exc})") from None
+        step = record.get("step") if isinstance(record, dict) else None
+        if isinstance(step, bool) or not isinstance(step, int):
+            raise InputError(f"{path}: line {number} is not a record with a whole-number step")
+        if any(isinstance(v, float) and not math.isfinite(v) for v in record.values()):
+            raise InputError(f"{path}: line {number} holds a value that is not finite")
+        if step <= up_to_step:
             records.append(record)
     return records
 
@@ -247,21 +262,27 @@ def train_cyclegan(
     out_dir = Path(out_dir)
     uneven_folders, even_folders = _as_folder_list(uneven_dirs), _as_folder_list(even_dirs)
     refuse_overlap(out_dir, {f"--uneven/--even {d}": d for d in [*uneven_folders, *even_folders]}, "--out")
-    out_dir.mkdir(parents=True, exist_ok=True)
+    ckpt_path = out_dir / CHECKPOINT_NAME
+    metrics_path = out_dir / METRICS_NAME
+    if out_dir.exists() and not out_dir.is_dir():
+        raise InputError(f"{out_dir}: --out is a file, not a folder")
+    if (out_dir.is_dir() and not ckpt_path.is_file() and not (out_dir / PROVENANCE_NAME).is_file()
+            and any(not p.name.startswith(".") for p in out_dir.iterdir())):
+        raise InputError(f"{out_dir}: holds files but no Cycle-GAN run ({CHECKPOINT_NAME}, {PROVENANCE_NAME}); "
+                         "training would replace some of them: choose an empty or new --out")
     domain_a = load_domain("uneven", uneven_folders, config.crop_height, config.crop_width)
     domain_b = load_domain("even", even_folders, config.crop_height, config.crop_width)
     fingerprints = {"uneven": domain_fingerprint(domain_a), "even": domain_fingerprint(domain_b)}
-    ckpt_path = out_dir / CHECKPOINT_NAME
-    metrics_path = out_dir / METRICS_NAME
+    out_dir.mkdir(parents=True, exist_ok=True)
 
-    with torch_threads(config.num_threads):
+    with folder_lock(out_dir, "spotless baseline2d train-cyclegan"), torch_threads(config.num_threads):
         trainer = CycleGANTrainer(config, seed)
         records: list[dict[str, Any]] = []
         if ckpt_path.exists():
             state = load_checkpoint(ckpt_path)
             _check_resume(state, config, seed, fingerprints, ckpt_path)
-            trainer.load_state(state)
-            records = _read_metrics(metrics_path, trainer.step)
+            records = _read_metrics(metrics_path, int(state["step"]))
+            trainer.load_state(state, ckpt_path)
         else:
             write_json(
                 out_dir / PROVENANCE_NAME,
@@ -320,8 +341,8 @@ def _run_steps(
                 if bad:
                     problem = f"non-finite weights {bad[:5]} after step {trainer.step}"
                     raise FloatingPointError(_divergence_message(problem, ckpt_path, last_saved))
+                _write_metrics(metrics_path, records)  # first: a resume keeps the records up to its checkpoint's step
                 save_checkpoint(ckpt_path, trainer.state(fingerprints))
-                _write_metrics(metrics_path, records)
                 last_saved = trainer.step
 
 

@@ -10,7 +10,7 @@ import torch
 import torch.nn.functional as F
 
 from spotlessgs.baselines2d._validate import check_rgb_image
-from spotlessgs.baselines2d.cyclegan.checkpoint import load_checkpoint
+from spotlessgs.baselines2d.cyclegan.checkpoint import load_checkpoint, restore
 from spotlessgs.baselines2d.cyclegan.networks import ResnetGenerator, build_generator
 from spotlessgs.baselines2d.cyclegan.train import torch_threads
 from spotlessgs.baselines2d.folders import refuse_name_clashes
@@ -22,15 +22,19 @@ DIRECTIONS = {"uneven_to_even": "G_ab", "even_to_uneven": "G_ba"}
 
 def load_generator(checkpoint: str | os.PathLike, direction: str = "uneven_to_even") -> ResnetGenerator:
     """The generator of ``direction`` from a checkpoint file, in eval mode."""
-    return generator_from_state(load_checkpoint(checkpoint), direction)
+    return generator_from_state(load_checkpoint(checkpoint), direction, checkpoint)
 
 
-def generator_from_state(state: dict, direction: str = "uneven_to_even") -> ResnetGenerator:
-    """The generator of ``direction`` from a loaded checkpoint (``load_checkpoint``), in eval mode."""
+def generator_from_state(state: dict, direction: str = "uneven_to_even",
+                         source: str | os.PathLike = "the checkpoint") -> ResnetGenerator:
+    """The generator of ``direction`` from a checkpoint loaded (``load_checkpoint``) from ``source``, in eval mode;
+    InputError naming ``source`` when its weights do not fit the generator its config builds."""
     if direction not in DIRECTIONS:
         raise ValueError(f"unknown direction {direction!r}; choose one of {sorted(DIRECTIONS)}")
     generator = build_generator(state["config"])
-    generator.load_state_dict(state["networks"][DIRECTIONS[direction]])
+    name = DIRECTIONS[direction]
+    restore(Path(source), f"network {name}",
+            lambda: generator.load_state_dict(state["networks"][name]))
     return generator.eval()
 
 
@@ -81,7 +85,7 @@ def translate_folder(
         the written paths, in input order.
     """
     state = load_checkpoint(checkpoint)
-    generator = generator_from_state(state, direction)
+    generator = generator_from_state(state, direction, checkpoint)
     files = list_image_files(in_dir)
     refuse_name_clashes(files)
     threads = num_threads if num_threads is not None else state["config"].num_threads

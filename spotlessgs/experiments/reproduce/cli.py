@@ -7,6 +7,7 @@ from pathlib import Path
 
 import click
 
+from spotlessgs.clitools import THREAD_COUNT
 from spotlessgs.experiments.reproduce.config import SHIPPED_ROOMS, ReproduceConfig, preset
 
 
@@ -49,7 +50,7 @@ def config_from_options(preset_name: str, scenes: tuple[str, ...], seed: int, sc
 @click.option("--ray-address", default="auto", show_default=True,
               help="--executor ray: the cluster to join (auto: this machine's cluster or $RAY_ADDRESS; HOST:PORT: "
                    "its head node; local: a private Ray instance on this machine).")
-@click.option("--threads", type=click.IntRange(1), default=None,
+@click.option("--threads", type=THREAD_COUNT, default=None,
               help="CPU threads per stage (default: cores // jobs locally, 1 on Ray, where each stage asks for as "
                    "many CPUs). Results depend on it: compare runs made with the same value.")
 @click.option("--seed", default=0, show_default=True, type=int)

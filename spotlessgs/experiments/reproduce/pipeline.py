@@ -93,6 +93,7 @@ def build_graph(config: ReproduceConfig, out: Path) -> StageGraph:
         source, target = config.gan_domains()
         stages.append(Stage(
             "cyclegan/train", f"{TASKS}:train_cyclegan_stage", output=out / "cyclegan", resources=other,
+            clean_on_retry=False,  # the training resumes from its checkpoint (other settings or images are refused)
             deps=tuple(f"render/gan-{room}" for room in config.gan_rooms),
             kwargs={"uneven_dirs": [str(out / "datasets" / f"gan-{r}" / "images") for r in source],
                     "even_dirs": [str(out / "datasets" / f"gan-{r}" / "gt") for r in target],
