@@ -43,7 +43,8 @@ def load_domain(name: str, folders: list[str | os.PathLike], min_height: int, mi
         if img.shape[0] < min_height or img.shape[1] < min_width:
             raise ValueError(
                 f"{path}: {name} image is {img.shape[0]}x{img.shape[1]} pixels, smaller than the training crop "
-                f"{min_height}x{min_width}; use a smaller crop_height/crop_width"
+                f"{min_height}x{min_width}; use larger images, or a preset with a smaller crop (--preset tiny: 32x32; "
+                "crop_height/crop_width in CycleGANConfig)"
             )
         images.append(to_uint8(img))
     return ImageDomain(name, tuple(files), tuple(images))
