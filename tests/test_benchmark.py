@@ -80,3 +80,26 @@ def test_the_timed_relit_frame_is_the_image_relight_writes(box, tmp_path, varian
             timed = linear_to_srgb(frame(k).float().numpy())
             assert timed.shape == written.shape
             assert abs(timed.clip(0, 1) - written).max() <= 0.5 / 255 + 1e-6
+
+
+def test_a_finished_row_of_other_settings_is_refused_and_copies_never_go_into_their_source(box, tmp_path):
+    """`benchmark models` reused a finished row made with other iterations and recorded the new settings over it;
+    `benchmark poses`/`robot` with --out inside their dataset copied it into itself until the path was too long."""
+    from spotlessgs.experiments.pose_benchmark import run_pose_benchmark
+    from spotlessgs.experiments.robot_benchmark import run_robot_benchmark
+    from spotlessgs.io.errors import InputError, OutputOverlapError
+
+    run_benchmark(box, tmp_path / "bench", ("darkgs",), "tiny", 4, 1)
+    with pytest.raises(ValueError, match=r"darkgs: the darkgs row's run was trained with other settings .*iterations"):
+        run_benchmark(box, tmp_path / "bench", ("darkgs",), "tiny", 3, 1)
+    assert json.loads((tmp_path / "bench" / "train_benchmark.json").read_text())["iterations"] == 4
+    (tmp_path / "bench" / "darkgs" / "benchmark_row.json").write_text('{"variant": "darkgs"}')
+    with pytest.raises(InputError, match=r"benchmark_row\.json: .*'iterations'"):
+        run_benchmark(box, tmp_path / "bench", ("darkgs",), "tiny", 4, 1)
+
+    before = sorted(p.name for p in box.iterdir())
+    with pytest.raises(OutputOverlapError, match="--out"):
+        run_pose_benchmark(box, box / "bench", 0.05, 1.0, preset="tiny")
+    with pytest.raises(OutputOverlapError, match="--out"):
+        run_robot_benchmark(box, box, box / "bench", rows=("lens-ignored",), preset="tiny")
+    assert sorted(p.name for p in box.iterdir()) == before

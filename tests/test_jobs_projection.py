@@ -49,3 +49,13 @@ def test_read_from_markers_and_refuse_markers_without_dependencies(tmp_path):
         read_measured_stages(tmp_path)
     bad = CliRunner().invoke(main, ["cluster-projection", str(tmp_path), "--scale", "render/*"])
     assert bad.exit_code == 2 and "is not PATTERN=FACTOR" in bad.output
+
+
+def test_a_killed_writes_temporary_marker_is_skipped_and_a_damaged_one_named(tmp_path):
+    write_marker(tmp_path, "a", {"stage": "a", "result": {}, "seconds": 2.0, "threads": 1, "deps": []})
+    (tmp_path / ".stages" / ".b.json.partial-1234.json").write_text('{"stage": "b"')  # a write cut short
+    assert [s.name for s in read_measured_stages(tmp_path)] == ["a"]
+    for bad in ({"deps": 5}, {"stage": ["a"]}, {"seconds": "abc"}, {"threads": 0}):
+        write_marker(tmp_path, "c", {"stage": "c", "result": {}, "seconds": 1.0, "threads": 1, "deps": [], **bad})
+        with pytest.raises(InputError, match=r"\.stages/c\.json: damaged done-marker"):
+            read_measured_stages(tmp_path)

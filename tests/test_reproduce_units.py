@@ -193,6 +193,38 @@ def test_config_fingerprint_refuses_other_settings(tmp_path):
         check_or_record_config(preset("tiny", scenes_dir=moved.scenes_dir, seed=3), tmp_path)
 
 
+def test_a_reproduction_folder_without_its_settings_or_with_damaged_state_is_refused_in_one_line(tmp_path):
+    """An --out of another tool's files, or a reproduction whose reproduce.json is gone (its finished stages were
+    made under unknown settings), is refused with nothing written; a damaged reproduce.json names itself; a damaged
+    done-marker counts as not done (its stage runs again) and a report reading it names it."""
+    from spotlessgs.io.errors import InputError
+    from spotlessgs.jobs.graph import is_done, marker_path, read_marker, write_marker
+
+    foreign = tmp_path / "dataset"
+    foreign.mkdir()
+    (foreign / "transforms.json").write_text("{}")
+    with pytest.raises(InputError, match=r"dataset: holds files but no reproduce\.json \(transforms\.json\)"):
+        check_or_record_config(preset("tiny"), foreign)
+    assert sorted(p.name for p in foreign.iterdir()) == ["transforms.json"]
+    lost = tmp_path / "lost"
+    write_marker(lost, "render/bedroom-uneven", {"stage": "render/bedroom-uneven", "result": {}, "seconds": 1.0})
+    with pytest.raises(InputError, match=r"lost: holds files but no reproduce\.json \(\.stages\)"):
+        check_or_record_config(preset("quick"), lost)
+    damaged = tmp_path / "damaged"
+    damaged.mkdir()
+    for text in ('{"seed": 1', "[1, 2]"):
+        (damaged / "reproduce.json").write_text(text)
+        with pytest.raises(InputError, match=r"damaged/reproduce\.json: "):
+            check_or_record_config(preset("tiny"), damaged)
+    assert is_done(lost, "render/bedroom-uneven")
+    for text in ('{"stage": "render/bedroom-uneven"', '{"stage": "render/bedroom-uneven", "seconds": 1}',
+                 '{"stage": "x", "result": 5, "seconds": 1}', '{"result": {}, "seconds": "abc"}'):
+        marker_path(lost, "render/bedroom-uneven").write_text(text)
+        assert not is_done(lost, "render/bedroom-uneven")
+        with pytest.raises(InputError, match=r"\.stages/render/bedroom-uneven\.json: "):
+            read_marker(lost, "render/bedroom-uneven")
+
+
 def test_pipeline_graph_shape(tmp_path):
     config = preset("tiny")
     graph = build_graph(config, tmp_path)

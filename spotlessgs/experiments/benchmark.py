@@ -26,7 +26,9 @@ import time
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
+from spotlessgs.experiments.run_settings import refuse_other_settings
 from spotlessgs.io.atomic import write_json, write_text
+from spotlessgs.io.json_files import read_json
 from spotlessgs.io.provenance import provenance
 
 if TYPE_CHECKING:
@@ -41,11 +43,10 @@ def child(data: str, run: str, variant: str, preset: str, iterations: int, threa
     them, in this (sub)process; prints one JSON line."""
     import torch  # not needed by ``spotless --help``
 
-    from spotlessgs.run import RunSpec, given_overrides, train
+    from spotlessgs.run import train
 
-    spec = RunSpec(data=Path(data), model=variant, preset=preset, seed=seed,
-                   overrides=given_overrides(iterations=iterations, num_threads=threads) + tuple(settings))
-    trained = train(spec, run, progress=False)
+    spec = _run_spec(data, variant, preset, iterations, threads, seed, settings)
+    trained = train(spec, run, progress=False, resume=(Path(run) / "run.json").is_file())  # an interrupted one goes on
     summary = trained.summary
     row = {"variant": variant, "iterations": iterations, "ms_per_step": summary["ms_per_step"],
            "train_seconds": summary["seconds_this_session"], "gaussians": summary["num_gaussians"],
@@ -132,6 +133,19 @@ def time_relit_render(run: Path, data: Path, views: str = "test", repeats: int =
             "render_views": len(indices)}
 
 
+def _run_spec(data: str | Path, variant: str, preset: str, iterations: int, threads: int, seed: int,
+              settings: tuple[tuple[str, Any], ...]):
+    """The RunSpec of one variant's row (the child trains it; a finished row is checked against it)."""
+    from spotlessgs.run import RunSpec, given_overrides
+
+    return RunSpec(data=Path(data), model=variant, preset=preset, seed=seed,
+                   overrides=given_overrides(iterations=iterations, num_threads=threads) + tuple(settings))
+
+
+#: What a finished row (``benchmark_row.json``) holds at least.
+ROW_KEYS = ("variant", "iterations", "ms_per_step", "train_seconds", "gaussians")
+
+
 def run_benchmark(data: Path, out: Path, variants: tuple[str, ...], preset: str, iterations: int, threads: int,
                   seed: int = 0, settings: tuple[tuple[str, Any], ...] = ()) -> list[dict]:
     """Benchmark each variant in a subprocess (``settings``: (TrainConfig field, value) pairs for every variant);
@@ -139,8 +153,11 @@ def run_benchmark(data: Path, out: Path, variants: tuple[str, ...], preset: str,
     rows = []
     for variant in variants:
         run = out / variant.replace("+", "_")
-        if (run / "benchmark_row.json").is_file():
-            rows.append(json.loads((run / "benchmark_row.json").read_text()))
+        if (run / "benchmark_row.json").is_file():  # a finished row: reused when its run had these settings
+            if (run / "config.json").is_file():
+                refuse_other_settings(run, _run_spec(data, variant, preset, iterations, threads, seed, settings),
+                                      f"the {variant} row's run")
+            rows.append(read_json(run / "benchmark_row.json", "a benchmark row", ROW_KEYS))
             continue
         cmd = [sys.executable, "-m", "spotlessgs.cli", "benchmark", "models", "--child", "--data", str(data), "--out",
                str(run), "--variants", variant, "--preset", preset, "--iterations", str(iterations), "--threads",

@@ -34,7 +34,6 @@ start shares the poses' errors, as an SfM or VIO cloud does.
 
 from __future__ import annotations
 
-import json
 import logging
 import math
 import shutil
@@ -46,7 +45,9 @@ import numpy as np
 
 from spotlessgs.io.atomic import write_json, write_text
 from spotlessgs.io.cameras import axis_angle_to_matrix, opengl_to_opencv_c2w
+from spotlessgs.io.dataset_fingerprint import dataset_fingerprint
 from spotlessgs.io.json_files import read_json
+from spotlessgs.io.paths import refuse_overlap
 from spotlessgs.io.provenance import provenance
 from spotlessgs.io.seeding import numpy_rng
 
@@ -128,11 +129,16 @@ def perturbed_copy(data: Path, out: Path, translation_m: float, rotation_deg: fl
         raise ValueError(f"unknown point source {points!r}; choose from {list(POINT_SOURCES)}")
     wanted = {"translation_m": translation_m, "rotation_deg": rotation_deg, "model": model, "points": points,
               "seed": seed}
+    from spotlessgs.io.dataset import read_dataset
+
+    source = dataset_fingerprint(read_dataset(data, check_files=True))  # also checks --data (one line naming it)
     if (out / "transforms.json").is_file():
         block = read_json(out / "transforms.json", "perturbed copy").get("spotless")
         made = block.get("pose_perturbation") if isinstance(block, dict) else None
         made = made if isinstance(made, dict) else {}
         differ = [f"{k}: copy {made.get(k)!r}, now {v!r}" for k, v in wanted.items() if made.get(k) != v]
+        if made.get("source_fingerprint", source) != source:  # copies made before 2026-12-07 record none
+            differ.append(f"source: made from other files than {data} holds")
         if differ:
             raise ValueError(f"{out}: the perturbed copy was made with other settings ({'; '.join(differ)}); use a "
                              f"new --out")
@@ -140,7 +146,7 @@ def perturbed_copy(data: Path, out: Path, translation_m: float, rotation_deg: fl
     partial = out.with_name(out.name + ".partial")
     shutil.rmtree(partial, ignore_errors=True)
     ignored = ["sparse", ".lock", "sfm", "prepare.json"]  # sparse/: the true poses; sfm/: an earlier triangulation
-    transforms = json.loads((data / "transforms.json").read_text(encoding="utf-8"))
+    transforms = read_json(data / "transforms.json", "dataset description", ("frames",))
     if points == "triangulated" and transforms.get("ply_file_path"):
         ignored.append(Path(transforms.pop("ply_file_path")).name)
     shutil.copytree(data, partial, ignore=shutil.ignore_patterns(*ignored))
@@ -149,7 +155,8 @@ def perturbed_copy(data: Path, out: Path, translation_m: float, rotation_deg: fl
                             rotation_deg, model, rng)
     for frame, pose in zip(transforms["frames"], moved):
         frame["transform_matrix"] = pose.tolist()
-    transforms.setdefault("spotless", {})["pose_perturbation"] = {**wanted, "source": str(data)}
+    transforms.setdefault("spotless", {})["pose_perturbation"] = {**wanted, "source": str(data),
+                                                                  "source_fingerprint": source}
     write_json(partial / "transforms.json", transforms)
     if points == "triangulated":
         from spotlessgs.prepare.points import add_sfm_points
@@ -243,6 +250,7 @@ def run_pose_benchmark(data: Path, out: Path, translation_m: float, rotation_deg
         raise ValueError(f"unknown rows {unknown}; choose from {list(ROWS)}")
     if error_model not in ERROR_MODELS:
         raise ValueError(f"unknown pose error model {error_model!r}; choose from {list(ERROR_MODELS)}")
+    refuse_overlap(out, {"--data": data}, "--out")  # the copies of --data go into --out
     out.mkdir(parents=True, exist_ok=True)
     perturbed = perturbed_copy(data, out / "perturbed_data", translation_m, rotation_deg, seed, error_model, points)
     clean = data if points == "kept" else perturbed_copy(data, out / "clean_data", 0.0, 0.0, seed, error_model,

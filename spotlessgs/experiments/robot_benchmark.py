@@ -27,7 +27,6 @@ the result) and trains the rest; a row trained under other settings (``--set``, 
 
 from __future__ import annotations
 
-import json
 import logging
 import shutil
 from collections.abc import Sequence
@@ -35,7 +34,9 @@ from pathlib import Path
 from typing import Any
 
 from spotlessgs.io.atomic import write_json, write_text
+from spotlessgs.io.dataset_fingerprint import dataset_fingerprint
 from spotlessgs.io.json_files import read_json
+from spotlessgs.io.paths import refuse_overlap
 from spotlessgs.io.provenance import provenance
 
 log = logging.getLogger(__name__)
@@ -53,6 +54,8 @@ ROWS: dict[str, tuple[str, tuple[tuple[str, Any], ...], str]] = {
 RESULTS_JSON, RESULTS_MD = "robot_components.json", "robot_components.md"
 
 
+#: The file in the lens-ignored copy that records which dataset (its fingerprint) it was made from.
+SOURCE_RECORD = "lens_ignored_source.json"
 #: The distortion fields of a transforms.json record (top level or per frame) that the lens-ignored copy sets to 0.
 DISTORTION_KEYS = ("k1", "k2", "k3", "k4", "p1", "p2")
 
@@ -68,16 +71,23 @@ def lens_ignored_copy(robot: Path, out: Path) -> Path:
         return [{k: v for k, v in f.items() if k not in DISTORTION_KEYS} if isinstance(f, dict) else f
                 for f in transforms["frames"]]
 
+    from spotlessgs.io.dataset import read_dataset
+
+    source = dataset_fingerprint(read_dataset(robot, check_files=True))  # also checks --robot (one line naming it)
     if (out / "transforms.json").is_file():
         made = read_json(out / "transforms.json", "lens-ignored copy", ("frames",))
-        if frames(made) != frames(read_json(robot / "transforms.json", "robot dataset", ("frames",))):
-            raise ValueError(f"{out}: the lens-ignored copy was made from another dataset than {robot} (other frames "
-                             f"or poses); use a new --out")
+        recorded = read_json(out / SOURCE_RECORD, "lens-ignored copy's source").get("fingerprint") \
+            if (out / SOURCE_RECORD).is_file() else source  # copies made before 2026-12-07 record none
+        if (frames(made) != frames(read_json(robot / "transforms.json", "robot dataset", ("frames",)))
+                or recorded != source):
+            raise ValueError(f"{out}: the lens-ignored copy was made from another dataset than {robot} (other frames, "
+                             f"poses or images); use a new --out")
         return out
     partial = out.with_name(out.name + ".partial")
     shutil.rmtree(partial, ignore_errors=True)
     shutil.copytree(robot, partial)
-    transforms = json.loads((partial / "transforms.json").read_text(encoding="utf-8"))
+    write_json(partial / SOURCE_RECORD, {"source": str(robot), "fingerprint": source})
+    transforms = read_json(partial / "transforms.json", "robot dataset", ("frames",))
     for record in [transforms, *transforms["frames"]]:
         for key in DISTORTION_KEYS:
             if key in record:
@@ -167,6 +177,7 @@ def run_robot_benchmark(ideal: Path, robot: Path, out: Path, rows: Sequence[str]
     unknown = [r for r in rows if r not in ROWS]
     if unknown:
         raise ValueError(f"unknown rows {unknown}; choose from {list(ROWS)}")
+    refuse_overlap(out, {"--ideal": ideal, "--robot": robot}, "--out")  # a copy of --robot goes into --out
     out.mkdir(parents=True, exist_ok=True)
     datasets = {"ideal": ideal, "robot": robot, "lens-ignored": out / "data-lens-ignored"}
     specs = {name: row_spec(name, datasets[ROWS[name][0]], model, preset, threads, seed, iterations, settings)

@@ -28,7 +28,6 @@ kept as ``relit_fps_after_training``.
 from __future__ import annotations
 
 import dataclasses
-import json
 import logging
 import tempfile
 from dataclasses import dataclass
@@ -37,6 +36,7 @@ from typing import Any
 
 from evaluation.dataset import read_dataset
 from spotlessgs.io.atomic import write_json, write_text
+from spotlessgs.io.json_files import read_json
 from spotlessgs.experiments.run_settings import refuse_other_settings
 from spotlessgs.io.provenance import provenance
 from spotlessgs.run import AUTO, Run, RunSpec, given_overrides, train
@@ -113,6 +113,10 @@ def selection_summary(decision: dict[str, Any]) -> dict[str, Any]:
             "low_frequency_light": decision["low_frequency_light"], "seconds": decision.get("seconds")}
 
 
+#: What a finished row (``selection_benchmark_row.json``) holds at least (what the report reads of it).
+ROW_KEYS = ("model", "strategy", "steps", "gaussians", "train_seconds", "ms_per_step", "relit_fps", "psnr_aligned")
+
+
 def measure_run(spec: RunSpec, run_dir: Path, threads: int) -> dict:
     """Train ``spec`` (unless ``train_summary.json`` exists), relight every view and score the test views of one run.
 
@@ -126,7 +130,7 @@ def measure_run(spec: RunSpec, run_dir: Path, threads: int) -> dict:
     if summary_path.is_file():
         refuse_other_settings(run_dir, spec)
         if row_path.is_file():
-            return json.loads(row_path.read_text())
+            return read_json(row_path, "a benchmark row", ROW_KEYS)
         run = Run.load(run_dir)
     else:
         log.info("training %s (%s, %s strategy)", run_dir, spec.model, spec.strategy)

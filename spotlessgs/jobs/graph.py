@@ -11,7 +11,7 @@ skip finished frames, training continues from its checkpoint).
 from __future__ import annotations
 
 import importlib
-import json
+import logging
 import re
 import shutil
 from dataclasses import dataclass, field
@@ -19,6 +19,10 @@ from pathlib import Path
 from typing import Any, Callable, Iterable, Mapping, Sequence
 
 from spotlessgs.io.atomic import write_json
+from spotlessgs.io.errors import InputError
+from spotlessgs.io.json_files import read_json
+
+log = logging.getLogger(__name__)
 
 MARKER_DIR = ".stages"
 _NAME = re.compile(r"^[A-Za-z0-9_.+\-/]+$")
@@ -74,17 +78,36 @@ def marker_path(root: Path, name: str) -> Path:
     return Path(root) / MARKER_DIR / f"{name}.json"
 
 
+#: What a done-marker must hold to be read (:func:`spotlessgs.jobs.worker.run_stage` also writes ``stage``,
+#: ``seconds`` and more).
+MARKER_KEYS = ("result",)
+
+
 def is_done(root: Path, name: str) -> bool:
-    """True when stage ``name`` has finished (its marker exists)."""
-    return marker_path(root, name).is_file()
+    """True when stage ``name`` has finished: its marker exists and is whole (a marker damaged by hand, which no
+    report could read, counts as not done: the stage runs again, with a warning naming the file)."""
+    path = marker_path(root, name)
+    if not path.is_file():
+        return False
+    try:
+        read_marker(root, name)
+    except InputError as exc:
+        log.warning("%s; the stage runs again", exc)
+        return False
+    return True
 
 
 def read_marker(root: Path, name: str) -> dict[str, Any]:
-    """The summary recorded by a finished stage (FileNotFoundError naming the stage when it has not finished)."""
+    """The summary recorded by a finished stage (FileNotFoundError naming the stage when it has not finished;
+    InputError naming the marker when it is damaged)."""
     path = marker_path(root, name)
     if not path.is_file():
         raise FileNotFoundError(f"{path}: stage {name!r} has not finished")
-    return json.loads(path.read_text(encoding="utf-8"))
+    marker = read_json(path, "a stage's done-marker", MARKER_KEYS)
+    seconds = marker.get("seconds", 0.0)
+    if not isinstance(marker["result"], dict) or isinstance(seconds, bool) or not isinstance(seconds, (int, float)):
+        raise InputError(f"{path}: damaged done-marker: 'result' must be a JSON object and 'seconds' a number")
+    return marker
 
 
 def write_marker(root: Path, name: str, summary: dict[str, Any]) -> None:

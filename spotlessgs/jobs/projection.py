@@ -17,6 +17,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Iterable, Mapping, Sequence
 
+from spotlessgs.io.atomic import PARTIAL_MARK
 from spotlessgs.io.errors import InputError
 from spotlessgs.io.json_files import read_json
 from spotlessgs.jobs.graph import MARKER_DIR, topological_order
@@ -50,12 +51,19 @@ def read_measured_stages(root: str | Path) -> list[MeasuredStage]:
     folder = Path(root) / MARKER_DIR
     stages = []
     for path in sorted(folder.rglob("*.json")):
+        if PARTIAL_MARK in path.name:  # a killed write's temporary file, not a marker
+            continue
         marker = read_json(path, "a stage's done-marker", required=("stage", "seconds"))
         if "deps" not in marker:
             raise InputError(f"{path}: this done-marker does not record its stage's dependencies (written before "
                              "2026-11-25); a projection needs a job run since")
-        stages.append(MeasuredStage(marker["stage"], float(marker["seconds"]), int(marker.get("threads", 1)),
-                                    tuple(marker["deps"])))
+        stage, seconds, threads, deps = marker["stage"], marker["seconds"], marker.get("threads", 1), marker["deps"]
+        if (not isinstance(stage, str) or isinstance(seconds, bool) or not isinstance(seconds, (int, float))
+                or not isinstance(threads, int) or threads < 1 or not isinstance(deps, list)
+                or not all(isinstance(d, str) for d in deps) or not seconds >= 0):
+            raise InputError(f"{path}: damaged done-marker: expected a stage name, seconds >= 0, a thread count >= 1 "
+                             "and a list of dependency names")
+        stages.append(MeasuredStage(stage, float(seconds), threads, tuple(deps)))
     if not stages:
         raise InputError(f"{folder}: no finished stage to project from")
     return stages

@@ -2,12 +2,12 @@
 
 from __future__ import annotations
 
-import json
 from pathlib import Path
 from typing import Any
 
 from evaluation.dataset import read_dataset
-from spotlessgs.io.atomic import write_json, write_text
+from spotlessgs.io.atomic import PARTIAL_MARK, write_json, write_text
+from spotlessgs.io.json_files import read_json
 from spotlessgs.io.provenance import provenance
 from spotlessgs.experiments.reproduce import paper
 from spotlessgs.experiments.reproduce.config import (
@@ -29,7 +29,7 @@ def load_config(out: Path) -> ReproduceConfig:
     path = Path(out) / "reproduce.json"
     if not path.is_file():
         raise FileNotFoundError(f"{path}: not a reproduction folder (reproduce.json missing)")
-    raw = json.loads(path.read_text(encoding="utf-8"))
+    raw = read_json(path, "the reproduction's settings", ("scenes_dir",))
     tuples = {k: tuple(v) for k, v in raw.items() if isinstance(v, list)}
     return ReproduceConfig(**{**raw, **tuples, "scenes_dir": Path(raw["scenes_dir"])})
 
@@ -83,8 +83,8 @@ def _stage_times(out: Path) -> dict[str, float]:
     times = {}
     for path in sorted((Path(out) / MARKER_DIR).rglob("*.json")):
         name = str(path.relative_to(Path(out) / MARKER_DIR))[: -len(".json")]
-        if name != "report":
-            times[name] = float(json.loads(path.read_text(encoding="utf-8"))["seconds"])
+        if name != "report" and PARTIAL_MARK not in path.name:
+            times[name] = float(read_marker(out, name).get("seconds", 0.0))
     return times
 
 

@@ -321,8 +321,13 @@ def train_method(data_dir: str, run_dir: str, variant: str, train_preset: str, i
     progress_file = run / "curve" / CURVE_PROGRESS
     resuming = resumed_from is not None and progress_file.is_file()
     progress = read_json(progress_file, "a training stage's curve progress") if resuming else {}
-    curve: list[dict[str, Any]] = list(progress.get("points", []))
-    loop_seconds = float(progress.get("loop_seconds", 0.0))
+    points, loop_seconds = progress.get("points", []), progress.get("loop_seconds", 0.0)
+    if (not isinstance(points, list) or not all(isinstance(p, dict) and isinstance(p.get("step"), int) for p in points)
+            or isinstance(loop_seconds, bool) or not isinstance(loop_seconds, (int, float))):
+        raise InputError(f"{progress_file}: damaged curve progress: 'points' must be a list of records with a step "
+                         f"and 'loop_seconds' a number; delete {run} to train the method again")
+    curve: list[dict[str, Any]] = list(points)
+    loop_seconds = float(loop_seconds)
     selection, selection_seconds = None, 0.0
     result = None
     for step in milestones:
