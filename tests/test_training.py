@@ -997,7 +997,8 @@ def test_the_start_point_cloud_is_read_once_at_start_up(bedroom, monkeypatch):
 
     reads = []
     original = dataset_io.read_point_cloud
-    monkeypatch.setattr(dataset_io, "read_point_cloud", lambda path: reads.append(path) or original(path))
+    monkeypatch.setattr(dataset_io, "read_point_cloud",
+                        lambda path, origin=None: reads.append(path) or original(path, origin))
     cfg = _tiny(image_width=40, trust_start_geometry="auto")
     views = load_training_views(bedroom, cfg.image_width)
     cfg = start_geometry_settings(sparse_start_schedule(cfg, views), views, "spotless")

@@ -14,7 +14,7 @@ from spotlessgs.baselines2d.clahe import ClaheConfig, clahe
 from spotlessgs.baselines2d.folders import refuse_name_clashes
 from spotlessgs.baselines2d.msrcr import MsrcrConfig, msrcr
 from spotlessgs.io.atomic import partial_sibling, swap_in_folder, write_json
-from spotlessgs.io.errors import InputError
+from spotlessgs.io.errors import InputError, write_error
 from spotlessgs.io.images import list_image_files, read_image, write_png
 from spotlessgs.io.paths import refuse_overlap
 from spotlessgs.io.provenance import provenance
@@ -65,7 +65,10 @@ def enhance_folder(method: str, in_dir: str | os.PathLike, out_dir: str | os.Pat
                          "written by train-cyclegan)")
     out_dir.parent.mkdir(parents=True, exist_ok=True)
     tmp = partial_sibling(out_dir)
-    tmp.mkdir()
+    try:
+        tmp.mkdir()
+    except OSError as exc:  # a read-only or full file system: say so of OUT_DIR, not of the hidden sibling
+        raise (write_error(out_dir, exc) or exc) from None
     try:
         names, settings = _enhance_into(method, Path(in_dir), tmp, opts)
         write_json(tmp / PROVENANCE_NAME,

@@ -26,7 +26,6 @@ import time
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-from spotlessgs.experiments.run_settings import refuse_other_settings
 from spotlessgs.io.atomic import write_json, write_text
 from spotlessgs.io.json_files import read_json
 from spotlessgs.io.provenance import provenance
@@ -150,6 +149,8 @@ def run_benchmark(data: Path, out: Path, variants: tuple[str, ...], preset: str,
                   seed: int = 0, settings: tuple[tuple[str, Any], ...] = ()) -> list[dict]:
     """Benchmark each variant in a subprocess (``settings``: (TrainConfig field, value) pairs for every variant);
     writes ``train_benchmark.json`` and ``.md`` to ``out``."""
+    from spotlessgs.experiments.run_settings import refuse_other_settings  # loads torch: not for `spotless --help`
+
     rows = []
     for variant in variants:
         run = out / variant.replace("+", "_")
