@@ -53,8 +53,8 @@ EFFECTS_RECORD = "camera_effects.json"
 #: The folder of a depth camera's images in the copy (same file names as images/).
 DEPTH_DIR = "depth"
 # Everything of a dataset folder that the noisy copy takes over unchanged (images/ is written anew; transforms.json,
-# rewritten for the copy's camera where it changes, last: it marks the copy as finished).
-COPIED = ("gt", UNIFORM_GT_DIR, "exr", "sparse", "points3d.ply", "plan.json", "transforms.json")
+# rewritten for the copy's camera where it changes, is written last: it marks the copy as finished).
+COPIED = ("gt", UNIFORM_GT_DIR, "exr", "sparse", "points3d.ply", "plan.json")
 
 
 @dataclass(frozen=True)
@@ -288,8 +288,6 @@ def add_sensor_noise_to_dataset(data: str | Path, out: str | Path, noise: Sensor
                 **asdict(effects), "camera": asdict(camera)})
         for name in COPIED:
             src, dst = data / name, out / name
-            if name == "transforms.json":  # written last: it marks the copy as finished
-                continue
             if name in ("points3d.ply", "sparse") and not point_cloud:  # the COLMAP model holds the depth points too
                 continue
             if lens_maps is not None and name in ("gt", UNIFORM_GT_DIR, "exr", "sparse"):  # resampled below

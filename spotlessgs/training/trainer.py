@@ -589,16 +589,16 @@ def _train_locked(data_dir: Path, run_dir: Path, variant: str | ModelConfig, con
         old_run = dict(old["run"])
         if isinstance(old_run.get("model_config"), dict):
             old_run["model_config"] = with_defaults(ModelConfig, old_run["model_config"])
-        if config.rid_model == "auto" and isinstance(old["train"], dict):
+        old_train = with_defaults(TrainConfig, old["train"]) if isinstance(old["train"], dict) else old["train"]
+        if config.rid_model == "auto" and isinstance(old_train, dict):
             # "auto" resumes a run with the angular profile it began with, also one that an older version began with
             # the MLP profile where "auto" now resolves to the monotone one
-            config = dataclasses.replace(config, rid_model=with_defaults(TrainConfig, old["train"])["rid_model"])
+            config = dataclasses.replace(config, rid_model=old_train["rid_model"])
             resolved["train"] = dataclasses.asdict(config)
         # the machine's settings may change between sessions (another node, another thread count): not compared,
         # recorded (they change the last bits of what follows, docs/results.md "Determinism")
-        old_train = with_defaults(TrainConfig, old["train"]) if isinstance(old["train"], dict) else old["train"]
         machine = {k: resolved["train"][k] for k in EXECUTION_SETTINGS}
-        differ = differing_train_settings(
+        differ = differing_settings(
             {**old_train, **machine} if isinstance(old_train, dict) else old_train, resolved["train"]
         ) + differing_settings(
             {k: v for k, v in old_run.items() if k not in moved}, {k: v for k, v in run_info.items() if k not in moved})
