@@ -44,7 +44,7 @@ from spotlessgs.io.folder_lock import folder_lock
 from spotlessgs.io.images import write_png
 from spotlessgs.io.json_files import read_json
 from spotlessgs.io.lens import check_invertible, distort_maps, remap, remap_nearest, undistort
-from spotlessgs.io.paths import refuse_overlap
+from spotlessgs.io.paths import refuse_foreign_folder, refuse_overlap
 from spotlessgs.io.seeding import numpy_rng
 from spotlessgs.io.transforms import nerfstudio_camera, read_transforms
 
@@ -260,9 +260,7 @@ def add_sensor_noise_to_dataset(data: str | Path, out: str | Path, noise: Sensor
         old = read_json(record_path, "a noisy copy's record")
         if old != record:
             raise ValueError(f"{out}: holds a noisy copy made with other settings ({old}); use a new folder")
-    elif out.is_dir() and any(not p.name.startswith(".") for p in out.iterdir()):
-        raise ValueError(f"{out}: holds files but no {NOISE_RECORD}: not a noisy copy this command began; use a new "
-                         "or empty folder")
+    refuse_foreign_folder(out, [NOISE_RECORD], "--out", "a noisy copy this command began")
     frames = []
     for index, frame in enumerate(meta.frames()):
         if frame.exr_file_path is None:

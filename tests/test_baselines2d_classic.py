@@ -266,8 +266,8 @@ def test_an_output_replaces_an_earlier_one_whole_and_never_a_foreign_folder(tmp_
         write_png(tmp_path / "in" / f"{name}.png", uneven)
     write_png(tmp_path / "gt" / "a.png", np.full_like(uneven, 0.5))
     before = (tmp_path / "gt" / "a.png").read_bytes()
-    with pytest.raises(InputError, match=r"gt: holds files that are not an earlier output of this command \(a\.png; "
-                                         r"no baseline2d_provenance\.json\)"):
+    with pytest.raises(InputError, match=r"gt: holds files but no baseline2d_provenance\.json \(a\.png\): not an "
+                                         r"earlier output of this command"):
         enhance_folder("clahe", tmp_path / "in", tmp_path / "gt")
     assert (tmp_path / "gt" / "a.png").read_bytes() == before
 

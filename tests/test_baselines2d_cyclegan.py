@@ -422,7 +422,8 @@ def test_a_damaged_metrics_log_or_a_foreign_out_folder_is_refused_before_trainin
     other = tmp_path / "other"
     other.mkdir()
     (other / "metrics.jsonl").write_text('{"step": 1}\n')  # another tool's run
-    with pytest.raises(InputError, match=r"other: holds files but no Cycle-GAN run"):
+    with pytest.raises(InputError, match=r"other: holds files but no checkpoint\.pt or provenance\.json "
+                                         r"\(metrics\.jsonl\): not a Cycle-GAN run"):
         train_cyclegan(root / "uneven", root / "even", other, preset("tiny"), seed=0, progress=False)
     assert (other / "metrics.jsonl").read_text() == '{"step": 1}\n'
 

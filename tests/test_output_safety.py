@@ -267,3 +267,32 @@ def test_eval_run_uses_the_relative_dataset_path_and_data(trained, tmp_path):
     shutil.rmtree(run / "relit")
     with pytest.raises(FileNotFoundError, match=r"relit: the run has no relit images; run `spotless relight"):
         evaluate_run(run, QUICK)
+
+
+def test_a_folder_with_files_but_none_of_the_commands_records_is_refused_and_left_alone(tmp_path):
+    """refuse_foreign_folder: absent, empty and recorded folders pass; a file or a folder of other files is refused
+    with its name, the option and up to four entries; hidden entries count as the caller says."""
+    from spotlessgs.io.paths import refuse_foreign_folder
+
+    out = tmp_path / "out"
+    refuse_foreign_folder(out, ["rec.json"], "--out", "an earlier run")  # absent
+    out.mkdir()
+    refuse_foreign_folder(out, ["rec.json"], "--out", "an earlier run")  # empty
+    (out / ".DS_Store").write_bytes(b"x")
+    refuse_foreign_folder(out, ["rec.json"], "--out", "an earlier run")  # hidden files ignored by default
+    with pytest.raises(InputError, match=r"out: holds files but no rec\.json \(\.DS_Store\): not an earlier run; "
+                                         r"choose an empty or new --out"):
+        refuse_foreign_folder(out, ["rec.json"], "--out", "an earlier run", count_hidden=True)
+    (out / ".state").mkdir()
+    with pytest.raises(InputError, match=r"\(\.state\)"):
+        refuse_foreign_folder(out, ["rec.json"], "--out", "an earlier run", count_hidden=[".state"])
+    for name in "abcdef":
+        (out / f"{name}.png").write_bytes(b"x")
+    with pytest.raises(InputError, match=r"no a\.json or rec\.json \(a\.png, b\.png, c\.png, d\.png and 2 more\)"):
+        refuse_foreign_folder(out, ["a.json", "rec.json"], "OUT", "an earlier run")
+    (out / "rec.json").write_text("{}")
+    refuse_foreign_folder(out, ["a.json", "rec.json"], "OUT", "an earlier run")  # an earlier run of the command
+    assert sorted(p.name for p in out.iterdir()) == [".DS_Store", ".state", *[f"{n}.png" for n in "abcdef"],
+                                                      "rec.json"]
+    with pytest.raises(InputError, match=r"rec\.json: OUT is a file, not a folder"):
+        refuse_foreign_folder(out / "rec.json", ["x"], "OUT", "an earlier run")

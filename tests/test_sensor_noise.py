@@ -233,8 +233,8 @@ def test_a_noisy_copy_never_takes_over_another_folder_and_is_finished_only_with_
     _dataset(tmp_path / "data")
     _dataset(tmp_path / "other")
     before = {p: p.read_bytes() for p in (tmp_path / "other").rglob("*") if p.is_file()}
-    with pytest.raises(ValueError, match=r"other: holds files but no sensor_noise.json: not a noisy copy this command "
-                                         r"began; use a new or empty folder"):
+    with pytest.raises(ValueError, match=r"other: holds files but no sensor_noise\.json \(.*\): not a noisy copy this "
+                                         r"command began; choose an empty or new --out"):
         add_sensor_noise_to_dataset(tmp_path / "data", tmp_path / "other", SensorNoise(), seed=1)
     assert {p: p.read_bytes() for p in (tmp_path / "other").rglob("*") if p.is_file()} == before
 

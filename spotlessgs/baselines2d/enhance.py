@@ -14,9 +14,9 @@ from spotlessgs.baselines2d.clahe import ClaheConfig, clahe
 from spotlessgs.baselines2d.folders import refuse_name_clashes
 from spotlessgs.baselines2d.msrcr import MsrcrConfig, msrcr
 from spotlessgs.io.atomic import partial_sibling, swap_in_folder, write_json
-from spotlessgs.io.errors import InputError, write_error
+from spotlessgs.io.errors import write_error
 from spotlessgs.io.images import list_image_files, read_image, write_png
-from spotlessgs.io.paths import refuse_overlap
+from spotlessgs.io.paths import refuse_foreign_folder, refuse_overlap
 from spotlessgs.io.provenance import provenance
 
 METHODS = ("clahe", "msrcr", "cyclegan")
@@ -59,7 +59,8 @@ def enhance_folder(method: str, in_dir: str | os.PathLike, out_dir: str | os.Pat
         raise ValueError(f"enhance_folder: unknown method {method!r}; choose one of {list(METHODS)}")
     out_dir = Path(out_dir)
     refuse_overlap(out_dir, {"IN_DIR": in_dir}, "OUT_DIR")
-    _refuse_foreign_output(out_dir)
+    refuse_foreign_folder(out_dir, [PROVENANCE_NAME], "OUT_DIR", "an earlier output of this command (the output "
+                          "replaces the whole folder)", count_hidden=True)
     if method == "cyclegan" and "checkpoint" not in opts:
         raise ValueError("enhance_folder: method 'cyclegan' needs a checkpoint (--checkpoint, the checkpoint.pt "
                          "written by train-cyclegan)")
@@ -78,17 +79,6 @@ def enhance_folder(method: str, in_dir: str | os.PathLike, out_dir: str | os.Pat
         shutil.rmtree(tmp, ignore_errors=True)
         raise
     return [out_dir / name for name in names]
-
-
-def _refuse_foreign_output(out_dir: Path) -> None:
-    """InputError when ``out_dir`` is a file, or a folder with files that is not an earlier output (no
-    baseline2d_provenance.json): replacing it would delete them."""
-    if out_dir.exists() and not out_dir.is_dir():
-        raise InputError(f"{out_dir}: OUT_DIR is a file, not a folder")
-    if out_dir.is_dir() and any(out_dir.iterdir()) and not (out_dir / PROVENANCE_NAME).is_file():
-        shown = ", ".join(sorted(p.name for p in out_dir.iterdir())[:3])
-        raise InputError(f"{out_dir}: holds files that are not an earlier output of this command ({shown}; no "
-                         f"{PROVENANCE_NAME}); the output replaces the whole folder: choose an empty or new OUT_DIR")
 
 
 def _enhance_into(method: str, in_dir: Path, out_dir: Path, opts: dict[str, Any]) -> tuple[list[str], dict]:

@@ -1,13 +1,14 @@
-"""Output folders that never touch their inputs: a command refuses ``OUT`` equal to or inside an input (and the
-reverse), before it writes anything."""
+"""Output folders that never touch their inputs or someone else's files: a command refuses ``OUT`` equal to or inside
+an input (and the reverse), and a folder that holds files but no record of the command's own earlier run, before it
+writes anything."""
 
 from __future__ import annotations
 
 import os
 from pathlib import Path
-from typing import Mapping
+from typing import Mapping, Sequence
 
-from spotlessgs.io.errors import OutputOverlapError
+from spotlessgs.io.errors import InputError, OutputOverlapError
 
 
 def _real(path: str | os.PathLike) -> Path:
@@ -63,3 +64,34 @@ def refuse_run_file(output: str | os.PathLike, run_dir: str | os.PathLike, outpu
         return
     raise OutputOverlapError(f"{output}: {output_name} would replace a file of the run {run_dir} or write into one of "
                              "its folders; choose a path outside the run or a new file name in it")
+
+
+def refuse_foreign_folder(folder: str | os.PathLike, records: Sequence[str], option: str, what: str,
+                          count_hidden: bool | Sequence[str] = False) -> None:
+    """Raise unless ``folder`` is absent, empty, or holds one of ``records`` (a file name the command writes into
+    every folder it makes): a folder with other files is someone else's, and the command would replace or mix with
+    them.
+
+    Args:
+        folder: the output folder.
+        records: the command's own record files (e.g. ``["reproduce.json"]``); any one of them marks an earlier run.
+        option: how the user names the folder (``--out``, ``OUT_DIR``).
+        what: what an earlier run's folder is, for the message (e.g. ``"a reproduction of known settings"``).
+        count_hidden: which hidden entries (names starting with ``.``) count as files: all of them (True, for a
+            command that replaces the whole folder), none (False), or the names listed (the command's own hidden
+            state, e.g. ``[".stages"]``).
+
+    Raises:
+        InputError: ``folder`` is a file, or holds files but no record; the message names up to four of them.
+    """
+    path = Path(folder)
+    if path.exists() and not path.is_dir():
+        raise InputError(f"{folder}: {option} is a file, not a folder")
+    if not path.is_dir() or any((path / name).is_file() for name in records):
+        return
+    names = sorted(p.name for p in path.iterdir() if not p.name.startswith(".") or count_hidden is True
+                   or (count_hidden is not False and p.name in count_hidden))
+    if names:
+        shown = ", ".join(names[:4]) + (f" and {len(names) - 4} more" if len(names) > 4 else "")
+        raise InputError(f"{folder}: holds files but no {' or '.join(records)} ({shown}): not {what}; choose an "
+                         f"empty or new {option}")

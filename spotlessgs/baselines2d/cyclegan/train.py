@@ -38,7 +38,7 @@ from spotlessgs.baselines2d.cyclegan.pool import ImagePool
 from spotlessgs.io.atomic import write_json, write_text
 from spotlessgs.io.errors import InputError
 from spotlessgs.io.folder_lock import folder_lock
-from spotlessgs.io.paths import refuse_overlap
+from spotlessgs.io.paths import refuse_foreign_folder, refuse_overlap
 from spotlessgs.io.provenance import provenance
 from spotlessgs.io.seeding import numpy_rng, torch_generator
 
@@ -264,12 +264,8 @@ def train_cyclegan(
     refuse_overlap(out_dir, {f"--uneven/--even {d}": d for d in [*uneven_folders, *even_folders]}, "--out")
     ckpt_path = out_dir / CHECKPOINT_NAME
     metrics_path = out_dir / METRICS_NAME
-    if out_dir.exists() and not out_dir.is_dir():
-        raise InputError(f"{out_dir}: --out is a file, not a folder")
-    if (out_dir.is_dir() and not ckpt_path.is_file() and not (out_dir / PROVENANCE_NAME).is_file()
-            and any(not p.name.startswith(".") for p in out_dir.iterdir())):
-        raise InputError(f"{out_dir}: holds files but no Cycle-GAN run ({CHECKPOINT_NAME}, {PROVENANCE_NAME}); "
-                         "training would replace some of them: choose an empty or new --out")
+    refuse_foreign_folder(out_dir, [CHECKPOINT_NAME, PROVENANCE_NAME], "--out", "a Cycle-GAN run (training would "
+                          "replace some of them)")
     domain_a = load_domain("uneven", uneven_folders, config.crop_height, config.crop_width)
     domain_b = load_domain("even", even_folders, config.crop_height, config.crop_width)
     fingerprints = {"uneven": domain_fingerprint(domain_a), "even": domain_fingerprint(domain_b)}

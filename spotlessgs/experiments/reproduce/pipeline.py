@@ -27,10 +27,9 @@ import json
 from pathlib import Path
 
 from spotlessgs.io.atomic import write_json
-from spotlessgs.io.errors import InputError
 from spotlessgs.io.folder_lock import folder_lock
 from spotlessgs.io.json_files import read_json
-from spotlessgs.io.paths import refuse_overlap
+from spotlessgs.io.paths import refuse_foreign_folder, refuse_overlap
 from spotlessgs.experiments.reproduce.config import (
     CEILING_STAGE, INPUTS_STAGE, NEUTRAL_NEW_FIELDS, NOISY_VARIANT, RESIDUAL_VARIANT, RGBD_VARIANT, ROBOT_VARIANT,
     ReproduceConfig, dataset_id, train_stage,
@@ -167,8 +166,8 @@ def build_graph(config: ReproduceConfig, out: Path) -> StageGraph:
 def check_or_record_config(config: ReproduceConfig, out: Path) -> None:
     """Write ``OUT/reproduce.json``, or refuse (ValueError naming the differing fields) a folder made with another
     config, and (InputError) a folder with files but no ``reproduce.json``: another tool's, or a reproduction whose
-    finished stages were made under unknown settings. ``scenes_dir`` is where the rooms are read from, not a setting: another path (a moved or second checkout)
-    is recorded, and each render stage checks that its room's content is the one it rendered (simulator render plans
+    finished stages were made under unknown settings. ``scenes_dir`` is where the rooms are read from, not a setting:
+    another path (a moved or second checkout) is recorded, and each render stage checks that its room's content is the one it rendered (simulator render plans
     identify the scene by its sha256)."""
     path = Path(out) / CONFIG_FILE
     wanted = json.loads(json.dumps(config.to_dict()))
@@ -183,11 +182,8 @@ def check_or_record_config(config: ReproduceConfig, out: Path) -> None:
         if old.get("scenes_dir") != wanted["scenes_dir"]:
             write_json(path, wanted)
         return
-    others = sorted(p.name for p in Path(out).iterdir() if not p.name.startswith(".") or p.name == ".stages")
-    if others:  # another tool's folder, or a reproduction whose settings file is gone: its stages' settings unknown
-        shown = ", ".join(others[:4]) + (f" and {len(others) - 4} more" if len(others) > 4 else "")
-        raise InputError(f"{out}: holds files but no {CONFIG_FILE} ({shown}): not a reproduction of known settings; "
-                         "use a new or empty --out")
+    # another tool's folder, or a reproduction whose settings file is gone: its stages' settings are unknown
+    refuse_foreign_folder(out, [CONFIG_FILE], "--out", "a reproduction of known settings", count_hidden=[".stages"])
     write_json(path, wanted)
 
 
