@@ -47,10 +47,10 @@ from spotlessgs.io.exr import read_emitters
 from spotlessgs.io.folder_lock import source_and_output_locks
 from spotlessgs.io.images import list_image_files, read_image
 from spotlessgs.io.paths import refuse_overlap, refuse_run_file
-from spotlessgs.io.provenance import provenance
+from spotlessgs.io.provenance import provenance, sha256_file
 from spotlessgs.manifest import (
     MANIFEST_NAME, checkpoint_step, current_checkpoint, dataset_record, hash_frames, manifest_path, manifest_sha256,
-    read_manifest, sha256_file, verify_frames, write_manifest,
+    read_manifest, verify_frames, write_manifest,
 )
 from spotlessgs.metrics import masked_psnr, masked_ssim, psnr, ssim
 from spotlessgs.training.checkpoint import read_run_info, resolve_data_dir

@@ -29,7 +29,6 @@ from __future__ import annotations
 
 import contextlib
 import dataclasses
-import hashlib
 import json
 import logging
 import multiprocessing
@@ -64,7 +63,7 @@ from spotlessgs.io.paths import refuse_overlap
 from spotlessgs.io.processes import die_with_parent, drop_blender_script_paths
 from spotlessgs.io.dataset import UNIFORM_GT_DIR
 from spotlessgs.io.ply import write_point_cloud
-from spotlessgs.io.provenance import package_version, provenance
+from spotlessgs.io.provenance import package_version, provenance, sha256_file
 from spotlessgs.io.seeding import numpy_rng, stage_seed
 from spotlessgs.io.transforms import DatasetMeta, FrameRecord, LightTruth, write_transforms
 
@@ -242,11 +241,6 @@ def frame_done(out_dir: Path, index: int, uniform_gt: bool = False) -> bool:
     return all(p.is_file() for p in frame_paths(out_dir, index, uniform_gt).values())
 
 
-def _file_sha256(path: Path) -> str:
-    """Hex sha256 of a file's bytes."""
-    return hashlib.sha256(path.read_bytes()).hexdigest()
-
-
 def _fingerprint(scene_path: Path, config: RenderConfig, room_sha256: str | None) -> dict[str, Any]:
     """The settings that determine the output (JSON-able): the scene (its path, and its content's sha256, which is
     what identifies it), the room as loaded (``room_sha256``: :func:`~simulator.scene_model.content_sha256`, the
@@ -256,7 +250,7 @@ def _fingerprint(scene_path: Path, config: RenderConfig, room_sha256: str | None
         if not cfg[option]:
             del cfg[option]  # recorded only when set: datasets rendered before the option existed still resume
     room = {} if room_sha256 is None else {"room_sha256": room_sha256}
-    return {"scene": str(scene_path.resolve()), "scene_sha256": _file_sha256(scene_path), **room,
+    return {"scene": str(scene_path.resolve()), "scene_sha256": sha256_file(scene_path), **room,
             "config": to_jsonable(cfg)}
 
 
@@ -303,7 +297,7 @@ def _scene_difference(old: dict[str, Any], new: dict[str, Any]) -> str | None:
         if not old_path.is_file():
             return (f"scene: {old.get('scene')} then, {new['scene']} now, and the first is gone, so their contents "
                     "cannot be compared")
-        old_sha = _file_sha256(old_path)
+        old_sha = sha256_file(old_path)
     return None if old_sha == new["scene_sha256"] else \
         f"scene: {old.get('scene')} then, {new['scene']} now, another file content"
 

@@ -34,7 +34,6 @@ The manifest is JSON written atomically (:func:`spotlessgs.io.atomic.write_json`
 from __future__ import annotations
 
 import datetime as _dt
-import hashlib
 import json
 import os
 from pathlib import Path
@@ -43,7 +42,7 @@ from typing import Any, Iterable, Mapping
 from spotlessgs.io.atomic import to_jsonable, write_json
 from spotlessgs.io.errors import InputError
 from spotlessgs.io.json_files import read_json
-from spotlessgs.io.provenance import provenance
+from spotlessgs.io.provenance import provenance, sha256_file
 from spotlessgs.training.checkpoint import existing_checkpoint, load_checkpoint
 
 MANIFEST_NAME = ".manifest.json"
@@ -52,15 +51,6 @@ KINDS = ("relit", "render", "eval", "eval-folders")
 _COMMANDS = {"relit": "spotless relight", "render": "spotless render", "eval": "spotless eval",
              "eval-folders": "spotless eval"}
 _REQUIRED = ("schema_version", "kind", "checkpoint", "options", "dataset", "frames")
-
-
-def sha256_file(path: str | os.PathLike, chunk: int = 1 << 20) -> str:
-    """Hex sha256 of a file's content (read in chunks: checkpoints can be large)."""
-    digest = hashlib.sha256()
-    with open(path, "rb") as fh:
-        while block := fh.read(chunk):
-            digest.update(block)
-    return digest.hexdigest()
 
 
 def manifest_path(folder: str | os.PathLike) -> Path:

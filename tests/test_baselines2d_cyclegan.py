@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import hashlib
 import json
 from pathlib import Path
 
@@ -21,12 +22,13 @@ from spotlessgs.baselines2d.cyclegan import (
     translate_image,
 )
 from spotlessgs.baselines2d.cyclegan import losses as losses_module
-from spotlessgs.baselines2d.cyclegan.checkpoint import load_checkpoint
+from spotlessgs.baselines2d.cyclegan.checkpoint import CHECKPOINT_FORMAT, load_checkpoint
 from spotlessgs.baselines2d.cyclegan.pool import ImagePool
 from spotlessgs.baselines2d.cyclegan.train import CycleGANTrainer
 from spotlessgs.baselines2d.enhance import enhance_folder
 from spotlessgs.io.colorspace import to_uint8
 from spotlessgs.io.images import read_image, write_png
+from spotlessgs.io.tensor_file import load_tree, save_tree
 
 HEIGHT, WIDTH, COUNT = 48, 64, 8
 
@@ -135,7 +137,7 @@ def test_resume_gives_bitwise_the_uninterrupted_weights(unpaired, tmp_path, monk
     monkeypatch.setattr(CycleGANTrainer, "train_step", interrupted)
     with pytest.raises(_Interrupt):
         train_cyclegan(root / "uneven", root / "even", tmp_path / "resumed", config, seed=5, progress=False)
-    assert load_checkpoint(tmp_path / "resumed" / "checkpoint.pt")["step"] == 3
+    assert load_checkpoint(tmp_path / "resumed" / "checkpoint.safetensors")["step"] == 3
     monkeypatch.setattr(CycleGANTrainer, "train_step", original_step)
     resumed = train_cyclegan(root / "uneven", root / "even", tmp_path / "resumed", config, seed=5, progress=False)
 
@@ -200,10 +202,10 @@ def test_nan_guard_stops_and_keeps_the_last_good_checkpoint(unpaired, tmp_path, 
     monkeypatch.setattr(losses_module, "lsgan_loss", poisoned)
     with pytest.raises(
         FloatingPointError,
-        match=r"diverged: loss_G = nan at step 4; the last good checkpoint .*checkpoint.pt \(step 3\) is kept",
+        match=r"diverged: loss_G = nan at step 4; the last good checkpoint .*checkpoint\.safetensors \(step 3\) is kept",
     ):
         train_cyclegan(root / "uneven", root / "even", tmp_path / "run", config, seed=0, progress=False)
-    state = load_checkpoint(tmp_path / "run" / "checkpoint.pt")
+    state = load_checkpoint(tmp_path / "run" / "checkpoint.safetensors")
     assert state["step"] == 3
     assert all(torch.isfinite(t).all() for net in state["networks"].values() for t in net.values())
     records = [json.loads(line) for line in (tmp_path / "run" / "metrics.jsonl").read_text().splitlines()]
@@ -212,7 +214,7 @@ def test_nan_guard_stops_and_keeps_the_last_good_checkpoint(unpaired, tmp_path, 
     calls["n"] = 10**9  # poisoned from the first call: a fresh run fails before its first checkpoint
     with pytest.raises(FloatingPointError, match="no checkpoint had been written yet"):
         train_cyclegan(root / "uneven", root / "even", tmp_path / "fresh", config, seed=0, progress=False)
-    assert not (tmp_path / "fresh" / "checkpoint.pt").exists()
+    assert not any((tmp_path / "fresh").glob("checkpoint.*"))
 
 
 def test_non_finite_weights_are_named():
@@ -258,6 +260,37 @@ def test_translation_pads_only_when_needed(trained):
         assert out.shape == (*shape, 3) and np.isfinite(out).all() and out.min() >= 0 and out.max() <= 1
 
 
+def test_an_older_versions_torch_checkpoint_is_translated_with_and_resumed_into_safetensors(unpaired, tmp_path,
+                                                                                            monkeypatch):
+    """A run folder of an older version (checkpoint.pt, a torch file) still translates, and resuming it gives bitwise
+    the uninterrupted run's weights in checkpoint.safetensors, the old file removed."""
+    root, _ = unpaired
+    config = short_config()
+    whole = train_cyclegan(root / "uneven", root / "even", tmp_path / "whole", config, seed=5, progress=False)
+    original_step = CycleGANTrainer.train_step
+
+    def interrupted(self, *args, **kwargs):
+        if self.step == 3:
+            raise _Interrupt("simulated kill")
+        return original_step(self, *args, **kwargs)
+
+    monkeypatch.setattr(CycleGANTrainer, "train_step", interrupted)
+    with pytest.raises(_Interrupt):
+        train_cyclegan(root / "uneven", root / "even", tmp_path / "old", config, seed=5, progress=False)
+    monkeypatch.setattr(CycleGANTrainer, "train_step", original_step)
+    current = tmp_path / "old" / "checkpoint.safetensors"
+    torch.save(load_tree(current, CHECKPOINT_FORMAT), tmp_path / "old" / "checkpoint.pt")  # as older versions wrote
+    current.unlink()
+    legacy = translate_folder(tmp_path / "old" / "checkpoint.pt", root / "uneven", tmp_path / "translated")
+    assert len(legacy) == len(list((root / "uneven").iterdir()))
+
+    resumed = train_cyclegan(root / "uneven", root / "even", tmp_path / "old", config, seed=5, progress=False)
+    assert resumed == current and not (tmp_path / "old" / "checkpoint.pt").exists()
+    a, b = load_checkpoint(whole), load_checkpoint(resumed)
+    assert a["step"] == b["step"] == 6
+    assert _states_equal(a["networks"], b["networks"]) and _states_equal(a["optimizers"], b["optimizers"])
+
+
 def test_checkpoint_errors(tmp_path, trained):
     with pytest.raises(FileNotFoundError, match="Cycle-GAN checkpoint not found"):
         load_checkpoint(tmp_path / "missing.pt")
@@ -267,6 +300,14 @@ def test_checkpoint_errors(tmp_path, trained):
     torch.save({"format": "something-else"}, tmp_path / "foreign.pt")
     with pytest.raises(ValueError, match="not a Cycle-GAN checkpoint"):
         load_checkpoint(tmp_path / "foreign.pt")
+    (tmp_path / "garbage.safetensors").write_bytes(b"not a safetensors file")
+    with pytest.raises(ValueError, match=r"garbage\.safetensors: not a readable safetensors file .*\(not a Cycle-GAN "
+                                         r"checkpoint\)"):
+        load_checkpoint(tmp_path / "garbage.safetensors")
+    save_tree(tmp_path / "other.safetensors", {"step": 1}, "spotlessgs-checkpoint")  # a 3D run's checkpoint
+    with pytest.raises(ValueError, match=r"other\.safetensors: holds 'spotlessgs-checkpoint', expected "
+                                         r"'spotlessgs-cyclegan-v1' \(not a Cycle-GAN checkpoint\)"):
+        load_checkpoint(tmp_path / "other.safetensors")
     with pytest.raises(ValueError, match="unknown direction 'sideways'"):
         load_generator(trained, "sideways")
 
@@ -342,6 +383,7 @@ def test_enhance_folder_and_cli_with_cyclegan(unpaired, trained, tmp_path):
     assert [p.name for p in written] == [f"u{i}.png" for i in range(COUNT)]
     record = json.loads((tmp_path / "out" / "baseline2d_provenance.json").read_text())
     assert record["method"] == "cyclegan" and record["settings"]["checkpoint"] == str(trained)
+    assert record["settings"]["checkpoint_sha256"] == hashlib.sha256(trained.read_bytes()).hexdigest()
     with pytest.raises(ValueError, match=r"unknown options \['clip_limit'\] for method 'cyclegan'"):
         enhance_folder("cyclegan", root / "uneven", tmp_path / "out", checkpoint=trained, clip_limit=2)
 
@@ -356,9 +398,14 @@ def test_enhance_folder_and_cli_with_cyclegan(unpaired, trained, tmp_path):
     assert load_checkpoint(checkpoint)["step"] == 2
     result = runner.invoke(
         baseline2d,
-        ["enhance", "cyclegan", str(root / "even"), str(tmp_path / "cli_out"), "--checkpoint", str(checkpoint)],
-    )
+        ["enhance", "cyclegan", str(root / "even"), str(tmp_path / "cli_out"), "--checkpoint", str(checkpoint.parent)],
+    )  # the run folder names its checkpoint
     assert result.exit_code == 0, result.output
+    record = json.loads((tmp_path / "cli_out" / "baseline2d_provenance.json").read_text())
+    assert record["settings"]["checkpoint"] == str(checkpoint)
+    result = runner.invoke(baseline2d, ["enhance", "cyclegan", str(root / "even"), str(tmp_path / "cli_out"),
+                                        "--checkpoint", str(tmp_path)])
+    assert result.exit_code != 0 and "holds no Cycle-GAN checkpoint" in str(result.exception or result.output)
     assert sorted(p.name for p in (tmp_path / "cli_out").glob("*.png")) == [f"e{i}.png" for i in range(COUNT)]
     args = ["enhance", "msrcr", str(root / "even"), str(tmp_path / "x"), "--clip-limit", "2"]
     result = runner.invoke(baseline2d, args)
@@ -369,9 +416,9 @@ def test_enhance_folder_and_cli_with_cyclegan(unpaired, trained, tmp_path):
 
 def _edited(trained: Path, where: Path, edit) -> Path:
     """A copy of the trained run's checkpoint, changed by ``edit(state)`` (the file's dict), at ``where``."""
-    state = torch.load(trained, map_location="cpu", weights_only=True)
+    state = load_tree(trained, CHECKPOINT_FORMAT)
     edit(state)
-    torch.save(state, where)
+    save_tree(where, state, CHECKPOINT_FORMAT)
     return where
 
 
@@ -392,14 +439,14 @@ def test_a_damaged_checkpoint_is_one_line_naming_it(trained, unpaired, tmp_path,
     from spotlessgs.io.errors import InputError
 
     root, _ = unpaired
-    bad = _edited(trained, tmp_path / "checkpoint.pt", edit)
-    with pytest.raises(InputError, match=rf"checkpoint\.pt: .*{problem}") as info:
+    bad = _edited(trained, tmp_path / "checkpoint.safetensors", edit)
+    with pytest.raises(InputError, match=rf"checkpoint\.safetensors: .*{problem}") as info:
         translate_folder(bad, root / "uneven", tmp_path / "out")
     assert "\n" not in str(info.value)
     run = tmp_path / "run"
     run.mkdir()
-    bad.rename(run / "checkpoint.pt")
-    with pytest.raises(InputError, match=rf"checkpoint\.pt: .*{problem}"):
+    bad.rename(run / "checkpoint.safetensors")
+    with pytest.raises(InputError, match=rf"checkpoint\.safetensors: .*{problem}"):
         train_cyclegan(root / "uneven", root / "even", run, preset("tiny"), seed=0, progress=False)
 
 
@@ -414,16 +461,16 @@ def test_a_damaged_metrics_log_or_a_foreign_out_folder_is_refused_before_trainin
                           ('{"step": "x"}', "line 1 is not a record with a whole-number step"),
                           ('{"step": 1, "loss_G": NaN}', "line 1 holds a value that is not finite")):
         (run / "metrics.jsonl").write_text(line + "\n")
-        stamp = (run / "checkpoint.pt").stat().st_mtime_ns
+        stamp = (run / "checkpoint.safetensors").stat().st_mtime_ns
         with pytest.raises(InputError, match=rf"metrics\.jsonl: {problem}"):
             train_cyclegan(root / "uneven", root / "even", run, preset("tiny"), seed=0, progress=False)
-        assert (run / "checkpoint.pt").stat().st_mtime_ns == stamp
+        assert (run / "checkpoint.safetensors").stat().st_mtime_ns == stamp
 
     other = tmp_path / "other"
     other.mkdir()
     (other / "metrics.jsonl").write_text('{"step": 1}\n')  # another tool's run
-    with pytest.raises(InputError, match=r"other: holds files but no checkpoint\.pt or provenance\.json "
-                                         r"\(metrics\.jsonl\): not a Cycle-GAN run"):
+    with pytest.raises(InputError, match=r"other: holds files but no checkpoint\.safetensors or checkpoint\.pt or "
+                                         r"provenance\.json \(metrics\.jsonl\): not a Cycle-GAN run"):
         train_cyclegan(root / "uneven", root / "even", other, preset("tiny"), seed=0, progress=False)
     assert (other / "metrics.jsonl").read_text() == '{"step": 1}\n'
 

@@ -23,7 +23,8 @@ from conftest import synthetic_box_dataset
 from evaluation.runner import EvalConfig, evaluate_folders, evaluate_run
 from spotlessgs.io.errors import FolderLockedError, InputError
 from spotlessgs.io.images import write_png
-from spotlessgs.manifest import MANIFEST_NAME, read_manifest, sha256_file
+from spotlessgs.io.provenance import sha256_file
+from spotlessgs.manifest import MANIFEST_NAME, read_manifest
 from spotlessgs.training.config import preset
 
 pytestmark = pytest.mark.usefixtures("one_torch_thread")

@@ -18,8 +18,8 @@ def baseline2d() -> None:
 @click.argument("method", type=click.Choice(["clahe", "msrcr", "cyclegan"]))
 @click.argument("in_dir", type=click.Path(exists=True, file_okay=False, path_type=Path))
 @click.argument("out_dir", type=click.Path(file_okay=False, path_type=Path))
-@click.option("--checkpoint", type=click.Path(exists=True, dir_okay=False, path_type=Path),
-              help="cyclegan: checkpoint.pt written by train-cyclegan.")  # fmt: skip
+@click.option("--checkpoint", type=click.Path(exists=True, path_type=Path),
+              help="cyclegan: the folder train-cyclegan wrote (or its checkpoint file).")  # fmt: skip
 @click.option("--clip-limit", type=float, help="clahe: histogram clip limit (multiple of the mean bin height).")
 @click.option("--tiles", type=int, help="clahe: tiles along each image axis.")
 @click.option("--low-percent", type=float, help="msrcr: percentile clipped to black.")

@@ -17,7 +17,7 @@ from spotlessgs.io.atomic import partial_sibling, swap_in_folder, write_json
 from spotlessgs.io.errors import write_error
 from spotlessgs.io.images import list_image_files, read_image, write_png
 from spotlessgs.io.paths import refuse_foreign_folder, refuse_overlap
-from spotlessgs.io.provenance import provenance
+from spotlessgs.io.provenance import provenance, sha256_file
 
 METHODS = ("clahe", "msrcr", "cyclegan")
 PROVENANCE_NAME = "baseline2d_provenance.json"
@@ -45,7 +45,8 @@ def enhance_folder(method: str, in_dir: str | os.PathLike, out_dir: str | os.Pat
 
     Args:
         method: 'clahe', 'msrcr' (options: the fields of ClaheConfig / MsrcrConfig) or 'cyclegan' (options:
-            ``checkpoint`` (required), ``direction``, ``num_threads``; see ``translate_folder``).
+            ``checkpoint`` (required: a train-cyclegan folder or its checkpoint file; the provenance records its
+            sha256), ``direction``, ``num_threads``; see ``translate_folder``).
         in_dir: folder of sRGB images (PNG/JPEG).
         out_dir: output folder (created); also receives baseline2d_provenance.json.
     Returns:
@@ -62,8 +63,8 @@ def enhance_folder(method: str, in_dir: str | os.PathLike, out_dir: str | os.Pat
     refuse_foreign_folder(out_dir, [PROVENANCE_NAME], "OUT_DIR", "an earlier output of this command (the output "
                           "replaces the whole folder)", count_hidden=True)
     if method == "cyclegan" and "checkpoint" not in opts:
-        raise ValueError("enhance_folder: method 'cyclegan' needs a checkpoint (--checkpoint, the checkpoint.pt "
-                         "written by train-cyclegan)")
+        raise ValueError("enhance_folder: method 'cyclegan' needs a checkpoint (--checkpoint: the folder or the "
+                         "checkpoint file written by train-cyclegan)")
     out_dir.parent.mkdir(parents=True, exist_ok=True)
     tmp = partial_sibling(out_dir)
     try:
@@ -84,14 +85,19 @@ def enhance_folder(method: str, in_dir: str | os.PathLike, out_dir: str | os.Pat
 def _enhance_into(method: str, in_dir: Path, out_dir: Path, opts: dict[str, Any]) -> tuple[list[str], dict]:
     """Write the enhanced images of ``in_dir`` into the existing folder ``out_dir``; (their names, the settings)."""
     if method == "cyclegan":
-        from spotlessgs.baselines2d.cyclegan.translate import translate_folder  # deferred: torch, only for Cycle-GAN
+        # deferred: torch, only for Cycle-GAN
+        from spotlessgs.baselines2d.cyclegan.checkpoint import checkpoint_file
+        from spotlessgs.baselines2d.cyclegan.translate import translate_folder
 
         unknown = sorted(set(opts) - {"checkpoint", "direction", "num_threads"})
         if unknown:
             raise ValueError(f"enhance_folder: unknown options {unknown} for method 'cyclegan'")
-        written = translate_folder(opts["checkpoint"], in_dir, out_dir, opts.get("direction", "uneven_to_even"),
+        checkpoint = checkpoint_file(opts["checkpoint"])
+        digest = sha256_file(checkpoint)  # which weights made the images, whatever happens to the file later
+        written = translate_folder(checkpoint, in_dir, out_dir, opts.get("direction", "uneven_to_even"),
                                    opts.get("num_threads"))  # fmt: skip
-        settings = {k: str(v) if isinstance(v, os.PathLike) else v for k, v in opts.items()}
+        settings = {**{k: str(v) if isinstance(v, os.PathLike) else v for k, v in opts.items()},
+                    "checkpoint": str(checkpoint), "checkpoint_sha256": digest}
         return [p.name for p in written], settings
     function, settings = _classic(method, opts)
     files = list_image_files(in_dir)

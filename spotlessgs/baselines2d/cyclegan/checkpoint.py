@@ -1,6 +1,9 @@
-"""Cycle-GAN checkpoints: one torch file holding config, step, networks, optimisers and image pools.
+"""Cycle-GAN checkpoints: one file holding config, step, networks, optimisers and image pools.
 
-Written atomically (temporary file + rename), loaded with ``weights_only=True`` (plain data and tensors only).
+A checkpoint is a safetensors file whose metadata holds the plain data as JSON (:mod:`spotlessgs.io.tensor_file`),
+written atomically: loading one from a shared folder cannot run code. Runs of older versions have ``checkpoint.pt`` (a
+torch pickle), read with ``torch.load(weights_only=True)`` (tensors and plain containers only); a resumed run replaces
+it with ``checkpoint.safetensors``.
 """
 
 from __future__ import annotations
@@ -12,29 +15,61 @@ from typing import Any, Callable
 import torch
 
 from spotlessgs.baselines2d.cyclegan.config import CycleGANConfig
-from spotlessgs.io.atomic import atomic_path
 from spotlessgs.io.errors import InputError
-from spotlessgs.io.tensor_file import load_plain_torch_file
+from spotlessgs.io.tensor_file import load_plain_torch_file, load_tree, save_tree
 
 CHECKPOINT_FORMAT = "spotlessgs-cyclegan-v1"
-CHECKPOINT_NAME = "checkpoint.pt"
+CHECKPOINT_NAME = "checkpoint.safetensors"
+#: The checkpoint file of runs written by older versions (a torch pickle).
+LEGACY_CHECKPOINT_NAME = "checkpoint.pt"
 # Networks in a checkpoint: G_ab maps uneven (a) to even (b), G_ba back; D_a/D_b judge domain a/b.
 NETWORK_KEYS = ("G_ab", "G_ba", "D_a", "D_b")
 
 
-def save_checkpoint(path: str | os.PathLike, state: dict[str, Any]) -> None:
-    """Write ``state`` (must hold 'format', 'config', 'step', ...) atomically to ``path``."""
-    with atomic_path(path, suffix=".pt") as tmp:
-        torch.save(state, tmp)
+def existing_checkpoint(run_dir: str | os.PathLike) -> Path | None:
+    """The checkpoint of the Cycle-GAN run folder ``run_dir``: ``checkpoint.safetensors``, else an older version's
+    ``checkpoint.pt``, else None."""
+    for name in (CHECKPOINT_NAME, LEGACY_CHECKPOINT_NAME):
+        if (Path(run_dir) / name).is_file():
+            return Path(run_dir) / name
+    return None
+
+
+def save_checkpoint(run_dir: str | os.PathLike, state: dict[str, Any]) -> Path:
+    """Write ``state`` (must hold 'format', 'config', 'step', ...) atomically as ``run_dir/checkpoint.safetensors``
+    (an older version's ``checkpoint.pt`` there is superseded and removed); returns its path."""
+    path = save_tree(Path(run_dir) / CHECKPOINT_NAME, state, CHECKPOINT_FORMAT)
+    (Path(run_dir) / LEGACY_CHECKPOINT_NAME).unlink(missing_ok=True)
+    return path
+
+
+def checkpoint_file(path: str | os.PathLike) -> Path:
+    """The checkpoint file ``path`` names: the file itself, or the checkpoint inside a Cycle-GAN run folder
+    (:func:`existing_checkpoint`); FileNotFoundError naming ``path`` when there is none."""
+    path = Path(path)
+    if path.is_dir():
+        found = existing_checkpoint(path)
+        if found is None:
+            raise FileNotFoundError(f"{path}: holds no Cycle-GAN checkpoint ({CHECKPOINT_NAME} or "
+                                    f"{LEGACY_CHECKPOINT_NAME}); train one with `spotless baseline2d train-cyclegan`")
+        return found
+    if not path.is_file():
+        raise FileNotFoundError(f"{path}: Cycle-GAN checkpoint not found")
+    return path
 
 
 def load_checkpoint(path: str | os.PathLike) -> dict[str, Any]:
-    """Read and check a checkpoint (:func:`check_checkpoint`); raises FileNotFoundError / InputError naming the file
+    """Read and check a checkpoint (:func:`check_checkpoint`): a safetensors file, an older version's ``.pt`` file,
+    or a run folder holding either (:func:`checkpoint_file`); raises FileNotFoundError / InputError naming the file
     and the problem."""
-    path = Path(path)
-    if not path.is_file():
-        raise FileNotFoundError(f"{path}: Cycle-GAN checkpoint not found")
-    state = load_plain_torch_file(path, "Cycle-GAN checkpoint")
+    path = checkpoint_file(path)
+    if path.suffix.lower() in (".pt", ".pth"):
+        state = load_plain_torch_file(path, "Cycle-GAN checkpoint")
+    else:
+        try:
+            state = load_tree(path, CHECKPOINT_FORMAT)
+        except InputError as exc:
+            raise InputError(f"{exc} (not a Cycle-GAN checkpoint)") from None
     if not isinstance(state, dict) or state.get("format") != CHECKPOINT_FORMAT:
         found = state.get("format") if isinstance(state, dict) else type(state).__name__
         raise InputError(f"{path}: not a Cycle-GAN checkpoint (format {found!r}, expected {CHECKPOINT_FORMAT!r})")

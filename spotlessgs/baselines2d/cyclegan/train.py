@@ -4,7 +4,7 @@ Domain a = uneven, domain b = even. Per step (Zhu et al. 2017): generators first
 lambda * lambda_identity * identity L1, discriminators frozen), then discriminators (0.5 * LSGAN on real and pooled
 fake images). Adam for each pair; constant learning rate, then a linear decay to zero.
 
-Output folder: ``checkpoint.pt`` (latest good state, rewritten atomically every ``checkpoint_every`` steps and at
+Output folder: ``checkpoint.safetensors`` (latest good state, rewritten atomically every ``checkpoint_every`` steps and at
 the end), ``metrics.jsonl`` (one JSON record per ``log_every`` steps, rewritten with each checkpoint so it never runs
 ahead of it) and ``provenance.json``. Calling ``train_cyclegan`` again on the same folder continues from the
 checkpoint and gives bitwise the weights of an uninterrupted run (same thread count).
@@ -27,6 +27,8 @@ from spotlessgs.baselines2d.cyclegan import losses
 from spotlessgs.baselines2d.cyclegan.checkpoint import (
     CHECKPOINT_FORMAT,
     CHECKPOINT_NAME,
+    LEGACY_CHECKPOINT_NAME,
+    existing_checkpoint,
     load_checkpoint,
     restore,
     save_checkpoint,
@@ -244,12 +246,13 @@ def train_cyclegan(
     seed: int = 0,
     progress: bool = True,
 ) -> Path:
-    """Train uneven -> even translation on unpaired folders; resume from ``out_dir/checkpoint.pt`` when present.
+    """Train uneven -> even translation on unpaired folders; resume from the checkpoint in ``out_dir`` when
+    there is one (``checkpoint.safetensors``, or an older version's ``checkpoint.pt``).
 
     Args:
         uneven_dirs: folder(s) of spotlight-lit images (domain a).
         even_dirs: folder(s) of evenly lit images of OTHER scenes than the test scene (domain b).
-        out_dir: output folder (created); holds checkpoint.pt, metrics.jsonl, provenance.json.
+        out_dir: output folder (created); holds checkpoint.safetensors, metrics.jsonl, provenance.json.
         config: network and optimisation settings.
         seed: seeds initialisation, crops and image pools (per stage, via spotlessgs.io.seeding).
         progress: show a tqdm progress bar.
@@ -262,10 +265,9 @@ def train_cyclegan(
     out_dir = Path(out_dir)
     uneven_folders, even_folders = _as_folder_list(uneven_dirs), _as_folder_list(even_dirs)
     refuse_overlap(out_dir, {f"--uneven/--even {d}": d for d in [*uneven_folders, *even_folders]}, "--out")
-    ckpt_path = out_dir / CHECKPOINT_NAME
     metrics_path = out_dir / METRICS_NAME
-    refuse_foreign_folder(out_dir, [CHECKPOINT_NAME, PROVENANCE_NAME], "--out", "a Cycle-GAN run (training would "
-                          "replace some of them)")
+    refuse_foreign_folder(out_dir, [CHECKPOINT_NAME, LEGACY_CHECKPOINT_NAME, PROVENANCE_NAME], "--out",
+                          "a Cycle-GAN run (training would replace some of them)")
     domain_a = load_domain("uneven", uneven_folders, config.crop_height, config.crop_width)
     domain_b = load_domain("even", even_folders, config.crop_height, config.crop_width)
     fingerprints = {"uneven": domain_fingerprint(domain_a), "even": domain_fingerprint(domain_b)}
@@ -274,11 +276,12 @@ def train_cyclegan(
     with folder_lock(out_dir, "spotless baseline2d train-cyclegan"), torch_threads(config.num_threads):
         trainer = CycleGANTrainer(config, seed)
         records: list[dict[str, Any]] = []
-        if ckpt_path.exists():
-            state = load_checkpoint(ckpt_path)
-            _check_resume(state, config, seed, fingerprints, ckpt_path)
+        found = existing_checkpoint(out_dir)
+        if found is not None:
+            state = load_checkpoint(found)
+            _check_resume(state, config, seed, fingerprints, found)
             records = _read_metrics(metrics_path, int(state["step"]))
-            trainer.load_state(state, ckpt_path)
+            trainer.load_state(state, found)
         else:
             write_json(
                 out_dir / PROVENANCE_NAME,
@@ -292,8 +295,8 @@ def train_cyclegan(
                     fingerprints=fingerprints,
                 ),
             )
-        _run_steps(trainer, domain_a, domain_b, fingerprints, ckpt_path, metrics_path, records, progress)
-    return ckpt_path
+        _run_steps(trainer, domain_a, domain_b, fingerprints, out_dir, metrics_path, records, progress)
+    return out_dir / CHECKPOINT_NAME
 
 
 def _run_steps(
@@ -301,7 +304,7 @@ def _run_steps(
     domain_a: ImageDomain,
     domain_b: ImageDomain,
     fingerprints: dict[str, str],
-    ckpt_path: Path,
+    out_dir: Path,
     metrics_path: Path,
     records: list[dict[str, Any]],
     progress: bool,
@@ -310,7 +313,8 @@ def _run_steps(
     sums: dict[str, float] = {}
     window = 0
     started = time.perf_counter()
-    last_saved = trainer.step if ckpt_path.exists() else None
+    ckpt_path = existing_checkpoint(out_dir)  # the last good checkpoint, named when training diverges
+    last_saved = trainer.step if ckpt_path is not None else None
     with tqdm(total=cfg.steps, initial=trainer.step, desc="cycle-gan", unit="step", disable=not progress) as bar:
         while trainer.step < cfg.steps:
             rng = numpy_rng(trainer.seed, f"cyclegan/step/{trainer.step}")
@@ -338,11 +342,11 @@ def _run_steps(
                     problem = f"non-finite weights {bad[:5]} after step {trainer.step}"
                     raise FloatingPointError(_divergence_message(problem, ckpt_path, last_saved))
                 _write_metrics(metrics_path, records)  # first: a resume keeps the records up to its checkpoint's step
-                save_checkpoint(ckpt_path, trainer.state(fingerprints))
+                ckpt_path = save_checkpoint(out_dir, trainer.state(fingerprints))
                 last_saved = trainer.step
 
 
-def _divergence_message(problem: str, ckpt_path: Path, last_saved: int | None) -> str:
+def _divergence_message(problem: str, ckpt_path: Path | None, last_saved: int | None) -> str:
     kept = (
         f"the last good checkpoint {ckpt_path} (step {last_saved}) is kept"
         if last_saved is not None

@@ -156,7 +156,7 @@ def build_graph(config: ReproduceConfig, out: Path) -> StageGraph:
                 f"baseline2d/{ds}/{method}", f"{TASKS}:run_baseline2d", deps=deps, output=target_dir,
                 resources=other,
                 kwargs={"method": method, "data_dir": str(out / "datasets" / ds), "out_dir": str(target_dir),
-                        "checkpoint": str(out / "cyclegan" / "checkpoint.pt") if method == "cyclegan" else None,
+                        "checkpoint": str(out / "cyclegan") if method == "cyclegan" else None,
                         **common}))
     stages.append(Stage("report", f"{TASKS}:write_report_stage", deps=tuple(s.name for s in stages),
                         resources=other, kwargs={"out_dir": str(out)}))
