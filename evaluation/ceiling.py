@@ -31,17 +31,21 @@ from evaluation.dataset import read_dataset
 from evaluation.folders import ImagePair
 from evaluation.report import write_markdown, write_results_json
 from evaluation.runner import EvalConfig, score_pairs, scored_test_frames
-from spotlessgs.io.atomic import atomic_path
+from spotlessgs.io.atomic import atomic_path, write_json
 from spotlessgs.io.colorspace import linear_to_srgb
 from spotlessgs.io.errors import InputError
 from spotlessgs.io.exr import read_frame_exr
 from spotlessgs.io.images import write_png
-from spotlessgs.io.paths import refuse_overlap
+from spotlessgs.io.json_files import read_json
+from spotlessgs.io.paths import refuse_foreign_folder, refuse_overlap
+from spotlessgs.io.provenance import provenance
 from spotlessgs.models.sh import sh_basis
 
 #: SH degree of the oracle's light per normal (the relighting's low-frequency light uses up to 3).
 ORACLE_SH_DEGREE = 3
 #: The oracles, in the order they are scored: folder name -> what it is.
+#: The record a ceiling folder holds: which dataset and ground truth its images are of (and how they were made).
+CEILING_RECORD = "ceiling.json"
 ORACLES = {"albedo": "true reflectance x one gain", "albedo-sh": "true reflectance x best light per normal (SH 3)"}
 
 
@@ -103,11 +107,20 @@ def write_oracles(data_dir: str | Path, out: str | Path, ground_truth: str = "la
 
     Raises:
         InputError: a test view has no EXR, or its EXR has no albedo pass (rendered before 2026-11-24: render the
-            dataset again), naming the file.
+            dataset again), naming the file; ``out`` holds files but no :data:`CEILING_RECORD`, or the ceiling of
+            another dataset or ground truth.
     """
     data_dir, out = Path(data_dir), Path(out)
     refuse_overlap(out, {"DATA": data_dir}, "--out")
+    refuse_foreign_folder(out, [CEILING_RECORD], "--out", "a ceiling written by this command")
+    wanted = {"data": str(data_dir.resolve()), "ground_truth": ground_truth}
+    if (out / CEILING_RECORD).is_file():
+        old = read_json(out / CEILING_RECORD, "a ceiling's record")
+        if {k: old.get(k) for k in wanted} != wanted:
+            raise InputError(f"{out}: holds the ceiling of {old.get('data')} ({old.get('ground_truth')} ground truth), "
+                             "not of this dataset and ground truth; choose an empty or new --out")
     frames = _test_frames(data_dir, ground_truth)
+    write_json(out / CEILING_RECORD, {**wanted, **provenance()})
     bases = [normal_basis(exr) for _, exr in frames]
     coefficients = fit_light_per_normal([exr for _, exr in frames], bases, ground_truth)
     pairs = []

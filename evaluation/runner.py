@@ -343,6 +343,29 @@ def _write_outputs(out_dir: Path | None, json_path: Path | None, results: dict, 
 _EVAL_OUTPUTS = ("results.json", "results.md", "figures/grid.png", "figures/sfm_trajectories.png")
 
 
+def _refuse_foreign_out(out: Path) -> None:
+    """InputError unless ``out`` may take an evaluation's outputs: absent or empty, an earlier evaluation (its
+    manifest's kind is ``eval`` or ``eval-folders``), or a folder holding nothing but what an evaluation writes (one
+    interrupted before its manifest, or written by a version without manifests). Anything else (a render, the run's
+    checkpoints, a user's folder) would get its results files replaced and its ``sfm/`` work folders deleted."""
+    if out.exists() and not out.is_dir():
+        raise InputError(f"{out}: --out is a file, not a folder")
+    if not out.is_dir():
+        return
+    try:
+        manifest = read_manifest(out)
+    except InputError:  # a damaged manifest vouches for nothing: judged by the folder's entries below
+        manifest = None
+    if manifest is not None and manifest.get("kind") in ("eval", "eval-folders"):
+        return
+    own = {"results.json", "results.md", "figures", "sfm"}
+    foreign = sorted(p.name for p in out.iterdir() if not p.name.startswith(".") and p.name not in own)
+    if manifest is not None or foreign:
+        shown = ", ".join(foreign[:4] or [f"a {manifest.get('kind')!r} manifest"])
+        raise InputError(f"{out}: holds files that are not an earlier evaluation's ({shown}); an evaluation "
+                         "replaces its results and SfM work folders there: choose an empty or new --out")
+
+
 def _write_eval_manifest(out: Path, kind: str, run: Path | None, checkpoint: dict | None, config: EvalConfig,
                          dataset: dict | None, scored: dict | None, written: Sequence[str]) -> None:
     """The output folder's manifest (kind ``eval`` or ``eval-folders``): the files this evaluation wrote, with
@@ -391,9 +414,14 @@ def check_relit_folder(run: Path, relit_dir: Path) -> dict | None:
                          f"train and relight again")
     digest = sha256_file(ckpt)
     if digest != recorded.get("sha256"):
+        now = checkpoint_step(run)
+        if now is None:  # not training that went on: the file cannot be read
+            raise InputError(f"{ckpt}: the run's checkpoint cannot be read (damaged or cut short), and it is not the "
+                             f"one the relit images in {relit_dir} were made from (step {recorded.get('step')}); "
+                             "restore it or train again")
         raise InputError(f"{relit_dir}: stale relit images: made from the checkpoint at step {recorded.get('step')}, "
-                         f"but the run's checkpoint has changed since (now step {checkpoint_step(run)}: training "
-                         f"went on after relighting); {remedy}")
+                         f"but the run's checkpoint has changed since (now step {now}: training went on after "
+                         f"relighting); {remedy}")
     verify_frames(relit_dir, manifest, remedy)
     return _manifest_record(relit_dir, manifest, digest)
 
@@ -446,6 +474,7 @@ def evaluate_folders(
     inputs = {"--pred": pred_dir, "--gt": gt_dir}
     if out_dir is not None:
         refuse_overlap(out_dir, inputs, "--out")
+        _refuse_foreign_out(Path(out_dir))
     if json_path is not None:
         refuse_overlap(json_path, inputs, "--json")
     pred_manifest = check_folder_manifest(Path(pred_dir), "--pred")
@@ -643,6 +672,7 @@ def evaluate_run(
         raise FileNotFoundError(f"{relit_dir}: the run has no relit images; run `spotless relight {run}` first")
     out = Path(out_dir) if out_dir is not None else run / "eval"
     refuse_overlap(out, {"RUN/relit": relit_dir, "--data": data_root}, "--out")
+    _refuse_foreign_out(out)
     if json_path is not None:
         refuse_overlap(json_path, {"RUN/relit": relit_dir, "--data": data_root, "RUN/checkpoints": run / "checkpoints",
                                    "RUN/run.json": run / "run.json", "RUN/config.json": run / "config.json"}, "--json")

@@ -27,6 +27,7 @@ import numpy as np
 from evaluation.trajectory import TrajectoryErrors, pool_trajectory_errors, trajectory_errors
 from spotlessgs.io.cameras import Intrinsics
 from spotlessgs.io.colmap_text import SUPPORTED_MODELS, ColmapCamera
+from spotlessgs.io.errors import InputError
 
 
 @dataclass(frozen=True)
@@ -420,7 +421,7 @@ def load_sfm_result(sparse_root: str | os.PathLike, total_images: int | None = N
     :func:`run_sfm` under ``work_dir/sparse``); ``total_images`` defaults to the registered ones.
 
     Raises:
-        FileNotFoundError: ``sparse_root`` holds no COLMAP model.
+        FileNotFoundError: ``sparse_root`` holds no COLMAP model. InputError: a model's files are damaged (named).
     """
     import pycolmap
 
@@ -429,7 +430,13 @@ def load_sfm_result(sparse_root: str | os.PathLike, total_images: int | None = N
     dirs = [d for d in dirs if (d / "images.bin").is_file() or (d / "images.txt").is_file()]
     if not dirs:
         raise FileNotFoundError(f"{root}: no COLMAP model (expected numbered folders with images.bin)")
-    models = {k: pycolmap.Reconstruction(str(d)) for k, d in enumerate(dirs)}
+    models = {}
+    for k, d in enumerate(dirs):
+        try:
+            models[k] = pycolmap.Reconstruction(str(d))
+        except Exception as exc:  # noqa: BLE001 - pycolmap reports a damaged model as IndexError, ValueError, ...
+            detail = " ".join(str(exc).split())[:200] or type(exc).__name__
+            raise InputError(f"{d}: unreadable COLMAP model ({detail})") from None
     registered = sum(r.num_reg_images() for r in models.values())
     return _result_from_models(models, total=registered if total_images is None else total_images)
 

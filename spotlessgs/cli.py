@@ -16,6 +16,9 @@ from spotlessgs.baselines2d.cli import baseline2d
 from spotlessgs.experiments.cli import benchmark, trainer_settings
 from spotlessgs.experiments.reproduce.cli import reproduce
 
+#: The largest --l0 channel accepted: a light a million times the default's already turns every pixel white; far
+#: larger values overflow float32 (inf in the EXR files).
+MAX_L0 = 1e6
 MODELS = ["3dgs", "darkgs", "darkgs-calibrated", "darkgs+sh", "darkgs+brdf", "spotless"]
 
 
@@ -114,7 +117,7 @@ def train(data_dir, run_dir, model, preset, iterations, image_width, seed, resum
 
 @main.command()
 @click.argument("run_dir", type=click.Path(exists=True, file_okay=False, path_type=Path))
-@click.option("--l0", nargs=3, type=FiniteFloatRange(0), default=None, metavar="R G B",
+@click.option("--l0", nargs=3, type=FiniteFloatRange(0, MAX_L0), default=None, metavar="R G B",
               help="Constant linear RGB radiance that replaces the spotlight. Default: automatic (white, scaled so "
                    "that about 1% of relit pixels reach 1; the value used is reported).")
 @click.option("--lamp-l0", is_flag=True,
@@ -249,7 +252,8 @@ def prepare(images_dir, bag, image_topic, camera_info_topic, odometry_topic, dep
 @main.command()
 @click.argument("run_dir", type=click.Path(exists=True, file_okay=False, path_type=Path))
 @click.option("--out", "out_path", required=True, type=click.Path(dir_okay=False, path_type=Path))
-@click.option("--l0", nargs=3, type=FiniteFloatRange(0), default=(1.0, 1.0, 1.0), show_default=True, metavar="R G B")
+@click.option("--l0", nargs=3, type=FiniteFloatRange(0, MAX_L0), default=(1.0, 1.0, 1.0), show_default=True,
+              metavar="R G B")
 @click.option("--data", "data_dir", type=click.Path(exists=True, file_okay=False, path_type=Path), default=None,
               help="The run's dataset, when it has moved (default: the path recorded in RUN/run.json).")
 def export(run_dir, out_path, l0, data_dir):

@@ -33,7 +33,7 @@ from spotlessgs.io.exr import write_exr
 from spotlessgs.io.folder_lock import source_and_output_locks
 from spotlessgs.io.images import is_image_name, write_png
 from spotlessgs.io.lens import distort_maps, remap, working_camera
-from spotlessgs.io.paths import refuse_overlap
+from spotlessgs.io.paths import refuse_overlap, refuse_working_directory
 from spotlessgs.manifest import (
     MANIFEST_NAME, checkpoint_identity, dataset_record, hash_frames, manifest_path, read_manifest, write_manifest,
 )
@@ -196,6 +196,7 @@ def _check_output(out: Path, run_dir: Path, data_dir: Path) -> None:
         OutputOverlapError / InputError: naming the folder and what to choose instead.
     """
     refuse_overlap(out, {"--data": data_dir}, "--out")
+    refuse_working_directory(out, "--out")
     real_out, real_run = Path(os.path.realpath(out)), Path(os.path.realpath(run_dir))
     if real_run.is_relative_to(real_out):
         raise OutputOverlapError(f"{out}: --out is or holds the run folder {run_dir}; a render replaces its whole "

@@ -165,3 +165,24 @@ def test_lamp_masked_metrics_leave_out_the_pixels_that_the_emission_pass_marks(t
     assert scores["psnr_aligned_masked"] == float("inf")
     plain = score_pairs([ImagePair("f.png", tmp_path / "pred.png", tmp_path / "gt.png")], config)
     assert not any(k.endswith("_masked") for k in plain) and plain["psnr"] == scores["psnr"]
+
+
+def test_the_ceiling_never_writes_into_another_folder_or_another_datasets_ceiling(tmp_path):
+    """--out holding another dataset (its gt/ would be overwritten) or another dataset's ceiling is refused, each file
+    left as it was; the same dataset's ceiling is written again in place."""
+    data, other = _dataset(tmp_path / "data"), _dataset(tmp_path / "other")
+    before = {p: p.read_bytes() for p in other.rglob("*") if p.is_file()}
+    result = CliRunner().invoke(main, ["ceiling", str(data), "--out", str(other), "--no-lpips", "--quiet"])
+    assert result.exit_code == 2 and "holds files but no ceiling.json" in result.output
+    assert {p: p.read_bytes() for p in other.rglob("*") if p.is_file()} == before
+
+    from evaluation.ceiling import EvalConfig, ceiling
+
+    config = EvalConfig(lpips=False, temporal=False, progress=False, num_threads=1)
+    first = ceiling(data, tmp_path / "ceiling", config)["albedo"]["psnr_aligned"]
+    assert ceiling(data, tmp_path / "ceiling", config)["albedo"]["psnr_aligned"] == first
+    record = json.loads((tmp_path / "ceiling" / "ceiling.json").read_text())
+    assert record["data"] == str(data.resolve()) and record["ground_truth"] == "lamps"
+    with pytest.raises(InputError, match=r"ceiling: holds the ceiling of .*data \(lamps ground truth\), not of this "
+                                         r"dataset"):
+        ceiling(other, tmp_path / "ceiling", config)

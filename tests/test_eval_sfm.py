@@ -189,3 +189,20 @@ def test_pooled_trajectory_errors_weight_poses_and_pairs():
     assert pool_trajectory_errors([b]) == b
     with pytest.raises(ValueError, match="no trajectories"):
         pool_trajectory_errors([])
+
+
+def test_a_damaged_colmap_model_is_one_line_naming_its_folder(tmp_path):
+    """sfm-rings on a model whose images.bin is damaged: pycolmap's IndexError was reported as a bug, with a
+    traceback."""
+    from click.testing import CliRunner
+
+    from spotlessgs.cli import main
+
+    model = tmp_path / "sparse" / "0"
+    model.mkdir(parents=True)
+    (model / "images.bin").write_bytes(b"garbage")
+    (model / "cameras.bin").write_bytes(b"")
+    (model / "points3D.bin").write_bytes(b"")
+    result = CliRunner().invoke(main, ["sfm-rings", f"a={tmp_path / 'sparse'}"])
+    assert result.exit_code == 2, result.output
+    assert f"{model}: unreadable COLMAP model" in result.output and "Traceback" not in result.output

@@ -211,6 +211,49 @@ def test_eval_run_refuses_json_in_its_inputs(trained):
     assert not (run / "eval").exists()  # refused before anything was written
 
 
+def test_eval_out_takes_only_an_empty_folder_or_an_earlier_evaluation(trained, tmp_path):
+    """An --out holding a render, the run's checkpoints or a user's notes (with an sfm/ work folder of the same name)
+    is refused with one line and left as it was; an earlier evaluation's folder is written again."""
+    run = trained / "run"
+    pred, gt = tmp_path / "pred", tmp_path / "gt"
+    _photos(pred), _photos(gt)
+    mine = tmp_path / "mine"
+    (mine / "sfm" / "pred").mkdir(parents=True)
+    (mine / "sfm" / "pred" / "notes.txt").write_text("precious")
+    (mine / "todo.txt").write_text("mine")
+    before = _snapshot(mine)
+    res = _cli("eval", "--pred", str(pred), "--gt", str(gt), "--out", str(mine), "--quiet", "--no-lpips", "--sfm")
+    _one_line_error(res, "mine: holds files that are not an earlier evaluation's (todo.txt)")
+    assert _snapshot(mine) == before
+    checkpoints = _snapshot(run / "checkpoints")
+    res = _cli("eval", str(run), "--out", str(run / "checkpoints"), "--quiet", "--no-lpips")
+    _one_line_error(res, "checkpoints: holds files that are not an earlier evaluation's (last.safetensors)")
+    assert _snapshot(run / "checkpoints") == checkpoints
+    render = tmp_path / "render"
+    assert _relight(run, "--out", str(render)).exit_code == 0
+    rendered = _snapshot(render)
+    with pytest.raises(InputError, match=r"render: holds files that are not an earlier evaluation's \(frame_"):
+        evaluate_folders(pred, gt, QUICK, out_dir=render)
+    res = _cli("eval", str(run), "--out", str(render), "--quiet", "--no-lpips")
+    assert res.exit_code == 2 and "not an earlier evaluation's" in res.output, res.output
+    assert _snapshot(render) == rendered
+    evaluate_folders(pred, gt, QUICK, out_dir=tmp_path / "scores")
+    evaluate_folders(pred, gt, QUICK, out_dir=tmp_path / "scores")  # an earlier evaluation: replaced
+    assert (tmp_path / "scores" / MANIFEST_NAME).is_file()
+
+
+def test_a_folder_replaced_whole_may_not_be_the_current_directory(trained, tmp_path, monkeypatch):
+    """relight/enhance --out . (or a folder holding the shell's directory) were refused only after rendering every
+    view, by the swap's rename ("Device or resource busy"); now up front, naming the option."""
+    here = tmp_path / "emptyd" / "sub"
+    here.mkdir(parents=True)
+    monkeypatch.chdir(here)
+    _one_line_error(_relight(trained / "run", "--out", "."), ".: --out is or holds the current directory")
+    _one_line_error(_cli("baseline2d", "enhance", "clahe", str(trained / "data" / "images"), str(here.parent)),
+                    "emptyd: OUT_DIR is or holds the current directory")
+    assert not any(tmp_path.joinpath("emptyd").rglob("*.png")) and here.is_dir()
+
+
 # ---- (4) export never replaces the run's or the dataset's files ----------------------------------------------------
 
 

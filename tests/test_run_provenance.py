@@ -102,6 +102,14 @@ def test_eval_refuses_images_of_an_earlier_checkpoint(trained, tmp_path):
                                          r"step 20.*run `spotless relight .*run` again"):
         evaluate_run(run, QUICK)
 
+    checkpoint = run / "checkpoints" / "last.safetensors"
+    whole = checkpoint.read_bytes()
+    checkpoint.write_bytes(whole[: len(whole) // 2])  # a damaged checkpoint is not "training went on"
+    with pytest.raises(InputError, match=r"last\.safetensors: the run's checkpoint cannot be read \(damaged or cut "
+                                         r"short\), and it is not the one the relit images .* \(step 10\)"):
+        evaluate_run(run, QUICK)
+    checkpoint.write_bytes(whole)
+
     _relight(run)
     again = evaluate_run(run, QUICK)
     assert again["relit_manifest"]["checkpoint_step"] == 20

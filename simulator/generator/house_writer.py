@@ -23,6 +23,7 @@ from pathlib import Path
 import numpy as np
 
 from spotlessgs.io.atomic import swap_in_folder, write_json
+from spotlessgs.io.paths import refuse_working_directory
 
 from .furniture import FurnitureModel, model_info, save_png, write_model
 
@@ -71,9 +72,11 @@ def write_house(out_dir: Path, files: HouseFiles) -> Path:
 
     Raises:
         FileExistsError: ``out_dir`` exists and is neither empty nor a room made by this generator, or holds other
-            entries than :data:`ROOM_ENTRIES` beside one.
+            entries than :data:`ROOM_ENTRIES` beside one. OutputOverlapError: ``out_dir`` is or holds the current
+            directory.
     """
     out_dir = Path(out_dir)
+    refuse_working_directory(out_dir, "--out")
     refusal = _refusal(out_dir)
     if refusal is not None:
         raise FileExistsError(f"{out_dir}: {refusal}; refusing to replace it (use another --out)")

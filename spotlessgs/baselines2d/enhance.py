@@ -16,7 +16,7 @@ from spotlessgs.baselines2d.msrcr import MsrcrConfig, msrcr
 from spotlessgs.io.atomic import partial_sibling, swap_in_folder, write_json
 from spotlessgs.io.errors import write_error
 from spotlessgs.io.images import list_image_files, read_image, write_png
-from spotlessgs.io.paths import refuse_foreign_folder, refuse_overlap
+from spotlessgs.io.paths import refuse_foreign_folder, refuse_overlap, refuse_working_directory
 from spotlessgs.io.provenance import provenance, sha256_file
 
 METHODS = ("clahe", "msrcr", "cyclegan")
@@ -60,6 +60,7 @@ def enhance_folder(method: str, in_dir: str | os.PathLike, out_dir: str | os.Pat
         raise ValueError(f"enhance_folder: unknown method {method!r}; choose one of {list(METHODS)}")
     out_dir = Path(out_dir)
     refuse_overlap(out_dir, {"IN_DIR": in_dir}, "OUT_DIR")
+    refuse_working_directory(out_dir, "OUT_DIR")
     refuse_foreign_folder(out_dir, [PROVENANCE_NAME], "OUT_DIR", "an earlier output of this command (the output "
                           "replaces the whole folder)", count_hidden=True)
     if method == "cyclegan" and "checkpoint" not in opts:

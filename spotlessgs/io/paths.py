@@ -95,3 +95,16 @@ def refuse_foreign_folder(folder: str | os.PathLike, records: Sequence[str], opt
         shown = ", ".join(names[:4]) + (f" and {len(names) - 4} more" if len(names) > 4 else "")
         raise InputError(f"{folder}: holds files but no {' or '.join(records)} ({shown}): not {what}; choose an "
                          f"empty or new {option}")
+
+
+def refuse_working_directory(output: str | os.PathLike, option: str) -> None:
+    """Raise where ``output``, a folder that a command replaces whole (written beside it, then swapped in), is the
+    current working directory or holds it: the swap would move the shell's folder away from under it.
+
+    Raises:
+        OutputOverlapError: naming the folder and the option.
+    """
+    cwd = _real(os.getcwd())
+    if cwd.is_relative_to(_real(output)):
+        raise OutputOverlapError(f"{output}: {option} is or holds the current directory ({cwd}); the command replaces "
+                                 f"its whole output folder: choose a new folder for {option}")
