@@ -195,6 +195,8 @@ def render_many(scene_files: Sequence[Path], variants: Sequence[str], root: str 
     from tqdm import tqdm
 
     root = Path(root)
+    if executor.kind == "ray":  # a Ray worker resolves a relative path in its node's working directory, not this one
+        root, scene_files = root.resolve(), [Path(p).resolve() for p in scene_files]
     if frames_per_task < 1:
         raise InputError(f"--frames-per-task must be at least 1, got {frames_per_task}")
     try:

@@ -272,8 +272,8 @@ def _scales(_ctx, _param, values: tuple[str, ...]) -> dict[str, float]:
             scales[pattern] = float(factor)
         except ValueError:
             raise click.BadParameter(f"{value!r} is not PATTERN=FACTOR (e.g. 'render/*=64')") from None
-        if not pattern or scales[pattern] <= 0:
-            raise click.BadParameter(f"{value!r}: need a stage name pattern and a factor > 0")
+        if not pattern or not 0 < scales[pattern] < float("inf"):  # NaN fails the comparison too
+            raise click.BadParameter(f"{value!r}: need a stage name pattern and a finite factor > 0")
     return scales
 
 

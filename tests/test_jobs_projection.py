@@ -49,6 +49,9 @@ def test_read_from_markers_and_refuse_markers_without_dependencies(tmp_path):
         read_measured_stages(tmp_path)
     bad = CliRunner().invoke(main, ["cluster-projection", str(tmp_path), "--scale", "render/*"])
     assert bad.exit_code == 2 and "is not PATTERN=FACTOR" in bad.output
+    for factor in ("nan", "inf", "0"):  # NaN and inf printed "nan h" / "inf h" projections and exited 0
+        bad = CliRunner().invoke(main, ["cluster-projection", str(tmp_path), "--scale", f"render/*={factor}"])
+        assert bad.exit_code == 2 and "need a stage name pattern and a finite factor > 0" in bad.output, bad.output
 
 
 def test_a_killed_writes_temporary_marker_is_skipped_and_a_damaged_one_named(tmp_path):

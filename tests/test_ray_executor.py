@@ -186,6 +186,65 @@ def test_task_resources_threads_memory_and_a_gpu_only_where_the_cluster_has_one(
     assert "memory" not in task_options(Stage("s", "m:f"), threads=1, max_retries=3, cluster_gpus=0.0)
 
 
+def test_a_stage_must_fit_one_node_with_its_cpus_gpu_and_memory_together():
+    """A GPU stage on a cluster whose GPU node has fewer CPUs than --threads (and a CPU node has enough) waited
+    forever: the CPU and memory checks looked at the largest node of each, not at one node holding all three."""
+    from spotlessgs.jobs.ray_cluster import check_feasible
+
+    gib = 2.0**30
+    graph = StageGraph([Stage("train/x", "m:f", resources=StageResources(memory_mb=1024, gpu=True)),
+                        Stage("render/x", "m:f", resources=StageResources(memory_mb=3072))])
+    cpu_node, gpu_node = {"CPU": 2.0, "memory": 8 * gib}, {"CPU": 1.0, "GPU": 1.0, "memory": 2 * gib}
+    check_feasible(graph, ["render/x"], 2, [cpu_node, gpu_node])  # renders fit the CPU node
+    check_feasible(graph, ["train/x"], 1, [cpu_node, gpu_node])
+    with pytest.raises(ValueError, match=r"stage train/x asks for a GPU, 2 CPU\(s\) and 1024 MiB on one node, but no "
+                                         r"node of the Ray cluster has them together \(its GPU nodes have at most 1 "
+                                         r"CPU\(s\)\); use --threads 1"):
+        check_feasible(graph, ["render/x", "train/x"], 2, [cpu_node, gpu_node])
+    check_feasible(graph, ["train/x"], 2, [cpu_node])  # no GPU in the cluster: the stage runs on CPUs
+    with pytest.raises(ValueError, match=r"stage render/x asks for 2 CPU\(s\) and 3072 MiB on one node"):
+        check_feasible(graph, ["render/x"], 2, [{"CPU": 2.0, "memory": 1 * gib}, {"CPU": 1.0, "memory": 4 * gib}])
+    with pytest.raises(ValueError, match=r"every stage asks for 4 CPU\(s\) \(--threads\) but the largest node"):
+        check_feasible(graph, ["render/x"], 4, [cpu_node, gpu_node])
+
+
+def test_ray_address_auto_without_a_cluster_is_said_before_anything_is_written(tmp_path, monkeypatch):
+    """`reproduce --executor ray` (--ray-address auto) on a machine without a cluster wrote reproduce.json and its
+    lock, then failed with Ray's advice about an --address flag that spotless does not have."""
+    import ray._private.utils
+
+    from spotlessgs.experiments.reproduce.config import preset
+    from spotlessgs.experiments.reproduce.pipeline import reproduce
+
+    monkeypatch.delenv("RAY_ADDRESS", raising=False)
+    monkeypatch.setattr(ray._private.utils, "read_ray_address", lambda temp_dir=None: None)
+    with pytest.raises(ConnectionError, match=r"--ray-address auto: no Ray cluster to join .*--ray-address local"):
+        reproduce(preset("tiny"), tmp_path / "out", executor=ExecutorSpec("ray"))
+    assert not (tmp_path / "out").exists()
+    monkeypatch.setenv("RAY_ADDRESS", "127.0.0.1:1")  # nothing listens on port 1
+    with pytest.raises(ConnectionError, match=r"127\.0\.0\.1:1: no Ray cluster answers there"):
+        ExecutorSpec("ray").check()
+
+
+def test_relative_folders_reach_ray_workers_as_absolute_paths(tmp_path, monkeypatch):
+    """A Ray worker resolves a relative --out or --scenes-dir in its node's working directory: outputs and markers
+    landed there and a rerun never found them. The Ray executor gets absolute paths; the local one keeps them as
+    given (results name the folder the way the user did)."""
+    import spotlessgs.experiments.reproduce.pipeline as pipeline
+    from spotlessgs.experiments.reproduce.config import preset
+
+    seen = {}
+    monkeypatch.setattr(ExecutorSpec, "check", lambda self: None)
+    monkeypatch.setattr(pipeline, "execute", lambda graph, root, executor: seen.update(graph=graph, root=root))
+    monkeypatch.chdir(tmp_path)
+    pipeline.reproduce(preset("tiny"), "out", executor=ExecutorSpec("ray"))
+    assert seen["root"] == tmp_path / "out"
+    kwargs = [v for stage in seen["graph"].stages.values() for k, v in stage.kwargs.items() if k.endswith("dir")]
+    assert kwargs and all(Path(v).is_absolute() for v in kwargs if isinstance(v, str))
+    pipeline.reproduce(preset("tiny"), "out", executor=ExecutorSpec("local"))
+    assert seen["root"] == Path("out")
+
+
 def test_clear_errors_without_ray_or_with_too_many_threads(cluster, tmp_path, monkeypatch):
     graph = StageGraph([Stage("a", f"{STAGES}:record", {"path": str(tmp_path / "a.json"), "seconds": 0.0})])
     with pytest.raises(ValueError, match=r"asks for 2 CPU\(s\) \(--threads\) but the largest node of the Ray "

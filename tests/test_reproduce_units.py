@@ -62,6 +62,23 @@ def fail(message: str, threads: int) -> dict:
     raise RuntimeError(message)
 
 
+def kill_myself(threads: int) -> dict:
+    """A worker that dies without raising (as one killed for memory does)."""
+    import signal
+
+    os.kill(os.getpid(), signal.SIGKILL)
+    return {}
+
+
+def _lookup(table: dict, key: str) -> str:
+    return table[key]
+
+
+def key_error(threads: int) -> dict:
+    """A bug deep inside a stage: its traceback is the only way to find it."""
+    return {"value": _lookup({}, "frame_width")}
+
+
 def write_into(out_dir: str, name: str, crash: bool, threads: int) -> dict:
     """Write a file into ``out_dir``; with ``crash``, raise after writing (an interrupted stage)."""
     Path(out_dir).mkdir(parents=True, exist_ok=True)
@@ -381,6 +398,35 @@ def test_failure_blocks_dependents_and_keeps_others(tmp_path):
     assert is_done(tmp_path, "good") and not is_done(tmp_path, "bad") and not is_done(tmp_path, "after_bad")
     with pytest.raises(FileNotFoundError, match="stage 'bad' has not finished"):
         read_marker(tmp_path, "bad")
+
+
+def test_a_worker_that_dies_fails_its_own_stage_only(tmp_path):
+    """A worker killed by a signal (out of memory, a crash in native code) broke the whole process pool: the stage
+    running beside it failed too, the rest never ran and the pool's error escaped. Now it fails alone, named with
+    the signal; its dependents are blocked, everything else runs."""
+    log = tmp_path / "log.txt"
+    stages = [Stage("slow", f"{HERE}:sleep_and_time", {"path": str(tmp_path / "slow.json"), "seconds": 1.5}),
+              Stage("killed", f"{HERE}:kill_myself", {}),
+              Stage("after_killed", f"{HERE}:append_line", {"path": str(log), "text": "x"}, deps=("killed",)),
+              Stage("later", f"{HERE}:append_line", {"path": str(log), "text": "later"})]
+    report = execute(StageGraph(stages), tmp_path / "root", jobs=2, cores=2, raise_on_failure=False)
+    assert sorted(report.ran) == ["later", "slow"] and report.blocked == ["after_killed"]
+    assert report.failed == {"killed": "WorkerDied: the stage's process was ended by SIGKILL (killed: perhaps the "
+                                       "machine ran out of memory)"}
+    assert log.read_text().split() == ["later"] and not is_done(tmp_path / "root", "killed")
+
+
+def test_a_failed_stages_traceback_is_logged_at_debug_level(tmp_path, caplog):
+    """The one-line error names the exception; the worker's traceback (file and line of the bug) is logged at debug
+    level, which `spotless -v` shows (it was dropped)."""
+    import logging
+
+    with caplog.at_level(logging.DEBUG, logger="spotlessgs.jobs.local"):
+        report = execute(StageGraph([Stage("bug", f"{HERE}:key_error", {})]), tmp_path, jobs=1,
+                         raise_on_failure=False)
+    assert report.failed == {"bug": "KeyError: 'frame_width'"}
+    traces = [r.getMessage() for r in caplog.records if r.levelno == logging.DEBUG and "traceback" in r.getMessage()]
+    assert len(traces) == 1 and "in _lookup" in traces[0] and "test_reproduce_units.py" in traces[0]
 
 
 def test_interrupted_stage_restarts_from_scratch(tmp_path):

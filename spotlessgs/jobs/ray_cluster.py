@@ -21,6 +21,7 @@ from __future__ import annotations
 
 import logging
 import math
+import os
 import socket
 from dataclasses import dataclass
 from pathlib import Path
@@ -98,9 +99,29 @@ def task_options(stage: Stage, threads: int, max_retries: int, cluster_gpus: flo
 CONNECT_TIMEOUT_S = 5.0
 
 
+def auto_address() -> str | None:
+    """Where ``--ray-address auto`` connects: ``$RAY_ADDRESS``, else the cluster that ``ray start`` last began on this
+    machine (Ray's own record of it), else None (no cluster to join). Ray's reader of that record is private: where
+    it is missing the answer is ``auto`` itself (not probed)."""
+    if os.environ.get("RAY_ADDRESS"):
+        return os.environ["RAY_ADDRESS"]
+    try:
+        from ray._private.utils import read_ray_address
+    except ImportError:
+        return "auto"
+    return read_ray_address() or None
+
+
 def check_reachable(address: str | None, timeout: float = CONNECT_TIMEOUT_S) -> None:
-    """ConnectionError naming ``address`` (``HOST:PORT``) when nothing accepts a connection there within ``timeout``
-    seconds; ``auto`` and None (Ray finds or starts the cluster itself and fails fast) are not probed."""
+    """ConnectionError naming ``address`` (``HOST:PORT``; ``auto``: see :func:`auto_address`) when nothing accepts
+    a connection there within ``timeout`` seconds; None (a private instance this process starts) is not probed."""
+    if address == "auto":
+        found = auto_address()
+        if found is None:
+            raise ConnectionError("--ray-address auto: no Ray cluster to join (RAY_ADDRESS is not set and no `ray "
+                                  "start` ran on this machine); start one with `ray start --head`, or give "
+                                  "--ray-address HOST:PORT, or --ray-address local for a private instance")
+        address = found
     if address in (None, "auto") or "://" in str(address):
         return
     host, _, port = str(address).rpartition(":")
@@ -118,29 +139,49 @@ def _connect(ray, address: str | None) -> bool:
     if ray.is_initialized():
         return False
     check_reachable(address)
-    ray.init(address=address, log_to_driver=True, logging_level=logging.WARNING, configure_logging=False)
+    # "local", not None: with None Ray joins $RAY_ADDRESS or the last cluster started on this machine
+    ray.init(address=address if address is not None else "local", log_to_driver=True,
+             logging_level=logging.WARNING, configure_logging=False)
     return True
 
 
-def _cluster_capacity(ray) -> tuple[float, float, float]:
-    """(largest CPU count of one alive node, largest memory of one alive node in bytes, GPUs in the cluster)."""
-    alive = [node.get("Resources", {}) for node in ray.nodes() if node.get("Alive")]
-    cpus = max((resources.get("CPU", 0.0) for resources in alive), default=0.0)
-    memory = max((resources.get("memory", 0.0) for resources in alive), default=0.0)
-    return cpus, memory, float(ray.cluster_resources().get("GPU", 0.0))
+def _alive_nodes(ray) -> list[dict[str, float]]:
+    """The resources (``CPU``, ``GPU``, ``memory`` in bytes, ...) of every alive node of the cluster."""
+    return [dict(node.get("Resources", {})) for node in ray.nodes() if node.get("Alive")]
 
 
-def check_feasible(graph: StageGraph, pending: list[str], threads: int, most_cpus: float, most_memory: float) -> None:
-    """ValueError when a stage asks for more CPUs or memory than the largest node has (Ray would wait for it
-    forever)."""
+def check_feasible(graph: StageGraph, pending: list[str], threads: int, nodes: list[dict[str, float]]) -> None:
+    """ValueError when a stage's task (:func:`task_options`) fits no single node of ``nodes`` (each node's
+    resources, as :func:`_alive_nodes` gives them): its CPUs, GPU and memory must all be on one node, else Ray waits
+    for such a node forever.
+
+    Raises:
+        ValueError: naming the stage, what it asks for and what the cluster has, with the --threads that fits.
+    """
+    most_cpus = max((n.get("CPU", 0.0) for n in nodes), default=0.0)
     if most_cpus < threads:
         raise ValueError(f"every stage asks for {threads} CPU(s) (--threads) but the largest node of the Ray cluster "
                          f"has {most_cpus:g}; use --threads {max(1, math.floor(most_cpus))}")
+    most_memory = max((n.get("memory", 0.0) for n in nodes), default=0.0)
+    cluster_gpus = sum(n.get("GPU", 0.0) for n in nodes)
     for name in pending:
-        memory_mb = graph[name].resources.memory_mb
-        if memory_mb is not None and memory_mb * 1024 * 1024 > most_memory:
-            raise ValueError(f"stage {name} declares {memory_mb} MiB of memory but the largest node of the Ray "
+        wanted = task_options(graph[name], threads, 0, cluster_gpus)
+        memory = wanted.get("memory", 0)
+        if memory > most_memory:
+            raise ValueError(f"stage {name} declares {memory // 2**20} MiB of memory but the largest node of the Ray "
                              f"cluster offers {most_memory / 2**20:.0f} MiB; add a node with more memory")
+        fits = [n for n in nodes if n.get("CPU", 0.0) >= threads and n.get("GPU", 0.0) >= wanted["num_gpus"]
+                and n.get("memory", 0.0) >= memory]
+        if fits:
+            continue
+        asked = f"{threads} CPU(s) and {memory // 2**20} MiB"
+        if not wanted["num_gpus"]:
+            raise ValueError(f"stage {name} asks for {asked} on one node, but no node of the Ray cluster has them "
+                             "together; use fewer --threads or add a node with more memory")
+        cpus = max((n.get("CPU", 0.0) for n in nodes if n.get("GPU", 0.0) >= 1), default=0.0)
+        raise ValueError(f"stage {name} asks for a GPU, {asked} on one node, but no node of the Ray cluster has them "
+                         f"together (its GPU nodes have at most {cpus:g} CPU(s)); use --threads "
+                         f"{max(1, math.floor(cpus))} or add a GPU node")
 
 
 def _failure(ray, error: BaseException) -> str:
@@ -171,8 +212,9 @@ def execute_ray(graph: StageGraph, root: str | Path, options: RayOptions = RayOp
     ray = import_ray()
     started = _connect(ray, options.address)
     try:
-        most_cpus, most_memory, gpus = _cluster_capacity(ray)
-        check_feasible(graph, pending, options.threads, most_cpus, most_memory)
+        nodes = _alive_nodes(ray)
+        gpus = sum(n.get("GPU", 0.0) for n in nodes)
+        check_feasible(graph, pending, options.threads, nodes)
         remote = ray.remote(max_calls=1)(_ray_stage)
         refs: dict[str, Any] = {}
         for name in pending:  # dependency order: every dependency's ref exists before its dependents are submitted
@@ -213,6 +255,7 @@ def _collect(ray, graph: StageGraph, refs: dict[str, Any], report: RunReport,
                     except Exception as error:  # the stage raised, or Ray gave up on it (retries used up)
                         report.failed[name] = _failure(ray, error)
                         log.error("stage %s failed: %s", name, report.failed[name])
+                        log.debug("stage %s: %s", name, error)  # Ray's text of it holds the worker's traceback
                         summary = None
                     else:
                         report.ran.append(name)

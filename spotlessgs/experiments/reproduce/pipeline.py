@@ -23,6 +23,7 @@ Output folder layout::
 
 from __future__ import annotations
 
+import dataclasses
 import json
 from pathlib import Path
 
@@ -199,6 +200,9 @@ def reproduce(config: ReproduceConfig, out: str | Path, jobs: int = 1,
     """
     out = Path(out)
     executor = executor if executor is not None else ExecutorSpec(jobs=jobs)
+    if executor.kind == "ray":  # a Ray worker resolves a relative path in its node's working directory, not this one
+        out = out.resolve()
+        config = dataclasses.replace(config, scenes_dir=Path(config.scenes_dir).resolve())
     refuse_overlap(out, {"--scenes-dir": config.scenes_dir}, "--out")
     executor.check()  # a cluster that is not there is said before anything is written
     graph = build_graph(config, out)  # checks the rooms exist before anything is written
