@@ -28,6 +28,13 @@ from spotlessgs.io.lens import distort, undistort
 from spotlessgs.metrics import masked_psnr, masked_ssim, psnr, ssim
 
 
+#: The most a consecutive pair counts for in a sequence's mean PSNR (dB): an identical pair (a robot that paused, a
+#: repeated frame) has PSNR +inf, which made the whole sequence's mean +inf (null in JSON) whatever its other pairs.
+#: Pairs that differ visibly score far below 100 dB (two 8-bit frames one level apart everywhere: 48 dB); only
+#: near-identical ones reach it (one level in one channel of one pixel: 88 dB at 64 x 48, 122 dB at 3840 x 2160).
+PAIR_PSNR_CAP_DB = 100.0
+
+
 @dataclass(frozen=True)
 class TemporalScores:
     """Per-pair temporal scores of one sequence (pair k compares frames k and k+1)."""
@@ -40,8 +47,13 @@ class TemporalScores:
 
     @property
     def mean_psnr(self) -> float:
-        """Mean PSNR over pairs (+inf if some pair is identical)."""
-        return float(sum(self.psnr) / len(self.psnr))
+        """Mean PSNR over pairs, each counted at most :data:`PAIR_PSNR_CAP_DB` (an identical pair's is +inf)."""
+        return float(sum(min(p, PAIR_PSNR_CAP_DB) for p in self.psnr) / len(self.psnr))
+
+    @property
+    def identical_pairs(self) -> int:
+        """How many pairs are identical (PSNR +inf)."""
+        return sum(1 for p in self.psnr if math.isinf(p))
 
     @property
     def mean_ssim(self) -> float:
