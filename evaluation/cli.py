@@ -16,6 +16,10 @@ from spotlessgs.clitools import THREAD_COUNT
               help="Folder of predicted images (folder mode; needs --gt).")
 @click.option("--gt", type=click.Path(exists=True, file_okay=False, path_type=Path),
               help="Folder of reference images, matched to --pred by file name.")
+@click.option("--match", type=click.Choice(["both", "pred"]), default="both", show_default=True,
+              help="Folder mode: 'both' scores the names both folders hold (they must hold the same); 'pred' scores "
+                   "every image of --pred against its namesake in --gt, which may hold more (e.g. a dataset's gt/ "
+                   "beside `relight --views test`).")
 @click.option("--data", "data_dir", type=click.Path(exists=True, file_okay=False, path_type=Path),
               help="RUN mode: the run's dataset, when it has moved (default: the path recorded in RUN/run.json).")
 @click.option("--sfm/--no-sfm", default=False, show_default=True, help="Also run downstream SfM (pycolmap, CPU).")
@@ -31,7 +35,7 @@ from spotlessgs.clitools import THREAD_COUNT
 @click.option("--no-lpips", is_flag=True, help="Skip LPIPS.")
 @click.option("--threads", type=THREAD_COUNT, default=None, help="CPU threads for metrics and SfM.")
 @click.option("--quiet", is_flag=True, help="No progress bars.")
-def eval_command(run, pred, gt, data_dir, sfm, matcher, out_dir, json_path, ground_truth, no_lpips, threads,
+def eval_command(run, pred, gt, match, data_dir, sfm, matcher, out_dir, json_path, ground_truth, no_lpips, threads,
                  quiet) -> None:
     """Score relit images: `spotless eval RUN` evaluates a training run; `spotless eval --pred DIR --gt DIR` scores
     any two folders of images matched by file name."""
@@ -44,6 +48,8 @@ def eval_command(run, pred, gt, data_dir, sfm, matcher, out_dir, json_path, grou
         raise click.UsageError("give a RUN folder, or both --pred DIR and --gt DIR")
     if data_dir is not None and run is None:
         raise click.UsageError("--data only applies to RUN mode")
+    if match != "both" and run is not None:
+        raise click.UsageError("--match only applies to folder mode (RUN mode scores the run's test views)")
     if ground_truth != "lamps" and run is None:
         raise click.UsageError("--ground-truth only applies to RUN mode (folder mode scores against --gt)")
     sfm_config = SfmConfig(matcher=matcher, **({"num_threads": threads} if threads else {}))
@@ -53,7 +59,7 @@ def eval_command(run, pred, gt, data_dir, sfm, matcher, out_dir, json_path, grou
         results = evaluate_run(run, config, out_dir=out_dir, json_path=json_path, data_dir=data_dir)
         where = out_dir or run / "eval"
     else:
-        results = evaluate_folders(pred, gt, config, json_path=json_path, out_dir=out_dir)
+        results = evaluate_folders(pred, gt, config, json_path=json_path, out_dir=out_dir, match=match)
         where = out_dir or json_path
     from evaluation.report import markdown_report
 

@@ -460,8 +460,13 @@ def evaluate_folders(
     config: EvalConfig = EvalConfig(),
     json_path: str | os.PathLike | None = None,
     out_dir: str | os.PathLike | None = None,
+    match: str = "both",
 ) -> dict:
-    """Score the images of ``pred_dir`` against those of ``gt_dir``, matched by file name.
+    """Score the images of ``pred_dir`` against those of ``gt_dir``, matched by file name: with ``match="both"``
+    the folders must hold the same names; with ``"pred"`` every image of ``pred_dir`` is scored against its namesake
+    in ``gt_dir``, which may hold more (a dataset's ``gt/`` beside the output of ``relight --views test``). A
+    prediction folder whose manifest says that it holds training views (``relight --views all|train``) is scored as
+    it is, with a warning: the test views alone are what `spotless eval RUN` scores.
 
     Temporal metrics (and SfM, when ``config.sfm``; COLMAP estimates the intrinsics) run on the prediction folder in
     file-name order. Writes the JSON to ``json_path`` and, with ``out_dir``, also results.json, results.md and
@@ -471,6 +476,8 @@ def evaluate_folders(
         OutputOverlapError: ``out_dir`` or ``json_path`` is, holds or lies inside ``pred_dir`` or ``gt_dir``.
         ValueError / FileNotFoundError: see :func:`evaluation.folders.match_folders` and :func:`score_pairs`.
     """
+    if match not in ("both", "pred"):
+        raise ValueError(f"match must be 'both' or 'pred', got {match!r}")
     inputs = {"--pred": pred_dir, "--gt": gt_dir}
     if out_dir is not None:
         refuse_overlap(out_dir, inputs, "--out")
@@ -480,9 +487,14 @@ def evaluate_folders(
     pred_manifest = check_folder_manifest(Path(pred_dir), "--pred")
     gt_manifest = check_folder_manifest(Path(gt_dir), "--gt")
     # a folder whose manifest vouches for every file may hold more than images (relight --exr's EXR files)
-    pairs = match_folders(pred_dir, gt_dir, non_images=tuple("error" if m is None else "skip"
-                                                             for m in (pred_manifest, gt_manifest)))
-    results: dict = {"mode": "folders", "pred_dir": str(pred_dir), "gt_dir": str(gt_dir),
+    non_images = ("error" if pred_manifest is None else "skip", "error" if gt_manifest is None else "skip")
+    names = image_names(pred_dir, non_images[0]) if match == "pred" else None
+    pairs = match_folders(pred_dir, gt_dir, names, non_images=non_images)
+    views = (read_manifest(Path(pred_dir)) or {}).get("options", {}).get("views") if pred_manifest else None
+    if views in ("all", "train"):
+        log.warning("%s: relit with --views %s: the scores include training views (`spotless eval RUN`, or `relight "
+                    "--views test` and --match pred, score the test views alone)", pred_dir, views)
+    results: dict = {"mode": "folders", "pred_dir": str(pred_dir), "gt_dir": str(gt_dir), "match": match,
                      "pred_manifest": pred_manifest, "gt_manifest": gt_manifest}
     scores = score_pairs(pairs, config, "image metrics")
     results.update(scores)

@@ -254,6 +254,31 @@ def test_a_folder_replaced_whole_may_not_be_the_current_directory(trained, tmp_p
     assert not any(tmp_path.joinpath("emptyd").rglob("*.png")) and here.is_dir()
 
 
+def test_folder_mode_scores_the_test_views_of_a_dataset_gt_folder_with_match_pred(trained, tmp_path, caplog):
+    """`relight --views test` then `eval --pred OUT --gt DATA/gt` failed (the gt folder holds every view); averaging
+    RUN/relit (every view) against DATA/gt silently mixed in the training views. --match pred scores the test views
+    alone, as RUN mode does; a prediction folder of training views is scored with a warning."""
+    import logging
+
+    run, gt = trained / "run", trained / "data" / "gt"
+    assert _relight(run, "--out", str(tmp_path / "test_only")).exit_code == 0
+    res = _cli("eval", "--pred", str(tmp_path / "test_only"), "--gt", str(gt), "--quiet", "--no-lpips")
+    assert res.exit_code == 2 and "missing from predictions" in res.output, res.output
+    folders = evaluate_folders(tmp_path / "test_only", gt, QUICK, match="pred")
+    for name in TEST_VIEWS:  # the same two views, each folder holding exactly them
+        (tmp_path / "gt_test").mkdir(exist_ok=True)
+        shutil.copy(gt / name, tmp_path / "gt_test" / name)
+    exact = evaluate_folders(tmp_path / "test_only", tmp_path / "gt_test", QUICK)
+    assert folders["num_images"] == exact["num_images"] == len(TEST_VIEWS) and folders["match"] == "pred"
+    assert (folders["psnr"], folders["ssim_aligned"]) == (exact["psnr"], exact["ssim_aligned"])
+    with caplog.at_level(logging.WARNING, logger="evaluation.runner"):
+        every = evaluate_folders(run / "relit", gt, QUICK)
+    assert every["num_images"] == 14
+    assert any("relit with --views all: the scores include training views" in r.getMessage() for r in caplog.records)
+    res = _cli("eval", str(run), "--match", "pred", "--quiet", "--no-lpips")
+    assert res.exit_code == 2 and "--match only applies to folder mode" in res.output, res.output
+
+
 # ---- (4) export never replaces the run's or the dataset's files ----------------------------------------------------
 
 
