@@ -44,7 +44,7 @@ from spotlessgs.io.cameras import Intrinsics, opengl_to_opencv_c2w
 from spotlessgs.io.dataset import GROUND_TRUTHS
 from spotlessgs.io.errors import InputError
 from spotlessgs.io.exr import read_emitters
-from spotlessgs.io.folder_lock import source_and_output_locks
+from spotlessgs.io.folder_lock import folder_lock, source_and_output_locks
 from spotlessgs.io.images import list_image_files, read_image
 from spotlessgs.io.paths import refuse_overlap, refuse_run_file
 from spotlessgs.io.provenance import provenance, sha256_file
@@ -484,6 +484,16 @@ def evaluate_folders(
         _refuse_foreign_out(Path(out_dir))
     if json_path is not None:
         refuse_overlap(json_path, inputs, "--json")
+    if out_dir is None:
+        return _evaluate_folders(Path(pred_dir), Path(gt_dir), config, json_path, None, match)
+    real_out = Path(os.path.realpath(out_dir))  # one writer per output folder, as in RUN mode
+    with folder_lock(real_out.parent, "spotless eval", name=f".{real_out.name}.lock"):
+        return _evaluate_folders(Path(pred_dir), Path(gt_dir), config, json_path, Path(out_dir), match)
+
+
+def _evaluate_folders(pred_dir: Path, gt_dir: Path, config: EvalConfig, json_path: str | os.PathLike | None,
+                      out_dir: Path | None, match: str) -> dict:
+    """:func:`evaluate_folders` after its checks (with the output folder's lock held)."""
     pred_manifest = check_folder_manifest(Path(pred_dir), "--pred")
     gt_manifest = check_folder_manifest(Path(gt_dir), "--gt")
     # a folder whose manifest vouches for every file may hold more than images (relight --exr's EXR files)

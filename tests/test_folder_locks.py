@@ -187,3 +187,22 @@ def test_a_render_process_that_dies_before_reading_its_work_is_reported_with_its
     with pytest.raises(pipeline.RenderProcessError, match="exit status 3"):
         pipeline._render_in_child(tmp_path, pipeline.RenderConfig(frames=2, width=64, height=48, samples=4),
                                   pipeline.ExecutionOptions(progress=False), scene, np.eye(4)[None], [0], "test")
+
+
+def test_two_folder_mode_evaluations_never_write_one_output_folder(tmp_path):
+    """`spotless eval --pred --gt --out OUT` took no lock: two at once mixed their results and manifests."""
+    import numpy as np
+
+    from evaluation.runner import EvalConfig, evaluate_folders
+    from spotlessgs.io.images import write_png
+
+    for folder in ("pred", "gt"):
+        for k in range(2):
+            write_png(tmp_path / folder / f"f{k}.png", np.full((24, 24, 3), 0.3 + 0.2 * k, np.float32))
+    config = EvalConfig(lpips=False, temporal=False, progress=False, num_threads=1)
+    with held_by_another_process(tmp_path, "spotless eval", name=".scores.lock"):
+        with pytest.raises(FolderLockedError, match="spotless eval"):
+            evaluate_folders(tmp_path / "pred", tmp_path / "gt", config, out_dir=tmp_path / "scores")
+    assert not (tmp_path / "scores").exists()
+    evaluate_folders(tmp_path / "pred", tmp_path / "gt", config, out_dir=tmp_path / "scores")
+    assert (tmp_path / "scores" / "results.json").is_file()
