@@ -103,3 +103,17 @@ def test_a_finished_row_of_other_settings_is_refused_and_copies_never_go_into_th
     with pytest.raises(OutputOverlapError, match="--out"):
         run_robot_benchmark(box, box, box / "bench", rows=("lens-ignored",), preset="tiny")
     assert sorted(p.name for p in box.iterdir()) == before
+
+
+@pytest.mark.parametrize("variants, problem", [("3dgs,foo", "unknown ['foo']"), ("darkgs,darkgs", "repeated ['darkgs']"),
+                                               (",", "no names")])
+def test_bad_variant_lists_are_refused_before_anything_trains(tmp_path, variants, problem):
+    """`--variants 3dgs,foo` trained 3dgs first and failed on foo minutes later."""
+    from click.testing import CliRunner
+
+    from spotlessgs.cli import main
+
+    result = CliRunner().invoke(main, ["benchmark", "models", "--data", str(tmp_path), "--out", str(tmp_path / "b"),
+                                       "--variants", variants])
+    assert result.exit_code == 2 and problem in result.output, result.output
+    assert not (tmp_path / "b").exists()

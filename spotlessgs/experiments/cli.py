@@ -52,10 +52,23 @@ def benchmark() -> None:
     robot-camera components (robot); camera pose refinement (poses)."""
 
 
+def _variant_names(_ctx, _param, value: str) -> tuple[str, ...]:
+    """``--variants`` as a tuple of model names (BadParameter naming unknown, repeated or no names, before anything
+    trains: an unknown name used to fail only when its turn came, after the others had trained)."""
+    names = tuple(v.strip() for v in value.split(",") if v.strip())
+    unknown = [n for n in names if n not in VARIANTS]
+    repeated = sorted({n for n in names if names.count(n) > 1})
+    if not names or unknown or repeated:
+        problem = (f"unknown {unknown}" if unknown else f"repeated {repeated}" if repeated else "no names")
+        raise click.BadParameter(f"{value!r}: {problem}; choose from {', '.join(VARIANTS)}")
+    return names
+
+
 @benchmark.command("models")
 @click.option("--data", required=True, type=click.Path(exists=True, file_okay=False, path_type=Path))
 @click.option("--out", required=True, type=click.Path(file_okay=False, path_type=Path))
-@click.option("--variants", default=",".join(VARIANTS), show_default=True)
+@click.option("--variants", default=",".join(VARIANTS), show_default=True, callback=_variant_names,
+              help="Comma-separated model variants to measure.")
 @click.option("--preset", default="quick", show_default=True, type=click.Choice(["tiny", "quick", "paper"]))
 @click.option("--iterations", default=1500, show_default=True, type=click.IntRange(1))
 @click.option("--threads", default=1, show_default=True, type=THREAD_COUNT)
@@ -71,7 +84,7 @@ def models(data, out, variants, preset, iterations, threads, seed, low_frequency
     # deferred (as in every command): the torch-based library, kept out of `spotless --help`
     from spotlessgs.experiments.benchmark import child as train_one, markdown_table, run_benchmark
 
-    names = tuple(v for v in variants.split(",") if v)
+    names = variants
     parsed = settings + ((("low_frequency_shading", low_frequency_shading),) if low_frequency_shading else ())
     if child:
         train_one(str(data), str(out), names[0], preset, iterations, threads, seed, parsed)
