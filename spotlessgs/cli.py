@@ -89,6 +89,10 @@ def train(data_dir, run_dir, model, preset, iterations, image_width, seed, resum
     if model != "auto" and any(v is not None for v in (tolerance_db, selection_search, trusted_start_reflectance)):
         raise click.UsageError("--tolerance-db, --selection-search and --trusted-start-reflectance only apply to "
                                "--model auto")
+    if light_prior_weight is not None and light_prior is None:
+        raise click.UsageError("--light-prior-weight weighs --light-prior; give --light-prior X Y Z too")
+    if light_prior is not None and model == "3dgs":
+        raise click.UsageError("--light-prior has no effect with --model 3dgs (it has no spotlight to place)")
     overrides = dict(settings)
     flags = (("device", "--device", device), ("linear_input", "--linear", True if linear_input else None),
              ("refine_poses", "--refine-poses", True if refine_poses else None),

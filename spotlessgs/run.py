@@ -62,7 +62,13 @@ class RunSpec:
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "data", Path(self.data))
-        object.__setattr__(self, "overrides", tuple((str(k), v) for k, v in dict(self.overrides).items()))
+        names = [str(k) for k, _ in self.overrides]
+        repeated = sorted({n for n in names if names.count(n) > 1})
+        if repeated:  # which value would win is not the user's to guess
+            raise ValueError(f"RunSpec: overrides set {repeated} more than once")
+        if "preset" in names:  # the preset's schedule comes from RunSpec.preset; the field only records it
+            raise ValueError("RunSpec: set the preset with RunSpec.preset (--preset), not as an override")
+        object.__setattr__(self, "overrides", tuple((str(k), v) for k, v in self.overrides))
         if self.light_prior is not None:
             object.__setattr__(self, "light_prior", tuple(float(v) for v in self.light_prior))
             if len(self.light_prior) != 3:

@@ -638,6 +638,37 @@ def test_field_types_follow_the_annotations():
         "light_model: expected one of 'none', 'spotlight', got 'lamp'"]
 
 
+def test_train_auto_refuses_a_fixed_model_run_before_selecting(box, tmp_path, monkeypatch):
+    """`--model auto --resume` on a run trained with --model spotless ran the whole selection, then failed the
+    settings check and left a model_selection.json that the run never followed."""
+    from spotlessgs.training import selection
+    from spotlessgs.training.trainer import train
+
+    run = tmp_path / "run"
+    train(box, run, "darkgs", _tiny_config(iterations=2), seed=0, progress=False)
+    monkeypatch.setattr(selection, "select_model", lambda *a, **k: pytest.fail("selected before refusing"))
+    with pytest.raises(ValueError, match=r"run: holds a run trained without model selection \(no "
+                                         r"model_selection\.json\); --model auto cannot resume it"):
+        selection.train_auto(box, run, _tiny_config(iterations=2), resume=True, progress=False)
+    assert not (run / selection.SELECTION_FILE).exists()
+
+
+def test_a_warm_started_run_resumes_after_its_source_moved(box, tmp_path):
+    """The warm start's source path (an auto run's own selection/base) was compared on --resume: a moved auto run
+    could not be resumed. The checkpoint supersedes the source, which is no longer compared."""
+    import shutil
+
+    from spotlessgs.training.trainer import train
+
+    cfg = _tiny_config(iterations=4, checkpoint_every=2, densify_from=1, densify_every=1, densify_until=4)
+    train(box, tmp_path / "source", "darkgs", cfg, seed=0, progress=False)
+    train(box, tmp_path / "run", "darkgs", cfg, seed=0, progress=False, init_from=tmp_path / "source", stop_after=2)
+    shutil.move(tmp_path / "source", tmp_path / "moved")
+    result = train(box, tmp_path / "run", "darkgs", cfg, seed=0, progress=False, init_from=tmp_path / "moved",
+                   resume=True)
+    assert result.steps == 4
+
+
 def test_train_auto_refuses_a_run_folder_inside_its_dataset_before_creating_it(tmp_path):
     from spotlessgs.training.selection import train_auto
 
@@ -781,6 +812,20 @@ def test_a_resume_may_change_the_thread_count_and_device_and_records_it(box, tmp
 
     scene, _views, config, _info = load_run(run, device="cpu")
     assert config.num_threads == 1 and len(scene.gaussians) > 0
+
+
+def test_each_resume_is_compared_with_the_machine_settings_the_run_last_used(box, tmp_path):
+    """1 thread, then 2, then 1 again: the third session was compared with the first and went unrecorded, so the
+    record said that the last steps ran on 2 threads."""
+    from spotlessgs.training.trainer import train
+
+    run = tmp_path / "run"
+    cfg = _tiny_config(iterations=6, checkpoint_every=2, densify_from=1, densify_every=1, densify_until=6)
+    train(box, run, "3dgs", cfg, seed=0, progress=False, stop_after=2)
+    train(box, run, "3dgs", cfg.replace(num_threads=2), seed=0, progress=False, resume=True, stop_after=4)
+    train(box, run, "3dgs", cfg, seed=0, progress=False, resume=True)
+    records = json.loads((run / "config.json").read_text())["resumed_with"]
+    assert [(r["step"], r["num_threads"]) for r in records] == [(2, 2), (4, 1)]
 
 
 def test_a_generator_state_from_another_device_type_seeds_a_fixed_stream():

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import re
 
 import numpy as np
 import pytest
@@ -47,6 +48,61 @@ def test_train_set_reaches_the_run_and_bad_values_stop_before_writing(tmp_path_f
     bad = CliRunner().invoke(main, [*common, "--out", str(tmp_path / "bad"), "--set", "loss_space=log"])
     assert bad.exit_code != 0 and "loss_space must be 'linear' or 'srgb'" in bad.output
     assert not (tmp_path / "bad").exists()
+
+
+@pytest.mark.parametrize("setting, message", [
+    ("pose_align_lr=-1", "the learning rate pose_align_lr must be >= 0"),  # failed after training, losing the run
+    ("ssim_lambda=5", r"ssim_lambda must be in \[0, 1\]"),
+    ("prune_opacity=2", r"prune_opacity must be in \[0, 1\)"),
+    ("reset_opacity_value=-1", r"reset_opacity_value must be in \[0, 1\)"),
+    ("densify_grad_threshold=-1", "densify_grad_threshold must be >= 0"),
+    ("percent_dense=-1", "percent_dense must be >= 0"),
+    ("normal_gravity_weight=-1", "the loss weight normal_gravity_weight must be >= 0"),
+    ("num_threads=2000", "num_threads must be at most 1024"),
+    ("device=CPU", "device must be auto, cpu, cuda or cuda:N"),
+    ("raster_backend=foo", "raster_backend must be one of auto, cpp, torch, gsplat"),
+])
+def test_settings_out_of_range_stop_before_anything_is_written(tmp_path, setting, message):
+    """Each was accepted: it failed at the end of training, at the first render, or trained something meaningless."""
+    from spotlessgs.cli import main
+
+    result = CliRunner().invoke(main, ["train", "--data", str(tmp_path), "--out", str(tmp_path / "run"), "--preset",
+                                       "tiny", "--set", setting])
+    assert result.exit_code == 2 and "Traceback" not in result.output, result.output
+    assert len(re.findall(message, result.output)) == 1, result.output
+    assert not (tmp_path / "run").exists()
+
+
+def test_the_python_api_refuses_wrongly_typed_and_repeated_settings():
+    """RunSpec overrides of the wrong type trained to the end and left a run nobody could read back; a repeated one
+    kept its last value silently."""
+    from spotlessgs.run import RunSpec
+    from spotlessgs.training.config import TrainConfig
+
+    for field, value, message in (("image_width", 64.5, "image_width: expected a whole number or null, got 64.5"),
+                                  ("iterations", True, "iterations: expected a whole number, got True"),
+                                  ("falloff_tau", "0.01", "falloff_tau: expected a number, got '0.01'")):
+        with pytest.raises(ValueError, match=message):
+            RunSpec(data="d", preset="tiny", overrides=((field, value),)).train_config()
+    with pytest.raises(ValueError, match=r"overrides set \['falloff_tau'\] more than once"):
+        RunSpec(data="d", overrides=(("falloff_tau", 0.01), ("falloff_tau", 0.5)))
+    with pytest.raises(ValueError, match="set the preset with RunSpec.preset"):
+        RunSpec(data="d", overrides=(("preset", "paper"),))
+    assert TrainConfig(device="cuda:1").device == "cuda:1"  # a GPU by its index is a device (resolved at training)
+
+
+@pytest.mark.parametrize("args, message", [
+    (["--set", "falloff_tau=0.01", "--set", "falloff_tau=0.5"], "falloff_tau set more than once"),
+    (["--set", "preset=paper"], "preset is chosen with --preset, not --set"),
+    (["--light-prior-weight", "2"], "--light-prior-weight weighs --light-prior"),
+    (["--model", "3dgs", "--light-prior", "0", "0", "0"], "--light-prior has no effect with --model 3dgs"),
+])
+def test_options_that_would_be_ignored_are_refused(tmp_path, args, message):
+    from spotlessgs.cli import main
+
+    result = CliRunner().invoke(main, ["train", "--data", str(tmp_path), "--out", str(tmp_path / "run"), *args])
+    assert result.exit_code == 2 and message in result.output, result.output
+    assert not (tmp_path / "run").exists()
 
 
 def test_lamp_path_reads_the_logged_positions_and_skips_what_it_cannot_read(tmp_path):

@@ -31,9 +31,16 @@ def trainer_settings(_ctx: Any, _param: Any, texts: tuple[str, ...]) -> tuple[tu
     from spotlessgs.training.config import parse_setting  # deferred: commands load without the library
 
     try:
-        return tuple(parse_setting(text) for text in texts)
+        pairs = tuple(parse_setting(text) for text in texts)
     except ValueError as exc:
         raise click.BadParameter(str(exc)) from exc
+    names = [name for name, _ in pairs]
+    repeated = sorted({n for n in names if names.count(n) > 1})
+    if repeated:  # the last one won, silently
+        raise click.BadParameter(f"{', '.join(repeated)} set more than once; give each setting once")
+    if "preset" in names:  # the field only records the preset; its schedule comes from --preset
+        raise click.BadParameter("preset is chosen with --preset, not --set")
+    return pairs
 
 
 def row_names(rows: str | None, allowed: tuple[str, ...]) -> tuple[str, ...]:

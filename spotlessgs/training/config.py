@@ -8,10 +8,13 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import re
 import types
 import typing
 from dataclasses import dataclass
 from typing import Any
+
+from spotlessgs.clitools import MAX_THREADS
 
 
 #: Spaces the photometric loss compares images in (TrainConfig.loss_space; spotlessgs.training.losses).
@@ -19,6 +22,9 @@ LOSS_SPACES = ("linear", "srgb")
 
 #: Units of the spotlight's radiance (TrainConfig.spot_radiance_unit; spotlessgs.training.light_unit).
 SPOT_RADIANCE_UNITS = ("fixed", "median_depth")
+
+#: Rasterizer backends (TrainConfig.raster_backend): spotlessgs.rasterizer.BACKENDS, named here without loading torch.
+RASTER_BACKENDS = ("auto", "cpp", "torch", "gsplat")
 
 #: Values of the TrainConfig switches whose "auto" the trainer resolves from the data (photometric, depth_spread).
 SWITCH_VALUES = ("auto", "on", "off")
@@ -360,22 +366,44 @@ class TrainConfig:
     device: str = "auto"
 
     def _check_general_ranges(self) -> None:
-        """ValueError for a setting out of the range every field of its kind has: numbers finite, learning rates
-        >= 0 (the means' > 0: their schedule is log-linear), step counts and intervals >= 1, sizes >= 1 (an image
-        width >= 8), a positive saturation threshold."""
+        """ValueError for a setting of the wrong type (a whole number where one is expected, ...) or out of the range
+        every field of its kind has: numbers finite, learning rates and loss weights >= 0 (the means' rate > 0: its
+        schedule is log-linear), step counts and intervals >= 1, sizes >= 1 (an image width >= 8), fractions and
+        opacities in [0, 1), a positive saturation threshold, a known device and rasterizer."""
+        wrong = field_type_errors(TrainConfig, {f.name: getattr(self, f.name) for f in dataclasses.fields(self)})
+        if wrong:  # a float width, a bool step count, text for a number: the run could not be read back
+            raise ValueError(f"TrainConfig: {wrong[0]}")
         for f in dataclasses.fields(self):
             value = getattr(self, f.name)
             if isinstance(value, float) and not math.isfinite(value):
                 raise ValueError(f"TrainConfig: {f.name} must be finite, got {value}")
-            if f.name.startswith("lr_") and value is not None and value < 0:
-                raise ValueError(f"TrainConfig: the learning rate {f.name} must be >= 0, got {value}")
+            learning_rate = f.name.startswith("lr_") or f.name.endswith("_lr")
+            if (learning_rate or f.name.endswith("_weight")) and value is not None and value < 0:
+                kind = "the learning rate" if learning_rate else "the loss weight"
+                raise ValueError(f"TrainConfig: {kind} {f.name} must be >= 0, got {value}")
         at_least = {"iterations": 1, "log_every": 1, "checkpoint_every": 1, "densify_every": 1, "max_gaussians": 1,
                     "brdf_hidden": 1, "init_points": 1, "num_threads": 1, "image_width": 8, "opacity_reset_every": 0,
-                    "densify_from": 0, "densify_until": 0}
+                    "densify_from": 0, "densify_until": 0, "densify_grad_threshold": 0.0, "percent_dense": 0.0,
+                    "validation_block": 2}
         for name, low in at_least.items():
             value = getattr(self, name)
             if value is not None and value < low:
                 raise ValueError(f"TrainConfig: {name} must be >= {low}, got {value}")
+        within = {"ssim_lambda": (0.0, 1.0, True), "prune_opacity": (0.0, 1.0, False),
+                  "reset_opacity_value": (0.0, 1.0, False), "validation_blocks": (0.0, 1.0, False),
+                  "budget_prune_fraction": (0.0, 1.0, False)}  # name: (low, high, high included)
+        for name, (low, high, closed) in within.items():
+            value = getattr(self, name)
+            if not (low <= value <= high if closed else low <= value < high):
+                raise ValueError(f"TrainConfig: {name} must be in [{low:g}, {high:g}{']' if closed else ')'}, "
+                                 f"got {value}")
+        if self.num_threads is not None and self.num_threads > MAX_THREADS:
+            raise ValueError(f"TrainConfig: num_threads must be at most {MAX_THREADS}, got {self.num_threads}")
+        if self.raster_backend not in RASTER_BACKENDS:
+            raise ValueError(f"TrainConfig: raster_backend must be one of {', '.join(RASTER_BACKENDS)}, got "
+                             f"{self.raster_backend!r}")
+        if not re.fullmatch(r"auto|cpu|cuda(:\d+)?", self.device):
+            raise ValueError(f"TrainConfig: device must be auto, cpu, cuda or cuda:N, got {self.device!r}")
         if self.lr_means_init <= 0 or self.lr_means_final <= 0:
             raise ValueError(f"TrainConfig: lr_means_init and lr_means_final must be > 0 (a log-linear schedule), got "
                              f"{self.lr_means_init} and {self.lr_means_final}")

@@ -156,6 +156,9 @@ def _training_scale(cameras: list[Intrinsics], image_width: int | None) -> float
     """The factor from each camera's working size to its training size: ``image_width`` over the widest input
     camera's width (1 for ``None`` or a width at least that)."""
     widest = max(c.width for c in cameras)
+    if image_width is not None and image_width > widest:
+        log.info("training at the images' own width, %d px: --width %d is wider (images are never upsampled)",
+                 widest, image_width)
     return 1.0 if image_width is None or image_width >= widest else image_width / widest
 
 

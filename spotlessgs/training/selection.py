@@ -554,6 +554,11 @@ def train_auto(
     # before the lock, which creates the folder and its .lock file: `--out` inside `--data` leaves nothing there
     refuse_overlap(run_dir, {"--data": Path(data_dir).resolve()}, "the run folder (--out)")
     with folder_lock(run_dir, "spotless train --model auto"):
+        if (Path(run_dir) / "run.json").is_file() and not (Path(run_dir) / SELECTION_FILE).is_file():
+            # a run trained with a fixed model (or by hand): selecting first would take minutes, then fail the
+            # trainer's settings check and leave a decision that the run never followed
+            raise ValueError(f"{run_dir}: holds a run trained without model selection (no {SELECTION_FILE}); "
+                             "--model auto cannot resume it: resume it with its own --model, or use a new --out")
         decision = select_model(data_dir, run_dir, config, seed, selection, light_prior, resume, progress=False)
         try:
             model = ModelConfig(**with_defaults(ModelConfig, decision["chosen_model"]))

@@ -117,12 +117,17 @@ def resolved_rid_model(config: TrainConfig, variant: str | ModelConfig) -> str:
 
 
 def resolve_device(name: str) -> torch.device:
-    """``auto`` → CUDA when available, else CPU."""
+    """``auto`` → CUDA when available, else CPU; ``cuda`` / ``cuda:N`` only where that GPU exists (RuntimeError)."""
     if name == "auto":
         return torch.device("cuda" if torch.cuda.is_available() else "cpu")
-    if name == "cuda" and not torch.cuda.is_available():
-        raise RuntimeError("device 'cuda' was requested but no CUDA GPU is available")
-    return torch.device(name)
+    device = torch.device(name)
+    if device.type == "cuda":
+        if not torch.cuda.is_available():
+            raise RuntimeError(f"device {name!r} was requested but no CUDA GPU is available")
+        if device.index is not None and device.index >= torch.cuda.device_count():
+            raise RuntimeError(f"device {name!r} was requested but this machine has {torch.cuda.device_count()} "
+                               "CUDA GPU(s) (cuda:0 ...)")
+    return device
 
 
 # ---- model construction --------------------------------------------------------------------------------------------
@@ -584,7 +589,9 @@ def _train_locked(data_dir: Path, run_dir: Path, variant: str | ModelConfig, con
             raise InputError(f"{run_dir / 'config.json'}: damaged run settings: 'run' is not a JSON object")
         # the dataset may have moved (--data DIR), an older version wrote the file: not another setting; the
         # dataset's files are compared below (data_fingerprint)
-        moved = ("data_dir", "data_dir_relative", "schema_version", "data_fingerprint", "views_fingerprint")
+        # the warm start's source either (a moved run's own selection/base): the checkpoint supersedes it
+        moved = ("data_dir", "data_dir_relative", "schema_version", "data_fingerprint", "views_fingerprint",
+                 "init_from")
         # settings added since the run began take their defaults (what the run trained with), the model's too
         old_run = dict(old["run"])
         if isinstance(old_run.get("model_config"), dict):
@@ -605,7 +612,10 @@ def _train_locked(data_dir: Path, run_dir: Path, variant: str | ModelConfig, con
         if differ:
             raise ValueError(f"{run_dir}: --resume with other settings than the run was started with "
                              f"({'; '.join(differ)})")
-        machine_changes = differing_settings({k: old_train.get(k) for k in EXECUTION_SETTINGS}, machine)
+        # against the settings the run last trained with: the latest resume's, else the start's
+        last = old.get("resumed_with")[-1] if isinstance(old.get("resumed_with"), list) and old["resumed_with"] \
+            and isinstance(old["resumed_with"][-1], dict) else old_train
+        machine_changes = differing_settings({k: last.get(k) for k in EXECUTION_SETTINGS}, machine)
 
     # what the run trains on, compared on a resume before the images load (a run saved before the fingerprint
     # existed has none to compare, and gets one)

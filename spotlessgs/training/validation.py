@@ -72,6 +72,9 @@ def holdout_blocks(views: int, height: int, width: int, fraction: float, block: 
         raise ValueError(f"holdout_blocks: block must be >= 1, got {block}")
     rows, cols = -(-height // block), -(-width // block)
     count = max(1, int(round(fraction * rows * cols)))
+    if count >= rows * cols:  # every block held out: nothing left to fit
+        raise ValueError(f"validation_blocks={fraction} of {block} px blocks holds out every pixel of a {width} x "
+                         f"{height} training image; use smaller blocks (validation_block) or a smaller fraction")
     gen = torch_generator(seed, "holdout_blocks")
     chosen = torch.zeros(views, rows * cols, dtype=torch.bool)
     for v in range(views):
