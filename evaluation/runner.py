@@ -557,6 +557,14 @@ def _common_folder(data: DatasetViews) -> Path:
     return Path(folders[0])
 
 
+def require_ground_truth(data_dir: str | os.PathLike, option: str) -> None:
+    """InputError naming ``data_dir`` and the option that gave it when none of its test views has a ground-truth
+    image: for a command that trains and then scores relit test views, before it trains."""
+    if not any(f.gt_path is not None for f in read_dataset(data_dir).test_frames):
+        raise InputError(f"{data_dir}: {option}: no test view has a ground-truth image (gt_file_path), and the relit "
+                         "test views are scored against it; give a dataset with ground truth")
+
+
 def scored_test_frames(data: DatasetViews) -> list[DatasetFrame]:
     """The dataset's test frames with ground truth, after checking that their input and ground-truth files exist.
 

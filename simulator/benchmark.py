@@ -21,6 +21,7 @@ from simulator.front3d import LoadOptions
 from simulator.render_pipeline import RenderConfig, plan_poses
 from spotlessgs.io.atomic import write_json, write_text
 from spotlessgs.io.colorspace import linear_to_srgb
+from spotlessgs.io.errors import InputError
 from spotlessgs.io.figures import pyplot, save_figure
 from spotlessgs.io.provenance import provenance
 from spotlessgs.metrics import psnr
@@ -35,6 +36,13 @@ def psnr_srgb(image_linear: np.ndarray, reference_linear: np.ndarray) -> float:
 def run_benchmark(scene_path: Path, out_dir: Path, samples: list[int], reference_samples: int, width: int,
                   height: int, threads: int, frame: int = 0) -> list[dict]:
     """Render one pose at each setting; returns one row per (samples, denoise) with seconds and PSNRs."""
+    if sorted(set(samples)) != sorted(samples) or any(n >= reference_samples for n in samples):
+        raise InputError(f"--samples {','.join(map(str, samples))}: each count once and below --reference-samples "
+                         f"({reference_samples}), which the others are scored against")
+    try:  # before minutes of rendering: a --out that cannot be a folder fails now
+        out_dir.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise InputError(f"{out_dir}: --out cannot be made a folder ({exc.strerror or exc})") from None
     from simulator.blender import renderer, scene_builder  # deferred: bpy is imported only when rendering
 
     config = RenderConfig(width=width, height=height, frames=max(frame + 1, 8))
@@ -62,7 +70,6 @@ def run_benchmark(scene_path: Path, out_dir: Path, samples: list[int], reference
         rows.append({"samples": n, "denoise": denoise, "seconds_per_pair": seconds,
                      "psnr_uneven": psnr_srgb(pair.uneven, reference.uneven),
                      "psnr_gt": psnr_srgb(pair.gt, reference.gt), "reference": False})
-    out_dir.mkdir(parents=True, exist_ok=True)
     write_json(out_dir / "render_benchmark.json",
                {"scene": str(scene_path), "width": width, "height": height, "threads": threads, "rows": rows,
                 "provenance": provenance(extra_packages=("bpy",))})

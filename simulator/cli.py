@@ -60,8 +60,10 @@ def main(verbose: bool) -> None:
 @click.option("--no-denoise", is_flag=True, help="Disable OpenImageDenoise.")
 @click.option("--bounces", default=4, show_default=True, type=click.IntRange(0, 32),
               help="Light bounces (0 = direct light only).")
-@click.option("--ambient", default=0.0, show_default=True, type=FiniteFloatRange(0), 
-              help="World light strength in the spotlight-only render.")
+@click.option("--ambient", default=0.0, show_default=True, type=FiniteFloatRange(0, 1e6),
+              help="World light strength in the spotlight-only render. It enters a room only through openings to "
+                   "the outside (a 3D-FRONT house's windows and doors): the shipped and generated rooms are closed, "
+                   "so there it lights nothing; --residual-light leaves a room's own lights on instead.")
 @click.option("--residual-light", default=0.0, show_default=True, type=FiniteFloatRange(0, 1),
               help="Leave the room's own lights on in the spotlight-only render at this fraction of their power (a "
                    "dimmed ceiling light): light the spotlight does not explain.")
@@ -117,7 +119,8 @@ def render(scene_path, out_dir, future_dir, texture_dir, allow_missing, room, fr
 
 
 @main.command()
-@click.option("--kind", required=True, help="Room kind (see --list).")
+@click.option("--kind", required=True,
+              help="Room kind: bedroom, living_room, office, storage_room, corridor or white_room.")
 @click.option("--out", "out_dir", required=True, type=click.Path(file_okay=False, path_type=Path),
               help="Folder for house.json, models/ and textures/.")
 @click.option("--seed", default=0, show_default=True, type=int)
@@ -197,9 +200,9 @@ def render_many(scene_patterns, out_dir, variants, frames, width, height, sample
               help="A finished dataset with linear renders (exr/).")
 @click.option("--out", "out_dir", required=True, type=click.Path(file_okay=False, path_type=Path),
               help="Folder for the noisy copy (resumed when it holds one made with the same settings).")
-@click.option("--shot", default=0.01, show_default=True, type=FiniteFloatRange(0),
+@click.option("--shot", default=0.01, show_default=True, type=FiniteFloatRange(0, 1),
               help="Shot-noise variance per unit of linear signal (1e-4 low gain ... 0.012 high gain).")
-@click.option("--read", default=0.012, show_default=True, type=FiniteFloatRange(0),
+@click.option("--read", default=0.012, show_default=True, type=FiniteFloatRange(0, 1),
               help="Read-noise standard deviation in linear intensity.")
 @click.option("--seed", default=0, show_default=True, type=int)
 @click.option("--robot-camera", is_flag=True,

@@ -59,7 +59,7 @@ from spotlessgs.io.exr import FrameEXR, read_frame_exr, write_frame_exr
 from spotlessgs.io.folder_lock import folder_lock
 from spotlessgs.io.images import read_image, write_png
 from spotlessgs.io.json_files import read_json
-from spotlessgs.io.paths import refuse_overlap
+from spotlessgs.io.paths import refuse_foreign_folder, refuse_overlap
 from spotlessgs.io.processes import die_with_parent, drop_blender_script_paths
 from spotlessgs.io.dataset import UNIFORM_GT_DIR
 from spotlessgs.io.ply import write_point_cloud
@@ -70,6 +70,8 @@ from spotlessgs.io.transforms import DatasetMeta, FrameRecord, LightTruth, write
 log = logging.getLogger(__name__)
 
 SCHEMA_PLAN = 1
+#: The render plan (poses, settings and the room's fingerprint) a dataset folder gets before its first frame.
+PLAN_FILE = "plan.json"
 
 
 @dataclass(frozen=True)
@@ -273,10 +275,11 @@ def _read_plan(plan_path: Path) -> tuple[dict[str, Any], dict[str, Any]]:
 
 
 def check_plan_settings(out_dir: Path, scene_path: Path, config: RenderConfig) -> None:
-    """DatasetFolderError when ``out_dir`` holds a plan.json made from another scene file or with other settings
-    (nothing when it has none; the room as loaded is compared when the dataset renders): for a job that checks its
+    """DatasetFolderError when ``out_dir`` holds a plan.json made from another scene file or with other settings,
+    InputError when it holds files but no plan.json (another tool's folder) (nothing when it is absent or empty; the room as loaded is compared when the dataset renders): for a job that checks its
     datasets before it runs any task (``spotless-sim render-many``, whose finished tasks a rerun skips)."""
-    plan_path = Path(out_dir) / "plan.json"
+    refuse_foreign_folder(out_dir, [PLAN_FILE], "--out", "a dataset this renderer began")
+    plan_path = Path(out_dir) / PLAN_FILE
     if plan_path.is_file():
         diff = _plan_differences(_read_plan(plan_path)[1], _fingerprint(scene_path, config, None))
         if diff:
@@ -305,7 +308,7 @@ def _scene_difference(old: dict[str, Any], new: dict[str, Any]) -> str | None:
 def _prepare_plan(out_dir: Path, scene_path: Path, config: RenderConfig, poses: np.ndarray, room_sha256: str) -> None:
     """Write ``plan.json`` or check that an existing one was made with the same scene, room as loaded (models and
     textures: a plan from before 2026-12-07 has no record of them, and gets one), settings and poses."""
-    plan_path = out_dir / "plan.json"
+    plan_path = out_dir / PLAN_FILE
     fingerprint = _fingerprint(scene_path, config, room_sha256)
     if plan_path.is_file():
         old, old_fp = _read_plan(plan_path)
@@ -560,6 +563,8 @@ def render_dataset(
     scene_path, out_dir = Path(scene_path), Path(out_dir)
     part = execution.part  # checks the shard and the frame range
     refuse_overlap(out_dir, render_inputs(scene_path, load), "--out")
+    # another tool's dataset (or any folder of files) would get some of its frames replaced and others kept
+    refuse_foreign_folder(out_dir, [PLAN_FILE], "--out", "a dataset this renderer began")
     scene, room, objects, poses = plan_poses(scene_path, config, load)
     part.frames(len(poses))  # a range beyond the last frame is refused before anything is written
     check_scene(scene_path, room, objects, scene.lights, config)

@@ -57,6 +57,11 @@ DEPTH_DIR = "depth"
 COPIED = ("gt", UNIFORM_GT_DIR, "exr", "sparse", "points3d.ply", "plan.json")
 
 
+#: The largest shot variance per unit signal and read-noise deviation accepted: noise of the image's whole range
+#: (far beyond any camera's, 0.012 at high gain); 1e300 overflowed and left a record that blocked the folder.
+MAX_NOISE = 1.0
+
+
 @dataclass(frozen=True)
 class SensorNoise:
     """Shot and read noise in linear intensity (image values in [0, 1]).
@@ -73,8 +78,8 @@ class SensorNoise:
     def __post_init__(self) -> None:
         for name in ("shot", "read"):
             value = getattr(self, name)
-            if not (math.isfinite(value) and value >= 0):
-                raise ValueError(f"SensorNoise: {name} must be finite and >= 0, got {value}")
+            if not (math.isfinite(value) and 0 <= value <= MAX_NOISE):
+                raise ValueError(f"SensorNoise: {name} must be in [0, {MAX_NOISE:g}], got {value}")
 
     def std(self, linear: np.ndarray) -> np.ndarray:
         """Noise standard deviation at each linear intensity (same shape)."""

@@ -46,7 +46,8 @@ class RunSpec:
         strategy: the densification strategy (``default``, ``budget``: ``spotlessgs.training.config.STRATEGIES``).
         seed: the run's seed.
         overrides: TrainConfig fields that differ from the preset and strategy, as (name, value) pairs
-            (e.g. ``(("iterations", 300), ("num_threads", 2))``); ``iterations`` scales the densification schedule.
+            (e.g. ``(("iterations", 300), ("num_threads", 2))``; a field given twice keeps its last value);
+            ``iterations`` scales the densification schedule.
         light_prior: prior light position in the camera frame (m, OpenCV axes), or None.
         selection: model selection's settings (``auto`` only; None: the defaults).
     """
@@ -62,13 +63,10 @@ class RunSpec:
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "data", Path(self.data))
-        names = [str(k) for k, _ in self.overrides]
-        repeated = sorted({n for n in names if names.count(n) > 1})
-        if repeated:  # which value would win is not the user's to guess
-            raise ValueError(f"RunSpec: overrides set {repeated} more than once")
-        if "preset" in names:  # the preset's schedule comes from RunSpec.preset; the field only records it
+        # a field given twice keeps its last value (a benchmark row's own switches win over its settings)
+        object.__setattr__(self, "overrides", tuple((str(k), v) for k, v in dict(self.overrides).items()))
+        if "preset" in dict(self.overrides):  # the schedule comes from RunSpec.preset; the field only records it
             raise ValueError("RunSpec: set the preset with RunSpec.preset (--preset), not as an override")
-        object.__setattr__(self, "overrides", tuple((str(k), v) for k, v in self.overrides))
         if self.light_prior is not None:
             object.__setattr__(self, "light_prior", tuple(float(v) for v in self.light_prior))
             if len(self.light_prior) != 3:

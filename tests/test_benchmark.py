@@ -117,3 +117,38 @@ def test_bad_variant_lists_are_refused_before_anything_trains(tmp_path, variants
                                        "--variants", variants])
     assert result.exit_code == 2 and problem in result.output, result.output
     assert not (tmp_path / "b").exists()
+
+
+@pytest.mark.parametrize("args, problem", [
+    (["models", "--set", "iterations=20"], "--set iterations (use --iterations)"),  # the table printed 1500
+    (["models", "--set", "num_threads=2"], "--set num_threads (use --threads)"),
+    (["robot", "--ideal", "IN", "--robot", "IN", "--rows", ","], "no row named"),  # replaced a finished table
+    (["robot", "--ideal", "IN", "--robot", "IN", "--rows", "ideal,ideal"], "rows ['ideal'] given twice"),
+    (["poses", "--rows", "clean,clean"], "rows ['clean'] given twice"),
+])
+def test_benchmark_options_that_would_mislabel_or_empty_a_table_are_refused(tmp_path, args, problem):
+    from click.testing import CliRunner
+
+    from spotlessgs.cli import main
+
+    args = [str(tmp_path) if a == "IN" else a for a in args]
+    data = [] if args[0] == "robot" else ["--data", str(tmp_path)]
+    result = CliRunner().invoke(main, ["benchmark", args[0], *data, "--out", str(tmp_path / "b"), *args[1:]])
+    assert result.exit_code == 2 and problem in result.output, result.output
+    assert not (tmp_path / "b").exists()
+
+
+def test_a_resumed_rows_training_time_is_not_reported_as_the_variants_cost():
+    """A row interrupted and finished later reported its last session's seconds as the variant's training time."""
+    row = {"variant": "spotless", "iterations": 200, "ms_per_step": 25.0, "gaussians": 800, "relit_fps": 30.0,
+           "peak_rss_mb": 400.0}
+    table = markdown_table([{**row, "train_seconds": 5.0, "resumed": False},
+                            {**row, "variant": "darkgs", "train_seconds": None, "resumed": True}], 200, 1)
+    assert "| spotless | 25.0 | 5.0 | 800 |" in table and "| darkgs (resumed) | 25.0 | – | 800 |" in table
+    assert "a (resumed) row was interrupted and finished in a later session" in table
+    assert "(resumed)" not in markdown_table([{**row, "train_seconds": 5.0, "resumed": False}], 200, 1)
+
+    from spotlessgs.experiments.selection_benchmark import _spread
+
+    assert _spread([1.0, 3.0]) == {"mean": 2.0, "min": 1.0, "max": 3.0}
+    assert _spread([1.0, None]) == {"mean": None, "min": None, "max": None}

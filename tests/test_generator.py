@@ -650,3 +650,15 @@ def test_shipped_storage_room_reproduces_byte_for_byte(tmp_path):
 @pytest.mark.parametrize("kind", [k for k in ROOM_KINDS if k != "storage_room"])
 def test_shipped_rooms_reproduce_byte_for_byte(kind, tmp_path):
     _check_reproduces(kind, tmp_path)
+
+
+def test_generate_help_names_every_room_kind():
+    """The help pointed to a --list option that does not exist."""
+    from click.testing import CliRunner
+
+    from simulator.cli import main
+    from simulator.generator import ROOM_KINDS
+
+    result = CliRunner().invoke(main, ["generate", "--help"])
+    assert result.exit_code == 0 and "--list" not in result.output
+    assert all(kind in " ".join(result.output.split()) for kind in ROOM_KINDS)

@@ -826,6 +826,8 @@ def test_each_resume_is_compared_with_the_machine_settings_the_run_last_used(box
     train(box, run, "3dgs", cfg, seed=0, progress=False, resume=True)
     records = json.loads((run / "config.json").read_text())["resumed_with"]
     assert [(r["step"], r["num_threads"]) for r in records] == [(2, 2), (4, 1)]
+    # the summary says the last session began at step 4: its seconds are not the run's training time
+    assert json.loads((run / "train_summary.json").read_text())["session_started_at_step"] == 4
 
 
 def test_a_generator_state_from_another_device_type_seeds_a_fixed_stream():

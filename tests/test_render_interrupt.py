@@ -191,14 +191,18 @@ def _renders(pid: int) -> bool:
 def test_an_error_in_the_render_process_comes_back_with_its_type_and_message(tmp_path):
     """`images` is a file, not a folder: writing the first frame's image fails in the render process, and the same
     exception (type, message, file name) is raised by render_dataset; the scratch folder is gone."""
-    from simulator.render_pipeline import ExecutionOptions, RenderConfig, render_dataset
+    from simulator.front3d import LoadOptions
+    from simulator.render_pipeline import ExecutionOptions, RenderConfig, _prepare_plan, plan_poses, render_dataset
+    from simulator.scene_model import content_sha256
 
     out = tmp_path / "bedroom"
     out.mkdir()
+    config = RenderConfig(frames=2, width=64, height=48, samples=4)
+    scene, _room, objects, poses = plan_poses(SCENE, config, LoadOptions())
+    _prepare_plan(out, SCENE, config, poses, content_sha256(objects, scene.lights))  # a render began here
     (out / "images").write_text("not a folder")
     with pytest.raises(FileExistsError) as err:
-        render_dataset(SCENE, out, RenderConfig(frames=2, width=64, height=48, samples=4),
-                       execution=ExecutionOptions(progress=False))
+        render_dataset(SCENE, out, config, execution=ExecutionOptions(progress=False))
     assert err.value.filename == str(out / "images") and str(err.value).startswith("[Errno 17]")
     assert "Traceback" in str(err.value.__cause__)  # the render process's traceback, for --debug
     assert _leftovers(out) == []

@@ -98,6 +98,25 @@ def _closed_port() -> int:
         return sock.getsockname()[1]  # nothing listens once the socket is closed
 
 
+@pytest.mark.parametrize("command", ["render", "render-many"])
+def test_another_tools_dataset_is_never_rendered_into(tmp_path, command):
+    """`render --out` over a dataset of another tool replaced its first frames and transforms.json and kept the rest:
+    two datasets in one folder. A folder of files without our plan.json is refused before Blender starts."""
+    scene = SCENES / "white_room" / "house.json"
+    other = tmp_path / "out" / "white_room-uneven"
+    (other / "images").mkdir(parents=True)
+    (other / "images" / "frame_00000.png").write_bytes(b"theirs")
+    (other / "transforms.json").write_text("{}")
+    before = {p: p.read_bytes() for p in other.rglob("*") if p.is_file()}
+    args = (["render", "--scene", str(scene), "--out", str(other)] if command == "render" else
+            ["render-many", "--scenes", str(scene), "--out", str(tmp_path / "out"), "--variants", "uneven"])
+    result = CliRunner().invoke(sim_main, [*args, "--frames", "2", "--width", "16", "--height", "16", "--samples", "1"])
+    assert result.exit_code == 2, result.output
+    assert "white_room-uneven: holds files but no plan.json (images, transforms.json): not a dataset this renderer " \
+        "began" in result.output
+    assert {p: p.read_bytes() for p in other.rglob("*") if p.is_file()} == before
+
+
 def test_a_cluster_that_is_not_there_is_said_at_once_and_nothing_is_written(tmp_path):
     pytest.importorskip("ray")
     address = f"127.0.0.1:{_closed_port()}"
@@ -156,6 +175,14 @@ def test_benchmark_refuses_sample_counts_below_one(tmp_path):
                                            "--out", str(tmp_path / "bench"), "--samples", "4,0,-3"])
     assert result.exit_code == 2 and "expected sample counts of at least 1" in result.output, result.output
     assert not (tmp_path / "bench").exists()
+    # found after minutes of rendering: an --out under a file, counts twice or at the reference's
+    (tmp_path / "house.json").write_text("{}")
+    for out, samples, problem in ((tmp_path / "house.json" / "bench", "4", "--out cannot be made a folder"),
+                                  (tmp_path / "b2", "4,4", "each count once and below --reference-samples"),
+                                  (tmp_path / "b3", "4,512", "each count once and below --reference-samples (512)")):
+        result = CliRunner().invoke(sim_main, ["benchmark", "--scene", str(SCENES / "office" / "house.json"),
+                                               "--out", str(out), "--samples", samples, "--reference-samples", "512"])
+        assert result.exit_code == 2 and problem in result.output, result.output
 
 
 @pytest.mark.parametrize("plan, problem", [

@@ -617,7 +617,9 @@ def test_holdout_blocks_are_whole_blocks_in_the_stated_fraction_and_seeded():
     assert not torch.equal(grid[0], grid[1])  # each view draws its own blocks
     assert torch.equal(masks, holdout_blocks(3, 30, 40, 0.25, 8, seed=5))
     assert not torch.equal(masks, holdout_blocks(3, 30, 40, 0.25, 8, seed=6))
-    assert holdout_blocks(1, 4, 4, 0.01, 8, seed=0).all()  # at least one block per view
+    assert holdout_blocks(1, 8, 8, 0.01, 4, seed=0).sum() == 16  # at least one block per view
+    with pytest.raises(ValueError, match=r"holds out every pixel of a 4 x 4 training image"):
+        holdout_blocks(1, 4, 4, 0.01, 8, seed=0)  # one block in all: nothing left to fit (trained on nothing)
 
 
 @pytest.mark.parametrize("kwargs, match", [({"fraction": 0.0}, "fraction"), ({"fraction": 1.0}, "fraction"),

@@ -223,8 +223,17 @@ def test_datasets_are_refused_with_clear_errors(bench, tmp_path):
     for frame in meta["frames"]:
         frame.pop("gt_file_path", None)
     (no_gt / "transforms.json").write_text(json.dumps(meta))
-    with pytest.raises(ValueError, match="no_gt: no test view has a ground-truth image"):
-        run_selection_benchmark([no_gt], tmp_path / "o3", SETTINGS)
+    with pytest.raises(ValueError, match="no_gt: --data: no test view has a ground-truth image"):
+        run_selection_benchmark([rooms[0], no_gt], tmp_path / "o3", SETTINGS)
+    assert not (tmp_path / "o3" / "room_a").exists()  # refused before the first room trained
+    from spotlessgs.experiments.pose_benchmark import run_pose_benchmark
+    from spotlessgs.experiments.robot_benchmark import run_robot_benchmark
+
+    with pytest.raises(ValueError, match="no_gt: --data: no test view has a ground-truth image"):
+        run_pose_benchmark(no_gt, tmp_path / "o4", 0.03, 0.3, preset="tiny")
+    with pytest.raises(ValueError, match="no_gt: --robot: no test view has a ground-truth image"):
+        run_robot_benchmark(rooms[0], no_gt, tmp_path / "o5", preset="tiny")
+    assert not (tmp_path / "o4").exists() and not (tmp_path / "o5").exists()
 
 
 # ---- several seeds ----------------------------------------------------------------------------------------------

@@ -46,8 +46,9 @@ def test_noise_is_clipped_like_a_sensor_and_reproducible():
 
 
 @pytest.mark.parametrize("call, match", [
-    (lambda: SensorNoise(shot=-0.1), "shot must be finite and >= 0"),
-    (lambda: SensorNoise(read=math.nan), "read must be finite and >= 0"),
+    (lambda: SensorNoise(shot=-0.1), r"shot must be in \[0, 1\], got -0.1"),
+    (lambda: SensorNoise(read=math.nan), r"read must be in \[0, 1\], got nan"),
+    (lambda: SensorNoise(read=1e300), r"read must be in \[0, 1\], got 1e\+300"),  # overflowed, blocking the folder
     (lambda: add_sensor_noise(np.zeros((4, 4)), SensorNoise(), np.random.default_rng(0)), r"\(H, W, 3\)"),
     (lambda: add_sensor_noise(np.full((2, 2, 3), np.inf), SensorNoise(), np.random.default_rng(0)), "non-finite"),
 ])

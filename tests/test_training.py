@@ -647,7 +647,7 @@ def test_a_run_from_before_the_depth_spread_switch_keeps_its_weight_for_every_mo
 
 
 @pytest.mark.parametrize("kwargs, match", [({"depth_spread": "always"}, "depth_spread must be 'auto', 'on' or 'off'"),
-                                           ({"depth_spread_weight": -0.1}, "depth_spread_weight must be finite"),
+                                           ({"depth_spread_weight": -0.1}, "depth_spread_weight must be >= 0"),
                                            ({"depth_spread_weight": float("nan")}, "depth_spread_weight must be finite"),
                                            ({"depth_spread_every": 0}, "depth_spread_every must be >= 1")])
 def test_train_config_rejects_bad_depth_spread_settings(kwargs, match):

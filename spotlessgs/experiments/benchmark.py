@@ -47,9 +47,11 @@ def child(data: str, run: str, variant: str, preset: str, iterations: int, threa
     spec = _run_spec(data, variant, preset, iterations, threads, seed, settings)
     trained = train(spec, run, progress=False, resume=(Path(run) / "run.json").is_file())  # an interrupted one goes on
     summary = trained.summary
+    # a resumed run's training time is its last session's alone: not the variant's cost, so not reported as one
+    resumed = summary.get("session_started_at_step", 0) > 0
     row = {"variant": variant, "iterations": iterations, "ms_per_step": summary["ms_per_step"],
-           "train_seconds": summary["seconds_this_session"], "gaussians": summary["num_gaussians"],
-           "test_psnr_reconstruction": summary["test_psnr_reconstruction"]}
+           "train_seconds": None if resumed else summary["seconds_this_session"], "resumed": resumed,
+           "gaussians": summary["num_gaussians"], "test_psnr_reconstruction": summary["test_psnr_reconstruction"]}
     if (Path(data) / "gt").is_dir():
         scores = trained.score_views(Path(run) / "relit_test", "test", threads)
         row.update({"psnr": scores["psnr"], "psnr_aligned": scores["psnr_aligned"],
@@ -188,14 +190,18 @@ def markdown_table(rows: list[dict], iterations: int, threads: int,
         return "–" if train is None else f"{train:.0f} / {render:.0f}"
 
     given = "; settings: " + ", ".join(f"{k}={v}" for k, v in settings) if settings else ""
-    lines = [f"{iterations} iterations per variant, {threads} thread(s){given}", "",
+    resumed = any(r.get("resumed") for r in rows)
+    note = ("; a (resumed) row was interrupted and finished in a later session: its train s is unknown, its ms / "
+            "step and peak RSS are that session's" if resumed else "")
+    lines = [f"{iterations} iterations per variant, {threads} thread(s){given}{note}", "",
              "| model | ms / step | train s | Gaussians | relit FPS (files) | relit FPS (render) | peak RSS (MB) | "
              "peak GPU MB (train / render) | test PSNR recon. | relit PSNR | relit PSNR aligned | relit SSIM aligned | "
              "PSNR aligned, uniform GT | SSIM aligned, uniform GT |",
              "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
     for r in rows:
         lines.append(
-            f"| {r['variant']} | {r['ms_per_step']:.1f} | {r['train_seconds']:.1f} | {r['gaussians']} | "
+            f"| {r['variant']}{' (resumed)' if r.get('resumed') else ''} | {r['ms_per_step']:.1f} | "
+            f"{fmt(r['train_seconds'], '.1f')} | {r['gaussians']} | "
             f"{r['relit_fps']:.1f} | {fmt(r.get('render_fps'), '.1f')} | {r['peak_rss_mb']:.0f} | "
             f"{gpu_memory(r)} | {fmt(r.get('test_psnr_reconstruction'), '.2f')} | "
             f"{fmt(r.get('psnr'), '.2f')} | {fmt(r.get('psnr_aligned'), '.2f')} | {fmt(r.get('ssim_aligned'), '.3f')} | "

@@ -43,13 +43,25 @@ def trainer_settings(_ctx: Any, _param: Any, texts: tuple[str, ...]) -> tuple[tu
     return pairs
 
 
+def refuse_dedicated_settings(settings: tuple[tuple[str, Any], ...], **options: str) -> None:
+    """UsageError when ``--set`` names a setting that has its own option here (``options``: setting -> option,
+    e.g. ``iterations="--iterations"``): the report prints the option's value, not the one trained with."""
+    clash = [f"--set {name} (use {options[name]})" for name, _ in settings if name in options]
+    if clash:
+        raise click.UsageError(f"{', '.join(clash)}: this setting has its own option, which the report prints")
+
+
 def row_names(rows: str | None, allowed: tuple[str, ...]) -> tuple[str, ...]:
     """The rows a ``--rows`` value names (comma-separated; None: every row of ``allowed``, in order);
     click.BadParameter naming the unknown ones."""
-    names = allowed if rows is None else tuple(r for r in rows.split(",") if r)
+    names = allowed if rows is None else tuple(r.strip() for r in rows.split(",") if r.strip())
     unknown = [r for r in names if r not in allowed]
     if unknown:
         raise click.BadParameter(f"unknown rows {unknown}; choose from {list(allowed)}", param_hint="--rows")
+    repeated = sorted({r for r in names if names.count(r) > 1})
+    if repeated or not names:  # a row twice printed it twice; no row replaced a finished table with an empty one
+        problem = f"rows {repeated} given twice" if repeated else "no row named"
+        raise click.BadParameter(f"{problem}; choose from {list(allowed)}", param_hint="--rows")
     return names
 
 
@@ -91,6 +103,8 @@ def models(data, out, variants, preset, iterations, threads, seed, low_frequency
     # deferred (as in every command): the torch-based library, kept out of `spotless --help`
     from spotlessgs.experiments.benchmark import child as train_one, markdown_table, run_benchmark
 
+    refuse_dedicated_settings(settings, iterations="--iterations", num_threads="--threads",
+                              low_frequency_shading="--low-frequency-shading")
     names = variants
     parsed = settings + ((("low_frequency_shading", low_frequency_shading),) if low_frequency_shading else ())
     if child:
@@ -154,9 +168,9 @@ def robot(ideal, robot, out, rows, model, preset, iterations, threads, seed, set
 @click.option("--data", required=True, type=click.Path(exists=True, file_okay=False, path_type=Path),
               help="A dataset with true poses (and ground truth), e.g. a `spotless-sim render` of a room.")
 @click.option("--out", required=True, type=click.Path(file_okay=False, path_type=Path))
-@click.option("--translation-cm", default=3.0, show_default=True, type=FiniteFloatRange(0),
+@click.option("--translation-cm", default=3.0, show_default=True, type=FiniteFloatRange(0, 10000),
               help="Every frame's pose error in the perturbed copy: its centre moved this far in a random direction.")
-@click.option("--rotation-deg", default=0.3, show_default=True, type=FiniteFloatRange(0),
+@click.option("--rotation-deg", default=0.3, show_default=True, type=FiniteFloatRange(0, 180),
               help="... and turned by this angle about a random axis.")
 @click.option("--error-model", default="independent", show_default=True, type=click.Choice(["independent", "drift"]),
               help="independent: every frame off by exactly the amounts above; drift: a random walk along the frames "

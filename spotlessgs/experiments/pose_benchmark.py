@@ -243,6 +243,7 @@ def run_pose_benchmark(data: Path, out: Path, translation_m: float, rotation_deg
     """Every row of :data:`ROWS` named in ``rows`` (``overrides``: TrainConfig fields of every row, e.g. the pose
     refinement's settings; ``error_model`` and ``points``: see the module docstring); writes
     ``OUT/pose_refinement.json`` and ``.md``."""
+    from evaluation.runner import require_ground_truth
     from spotlessgs.experiments.run_settings import check_finished_row
 
     unknown = sorted(set(rows) - set(ROWS))
@@ -250,7 +251,10 @@ def run_pose_benchmark(data: Path, out: Path, translation_m: float, rotation_deg
         raise ValueError(f"unknown rows {unknown}; choose from {list(ROWS)}")
     if error_model not in ERROR_MODELS:
         raise ValueError(f"unknown pose error model {error_model!r}; choose from {list(ERROR_MODELS)}")
+    if not (0.0 <= translation_m <= 100.0 and 0.0 <= rotation_deg <= 180.0):
+        raise ValueError(f"pose errors must be 0..100 m and 0..180 deg, got {translation_m} m and {rotation_deg} deg")
     refuse_overlap(out, {"--data": data}, "--out")  # the copies of --data go into --out
+    require_ground_truth(data, "--data")  # before a row trains
     out.mkdir(parents=True, exist_ok=True)
     perturbed = perturbed_copy(data, out / "perturbed_data", translation_m, rotation_deg, seed, error_model, points)
     clean = data if points == "kept" else perturbed_copy(data, out / "clean_data", 0.0, 0.0, seed, error_model,

@@ -172,12 +172,16 @@ def run_robot_benchmark(ideal: Path, robot: Path, out: Path, rows: Sequence[str]
                         settings: Sequence[tuple[str, Any]] = ()) -> list[dict[str, Any]]:
     """Every row of :data:`ROWS` asked for, in order, each trained with the TrainConfig ``settings`` (field, value)
     besides its own switches; writes ``out/robot_components.json`` and ``.md``."""
+    from evaluation.runner import require_ground_truth
     from spotlessgs.experiments.run_settings import check_finished_row
 
     unknown = [r for r in rows if r not in ROWS]
     if unknown:
         raise ValueError(f"unknown rows {unknown}; choose from {list(ROWS)}")
     refuse_overlap(out, {"--ideal": ideal, "--robot": robot}, "--out")  # a copy of --robot goes into --out
+    given = {"ideal": ("--ideal", ideal), "robot": ("--robot", robot), "lens-ignored": ("--robot", robot)}
+    for option, data in sorted({given[ROWS[name][0]] for name in rows}):  # before a row trains
+        require_ground_truth(data, option)
     out.mkdir(parents=True, exist_ok=True)
     datasets = {"ideal": ideal, "robot": robot, "lens-ignored": out / "data-lens-ignored"}
     specs = {name: row_spec(name, datasets[ROWS[name][0]], model, preset, threads, seed, iterations, settings)

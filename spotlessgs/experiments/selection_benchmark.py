@@ -34,7 +34,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from evaluation.dataset import read_dataset
+from evaluation.runner import require_ground_truth
 from spotlessgs.io.atomic import write_json, write_text
 from spotlessgs.io.json_files import read_json
 from spotlessgs.experiments.run_settings import refuse_other_settings
@@ -97,13 +97,6 @@ def run_spec(data: Path, settings: BenchmarkSettings, model: str, strategy: str)
                                              image_width=settings.image_width), selection=selection)
 
 
-def check_has_ground_truth(data: Path) -> None:
-    """ValueError naming ``data`` when none of its test views has a ground-truth image (nothing to score)."""
-    if not any(f.gt_path is not None for f in read_dataset(data).test_frames):
-        raise ValueError(f"{data}: no test view has a ground-truth image; the selection benchmark scores relit test "
-                         "views against the ground truth")
-
-
 def selection_summary(decision: dict[str, Any]) -> dict[str, Any]:
     """What the benchmark reports of a model-selection decision: ``chosen``, ``chosen_model`` (ModelConfig fields),
     ``best``, ``tolerance_db``, ``candidates`` (every scored candidate), ``low_frequency_light`` (the light phase's
@@ -121,10 +114,11 @@ def measure_run(spec: RunSpec, run_dir: Path, threads: int) -> dict:
     """Train ``spec`` (unless ``train_summary.json`` exists), relight every view and score the test views of one run.
 
     Returns:
-        the row: model, strategy, steps, gaussians, train_seconds (the training loop's wall time of the session that
-        finished it), ms_per_step, relit_fps (every view, native resolution), relit_views, psnr / ssim /
-        psnr_aligned / ssim_aligned (dB / SSIM of the relit test views against the ground truth); also stored as
-        ``run_dir/selection_benchmark_row.json`` and reused from there.
+        the row: model, strategy, steps, gaussians, train_seconds (the training loop's wall time; None for a run
+        resumed after an interruption, whose last session's time is not its cost), ms_per_step, relit_fps (every
+        view, native resolution), relit_views, psnr / ssim / psnr_aligned / ssim_aligned (dB / SSIM of the relit
+        test views against the ground truth); also stored as ``run_dir/selection_benchmark_row.json`` and reused
+        from there.
     """
     summary_path, row_path = run_dir / "train_summary.json", run_dir / ROW_FILE
     if summary_path.is_file():
@@ -141,7 +135,9 @@ def measure_run(spec: RunSpec, run_dir: Path, threads: int) -> dict:
     relit = scores.pop("relight")
     row = {"model": run.model, "strategy": spec.strategy,
            "steps": summary["steps"], "gaussians": summary["num_gaussians"],
-           "train_seconds": summary["seconds_this_session"], "ms_per_step": summary["ms_per_step"],
+           # a resumed run's time is its last session's alone: unknown as the run's cost
+           "train_seconds": None if summary.get("session_started_at_step", 0) > 0 else summary["seconds_this_session"],
+           "ms_per_step": summary["ms_per_step"],
            "relit_fps": relit["fps"], "relit_views": relit["count"], **scores}
     write_json(row_path, row)
     return row
@@ -204,7 +200,6 @@ def paired_relit_fps(run_dirs: dict[str, Path], rounds: int = FPS_ROUNDS) -> dic
 
 def measure_room(data: Path, room_dir: Path, settings: BenchmarkSettings) -> dict[str, Any]:
     """Selection and the three runs of one dataset; returns ``data``, ``selection``, ``runs`` and ``verdicts``."""
-    check_has_ground_truth(data)
     specs = {"spotless": run_spec(data, settings, "spotless", "default"),
              "chosen": run_spec(data, settings, AUTO, "default"),  # model selection, then the chosen model
              "budget": run_spec(data, settings, "spotless", "budget")}
@@ -238,7 +233,8 @@ def markdown_report(rooms: dict[str, dict[str, Any]], settings: BenchmarkSetting
                   "relit FPS |",
                   "|---|---|---|---|---|---|---|---|---|"]
         for key, r in room["runs"].items():
-            lines.append(f"| {key} | {r['model']} | {r['strategy']} | {r['gaussians']} | {r['train_seconds']:.1f} | "
+            lines.append(f"| {key} | {r['model']} | {r['strategy']} | {r['gaussians']} | "
+                         f"{fmt(r['train_seconds'], '.1f')} | "
                          f"{r['ms_per_step']:.1f} | {r['psnr']:.2f} | {r['psnr_aligned']:.2f} | "
                          f"{r['relit_fps']:.1f} |")
         lines += [""] + [f"- {v}" for v in verdict_lines(room["verdicts"]["selection"], room["verdicts"]["budget"])]
@@ -267,6 +263,8 @@ def run_selection_benchmark(data_dirs: list[Path], out: Path, settings: Benchmar
     if duplicates:
         raise ValueError(f"run_selection_benchmark: dataset folders share the room name(s) {duplicates}; "
                          "rooms are named by folder name")
+    for d in data_dirs:  # every room before the first trains
+        require_ground_truth(d, "--data")
     rooms = {name: measure_room(Path(d).resolve(), out / name, settings) for name, d in zip(names, data_dirs)}
     results = {"settings": dataclasses.asdict(settings),
                "bounds": BOUNDS,
@@ -281,7 +279,10 @@ def run_selection_benchmark(data_dirs: list[Path], out: Path, settings: Benchmar
 SEED_FIGURES = ("gaussians", "train_seconds", "relit_fps", "psnr", "psnr_aligned")
 
 
-def _spread(values: list[float]) -> dict[str, float]:
+def _spread(values: list[float | None]) -> dict[str, float | None]:
+    """Mean, min and max over seeds; None for each when a seed's value is unknown (a resumed run's time)."""
+    if any(v is None for v in values):
+        return {"mean": None, "min": None, "max": None}
     return {"mean": sum(values) / len(values), "min": min(values), "max": max(values)}
 
 
@@ -305,7 +306,8 @@ def aggregate_seeds(per_seed: dict[int, dict[str, Any]]) -> dict[str, dict[str, 
     summary: dict[str, dict[str, Any]] = {}
     for name in per_seed[seeds[0]]["rooms"]:
         rooms = [per_seed[s]["rooms"][name] for s in seeds]
-        runs = {key: {f: _spread([float(r["runs"][key][f]) for r in rooms]) for f in SEED_FIGURES}
+        runs = {key: {f: _spread([None if r["runs"][key][f] is None else float(r["runs"][key][f]) for r in rooms])
+                      for f in SEED_FIGURES}
                 for key in RUN_FOLDERS}
         tolerance = rooms[0]["selection"]["tolerance_db"]
         mean = {key: {f: runs[key][f]["mean"] for f in SEED_FIGURES} for key in runs}
@@ -329,6 +331,8 @@ def seeds_markdown(summary: dict[str, dict[str, Any]], settings: BenchmarkSettin
     """Per room: every seed's choice, a table of mean [min, max] per run, the per-seed deltas and the verdicts on
     the means."""
     def cell(spread, spec):
+        if spread["mean"] is None:  # a seed's value is unknown
+            return "–"
         return f"{format(spread['mean'], spec)} [{format(spread['min'], spec)}, {format(spread['max'], spec)}]"
 
     lines = [f"Preset {settings.preset}, iterations {settings.iterations or 'of the preset'}, "

@@ -414,8 +414,6 @@ class TrainConfig:
         self._check_general_ranges()
         if self.photometric not in SWITCH_VALUES:
             raise ValueError(f"TrainConfig: photometric must be 'auto', 'on' or 'off', got {self.photometric!r}")
-        if not (math.isfinite(self.normal_axis_weight) and self.normal_axis_weight >= 0):
-            raise ValueError(f"TrainConfig: normal_axis_weight must be finite and >= 0, got {self.normal_axis_weight}")
         if self.trust_start_geometry not in SWITCH_VALUES:
             raise ValueError(f"TrainConfig: trust_start_geometry must be 'auto', 'on' or 'off', "
                              f"got {self.trust_start_geometry!r}")
@@ -423,9 +421,6 @@ class TrainConfig:
             raise ValueError(f"TrainConfig: depth_spread must be 'auto', 'on' or 'off', got {self.depth_spread!r}")
         if self.depth_spread_every < 1:
             raise ValueError(f"TrainConfig: depth_spread_every must be >= 1, got {self.depth_spread_every}")
-        if not (math.isfinite(self.depth_spread_weight) and self.depth_spread_weight >= 0):
-            raise ValueError(f"TrainConfig: depth_spread_weight must be finite and >= 0, "
-                             f"got {self.depth_spread_weight}")
         if self.spot_radiance_unit not in SPOT_RADIANCE_UNITS:
             raise ValueError(f"TrainConfig: spot_radiance_unit must be one of {SPOT_RADIANCE_UNITS}, "
                              f"got {self.spot_radiance_unit!r}")

@@ -853,6 +853,7 @@ def _train_locked(data_dir: Path, run_dir: Path, variant: str | ModelConfig, con
             write_refined_poses(run_dir, views, poses, aligned or {}, end)
         write_json(run_dir / "train_summary.json", {"schema_version": RUN_SCHEMA_VERSION,
             "steps": result.steps, "seconds_this_session": seconds, "ms_per_step": result.ms_per_step,
+            "session_started_at_step": start,  # > 0: resumed, the seconds and ms per step are this session's alone
             "num_gaussians": result.num_gaussians,
             "final_loss": loss_value if math.isfinite(loss_value) else None,  # None: not logged (no step run)
             "test_psnr_reconstruction": test_psnr, "device": str(device),
