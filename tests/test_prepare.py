@@ -76,6 +76,42 @@ def test_a_frame_that_does_not_register_is_named(room, tmp_path):
     assert "frame_00016.png" not in {p.name for p in read_dataset(tmp_path / "data").image_paths}
 
 
+def test_prepare_writes_only_into_its_own_folder_and_replaces_its_earlier_posed_dataset(room, tmp_path):
+    """A folder of another tool's files is refused before anything is written (its transforms.json and images
+    would be overwritten); an earlier prepare's posed dataset (a bag with odometry) is replaced by the new SfM model
+    (its transforms.json was read instead, with the old camera); a second prepare into the folder is locked out."""
+    from spotlessgs.io.errors import FolderLockedError
+
+    theirs = tmp_path / "theirs"
+    (theirs / "images").mkdir(parents=True)
+    (theirs / "transforms.json").write_text('{"frames": []}')
+    with pytest.raises(InputError, match=r"theirs: holds files but no prepare\.json or \.spotless_prepare\.json "
+                                         r"\(images, transforms\.json\): not a dataset that `spotless prepare` began"):
+        prepare_images(room / "images", theirs)
+    assert sorted(p.name for p in theirs.iterdir()) == ["images", "transforms.json"]
+
+    out = tmp_path / "data"
+    out.mkdir()
+    (out / "prepare.json").write_text("{}")  # an earlier prepare of a bag with odometry: a posed dataset
+    shutil.copy(room / "transforms.json", out / "transforms.json")
+    import subprocess
+    import sys
+
+    holder = subprocess.Popen([sys.executable, "-c", "import time; from spotlessgs.io.folder_lock import folder_lock\n"
+                               f"with folder_lock({str(out)!r}, 'another prepare'):\n"
+                               "    print('held', flush=True); time.sleep(60)"], stdout=subprocess.PIPE, text=True)
+    try:
+        assert holder.stdout.readline().strip() == "held"
+        with pytest.raises(FolderLockedError, match="another prepare"):
+            prepare_images(room / "images", out)
+    finally:
+        holder.kill()
+        holder.wait()
+    prepare_images(room / "images", out, camera_model="PINHOLE", intrinsics=read_dataset(room).intrinsics)
+    assert not (out / "transforms.json").exists() and (out / "sparse" / "0").is_dir()
+    assert read_dataset(out).image_paths[0].parent == out / "images"
+
+
 def test_bad_frames_are_refused_naming_the_file(room, tmp_path):
     frames = tmp_path / "frames"
     frames.mkdir()

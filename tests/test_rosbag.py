@@ -222,6 +222,7 @@ def test_a_bag_without_odometry_goes_through_structure_from_motion(tmp_path):
     summary = prepare_bag(bag, tmp_path / "data", "/cam/image", "/cam/info", matcher="exhaustive")
     assert summary["registered"] == 16 and summary["camera_model"] == "given"  # the CameraInfo camera, kept
     assert summary["source"]["frames_kept"] == 16 and summary["source"]["pose_topic"] is None
+    assert summary["images"] == f"{bag}: /cam/image"  # not the temporary folder the frames went through, now gone
     errors = trajectory_errors(read_dataset(tmp_path / "data").c2w_opencv, c2w)
     assert errors.ate_rmse < 0.02  # SfM's poses against the odometry the bag also holds, after similarity alignment
 

@@ -23,7 +23,9 @@ from spotlessgs.io.provenance import provenance
 from spotlessgs.io.rosbag import read_bag
 from spotlessgs.io.transforms import FrameRecord, write_transforms
 from spotlessgs.prepare.depth_points import add_depth_points
-from spotlessgs.prepare.images import SUMMARY_FILE, pose_error, prepare_images
+from spotlessgs.prepare.images import (
+    SUMMARY_FILE, checked_frames, pose_error, prepared_folder, write_image_dataset,
+)
 from spotlessgs.prepare.points import add_sfm_points
 
 log = logging.getLogger(__name__)
@@ -60,6 +62,17 @@ def prepare_bag(
     step = progress or (lambda _name: None)
     step(f"reading {image_topic}")
     frames = read_bag(bag, image_topic, camera_info_topic, pose_topic, min_interval_s, min_motion_m, depth_topic)
+    with prepared_folder(out, {"bag": str(bag.resolve()), "image_topic": image_topic}):
+        return _write_bag_dataset(frames, bag, out, image_topic, camera_info_topic, pose_topic, depth_topic,
+                                  camera_model, matcher, truth, threads, seed, progress, points)
+
+
+def _write_bag_dataset(frames, bag: Path, out: Path, image_topic: str, camera_info_topic: str | None,
+                       pose_topic: str | None, depth_topic: str | None, camera_model: str, matcher: str,
+                       truth: str | Path | None, threads: int, seed: int, progress: Callable[[str], None] | None,
+                       points: bool) -> dict[str, Any]:
+    """:func:`prepare_bag` of the frames read from the bag (:func:`~spotlessgs.io.rosbag.read_bag`) with ``out`` held
+    (:func:`~spotlessgs.prepare.images.prepared_folder`)."""
     source = {"bag": str(bag.resolve()), "image_topic": image_topic, "camera_info_topic": camera_info_topic,
               "pose_topic": pose_topic, "depth_topic": depth_topic, "frames_kept": len(frames.images),
               "frames_skipped": frames.skipped}
@@ -67,8 +80,9 @@ def prepare_bag(
         with tempfile.TemporaryDirectory(prefix="spotless-bag-") as tmp:
             for k, image in enumerate(frames.images):
                 write_png(Path(tmp) / f"frame_{k:05d}.png", image)
-            summary = prepare_images(tmp, out, camera_model, matcher, frames.intrinsics, truth, threads, seed,
-                                     progress)
+            summary = write_image_dataset(Path(tmp), checked_frames(Path(tmp)), out, camera_model, matcher,
+                                          frames.intrinsics, truth, threads, seed, progress,
+                                          source_name=f"{bag}: {image_topic}")
         summary["source"] = source
         write_json(out / SUMMARY_FILE, summary)
         return summary

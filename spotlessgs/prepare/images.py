@@ -15,10 +15,11 @@ named in the summary and in a warning, never dropped silently.
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import logging
 import shutil
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Iterator, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -32,16 +33,19 @@ from spotlessgs.io.cameras import Intrinsics
 from spotlessgs.io.colmap_text import read_colmap_model
 from spotlessgs.io.dataset import read_dataset
 from spotlessgs.io.errors import InputError
+from spotlessgs.io.folder_lock import folder_lock
 from spotlessgs.io.frame_quality import noise_level
 from spotlessgs.io.images import list_image_files, read_image, write_png
 from spotlessgs.io.json_files import read_json
-from spotlessgs.io.paths import refuse_overlap
+from spotlessgs.io.paths import refuse_foreign_folder, refuse_overlap
 from spotlessgs.io.provenance import provenance
 from spotlessgs.training.validation import evenly_spaced
 
 log = logging.getLogger(__name__)
 
 SUMMARY_FILE = "prepare.json"
+#: Written into ``--out`` before anything else (the summary comes last): an interrupted prepare's folder is its own.
+STARTED_FILE = ".spotless_prepare.json"
 # Beside the brightened copies: which file and blur made each one (write_brightened_copies), and how often it is saved.
 COPIES_RECORD = "sources.json"
 COPIES_RECORD_EVERY = 50
@@ -152,9 +156,40 @@ def prepare_images(
     """
     images_dir, out = Path(images_dir), Path(out)
     refuse_overlap(out, {"--images": images_dir}, "--out")
+    frames = checked_frames(images_dir)  # before anything is written
+    with prepared_folder(out, {"images": str(images_dir.resolve())}):
+        return write_image_dataset(images_dir, frames, out, camera_model, matcher, intrinsics, truth, threads, seed,
+                                   progress)
+
+
+def checked_frames(images_dir: Path) -> list[Path]:
+    """The frames of ``images_dir`` in time (natural file-name) order; InputError naming a frame that cannot be
+    decoded, has another size than the first, or whose dataset name would clash with another's."""
     frames = list_image_files(images_dir)
     _check_copy_names(images_dir, frames)
-    width, height = _read_frames(frames)
+    _read_frames(frames)
+    return frames
+
+
+@contextlib.contextmanager
+def prepared_folder(out: Path, source: dict[str, Any]) -> Iterator[None]:
+    """Hold ``out`` for one prepare: refuse a folder of files that no prepare began (InputError: its dataset files
+    would be overwritten or mixed with ours), lock it (a second prepare into it: FolderLockedError), and mark it as
+    begun by this command (``source``: what it is prepared from)."""
+    refuse_foreign_folder(out, [SUMMARY_FILE, STARTED_FILE], "--out", "a dataset that `spotless prepare` began")
+    with folder_lock(out, "spotless prepare"):
+        if not (out / STARTED_FILE).is_file():
+            write_json(out / STARTED_FILE, {"source": source, "provenance": provenance()})
+        yield
+
+
+def write_image_dataset(images_dir: Path, frames: list[Path], out: Path, camera_model: str, matcher: str,
+                        intrinsics: Intrinsics | None, truth: str | Path | None, threads: int, seed: int,
+                        progress: Callable[[str], None] | None, source_name: str | None = None) -> dict[str, Any]:
+    """:func:`prepare_images` of the :func:`checked_frames` ``frames`` of ``images_dir`` with ``out`` held
+    (:func:`prepared_folder`); ``source_name``: how messages name the frames (a bag's topic, whose frames were
+    written to the temporary ``images_dir``)."""
+    label = source_name or str(images_dir)
     names = [p.name for p in frames]
     step = progress or (lambda _name: None)
     step("brightened copies")
@@ -171,32 +206,35 @@ def prepare_images(
     registered = set() if model_dir is None else {im.name for im in read_colmap_model(model_dir).images.values()}
     missing = [n for n, s in zip(names, sfm_names) if s not in registered]
     summary: dict[str, Any] = {
-        "images": str(images_dir.resolve()), "frames": len(names), "registered": len(names) - len(missing),
+        "images": source_name or str(images_dir.resolve()), "frames": len(names),
+        "registered": len(names) - len(missing),
         "not_registered": missing, "camera_model": camera_model if intrinsics is None else "given",
         "matcher": matcher, "brightening": {"noise_level": noise, "blur_sigma_px": blur}, "sfm": result.summary(),
         "provenance": provenance(seed=seed, extra_packages=("pycolmap",)),
     }
     if model_dir is not None:
+        # an earlier prepare's posed dataset would be read instead of this model (transforms.json comes first)
+        (out / "transforms.json").unlink(missing_ok=True)
         _write_dataset(frames, sfm_names, model_dir, out)
         try:
             summary["camera"] = dataclasses.asdict(read_dataset(out).intrinsics)
         except InputError as exc:  # e.g. a many-parameter lens fitted to too few features folds the image
             summary["error"] = str(exc)
             write_json(out / SUMMARY_FILE, summary)
-            raise InputError(f"{images_dir}: structure from motion estimated a {camera_model} camera that cannot be "
+            raise InputError(f"{label}: structure from motion estimated a {camera_model} camera that cannot be "
                              f"used ({exc}); try a simpler --camera-model such as {_simpler_model(camera_model)}"
                              ) from None
         if truth is not None:
             summary["pose_error"] = pose_error(out, Path(truth), {c: f"{p.stem}.png" for c, p in zip(sfm_names, frames)})
     write_json(out / SUMMARY_FILE, summary)
     if summary["registered"] < 2:
-        raise InputError(f"{images_dir}: structure from motion registered {summary['registered']} of {len(names)} "
+        raise InputError(f"{label}: structure from motion registered {summary['registered']} of {len(names)} "
                          f"frames; no dataset written (see {out / SUMMARY_FILE})")
     if missing:
-        log.warning("%s: %d of %d frames did not register and are not in the dataset: %s", images_dir, len(missing),
+        log.warning("%s: %d of %d frames did not register and are not in the dataset: %s", label, len(missing),
                     len(names), ", ".join(missing))
     if summary["registered"] < MIN_REGISTERED_SHARE * len(names):
-        log.warning("%s: only %.0f%% of the frames registered", images_dir, 100 * summary["registered"] / len(names))
+        log.warning("%s: only %.0f%% of the frames registered", label, 100 * summary["registered"] / len(names))
     return summary
 
 
