@@ -32,13 +32,14 @@ def sequence():
 def _write_bag(path, sequence, ros: int, compressed: bool = False, encoding: str = "rgb8", depth: str | None = None,
                depth_offset_ns: int = 5_000_000, info_size: tuple[int, int] | None = None, zero_k: bool = False,
                zero_first_orientation: bool = False, damaged_frame: int | None = None,
-               cropped_frame: int | None = None):
+               cropped_frame: int | None = None, skip_odometry: tuple[int, ...] = (), frame_stamps=None):
     """A bag with the sequence's frames (raw or JPEG), its CameraInfo and the camera's odometry; with ``depth``
     (``16UC1`` or ``32FC1``) also its registered depth images on ``/cam/depth``, ``depth_offset_ns`` after each
     frame. Damage for the error tests: ``info_size`` (width, height) in the CameraInfo instead of the frames',
     ``zero_k`` an uncalibrated CameraInfo (K all zeros), ``zero_first_orientation`` a zero quaternion in the first
     odometry message, ``damaged_frame`` that frame's message cut short, ``cropped_frame`` that raw frame one column
-    narrower."""
+    narrower, ``skip_odometry`` those odometry messages left out (a dropout), ``frame_stamps`` each frame's header
+    stamp in ns (e.g. 0: a driver that leaves it unfilled; the bag's time stays 0.5 i s)."""
     if ros == 1:
         from rosbags.rosbag1 import Writer
         store = get_typestore(Stores.ROS1_NOETIC)
@@ -75,6 +76,8 @@ def _write_bag(path, sequence, ros: int, compressed: bool = False, encoding: str
                                               **matrices)
         writer.write(info, 0, serialize(msg, "sensor_msgs/msg/CameraInfo"))
         for i in range(frames + 1):  # odometry every 0.5 s; frame i at 0.5 i s
+            if i in skip_odometry:
+                continue
             ns = i * 500_000_000
             j = min(i, frames - 1)
             q = np.zeros(4) if zero_first_orientation and i == 0 else Rotation.from_matrix(c2w[j, :3, :3]).as_quat()
@@ -92,14 +95,15 @@ def _write_bag(path, sequence, ros: int, compressed: bool = False, encoding: str
             writer.write(odom, ns, serialize(msg, "nav_msgs/msg/Odometry"))
         for i in range(frames):
             ns = 500_000_000 * i
+            stamp_ns = ns if frame_stamps is None else frame_stamps[i]
             rgb = np.round(sequence.spot[i] * 255).astype(np.uint8)
             if compressed:
                 ok, data = cv2.imencode(".jpg", cv2.cvtColor(rgb, cv2.COLOR_RGB2BGR), [cv2.IMWRITE_JPEG_QUALITY, 95])
-                msg = t["sensor_msgs/msg/CompressedImage"](header=header(ns), format="jpeg", data=data.ravel())
+                msg = t["sensor_msgs/msg/CompressedImage"](header=header(stamp_ns), format="jpeg", data=data.ravel())
             else:
                 data = cv2.cvtColor(rgb, cv2.COLOR_RGB2BGR) if encoding == "bgr8" else rgb
                 data = np.ascontiguousarray(data[:, :-1]) if i == cropped_frame else data
-                msg = t["sensor_msgs/msg/Image"](header=header(ns), height=height, width=data.shape[1],
+                msg = t["sensor_msgs/msg/Image"](header=header(stamp_ns), height=height, width=data.shape[1],
                                                  encoding=encoding, is_bigendian=0, step=3 * data.shape[1],
                                                  data=data.ravel())
             raw = serialize(msg, image_type)
@@ -265,3 +269,28 @@ def test_depth_that_is_not_in_step_with_the_frames_or_has_no_poses_is_refused(se
     result = CliRunner().invoke(main, ["prepare", "--images", str(tmp_path), "--depth-topic", "/cam/depth",
                                        "--out", str(tmp_path / "o")])
     assert result.exit_code != 0 and "--depth-topic goes with --bag" in result.output
+
+
+def test_frames_left_out_are_counted_by_reason_and_said(sequence, tmp_path, caplog):
+    """Frames in an odometry dropout got a pose made up across it; frames out of order or outside the poses were
+    dropped without a word ("N of N registered"); zero header stamps (an unfilled header) kept one frame of all."""
+    import logging
+
+    bag = tmp_path / "gap"
+    _write_bag(bag, sequence, 2, skip_odometry=(3, 4, 5))  # poses at 1.0 and 3.0 s only around frames 3-5
+    with caplog.at_level(logging.WARNING, logger="spotlessgs.io.rosbag"):
+        frames = read_bag(bag, "/cam/image", "/cam/info", "/cam/odom")
+    assert frames.skipped_by == {"pose_gap": 3} and len(frames.images) == FRAMES - 3
+    assert any("3 of %d frames left out: 3 in a gap of the pose topic" % FRAMES in r.getMessage()
+               for r in caplog.records)
+    bag = tmp_path / "zero"
+    _write_bag(bag, sequence, 2, frame_stamps=[0] * FRAMES)  # the bag's own times are used instead
+    frames = read_bag(bag, "/cam/image", "/cam/info", "/cam/odom")
+    assert len(frames.images) == FRAMES and frames.skipped_by == {}
+    assert frames.stamps_ns.tolist() == [500_000_000 * i for i in range(FRAMES)]
+    bag = tmp_path / "order"
+    stamps = [500_000_000 * i for i in range(FRAMES)]
+    stamps[2], stamps[3] = stamps[3], stamps[2]
+    _write_bag(bag, sequence, 2, frame_stamps=stamps)
+    frames = read_bag(bag, "/cam/image", "/cam/info", "/cam/odom")
+    assert frames.skipped_by == {"stamp_not_increasing": 1} and len(frames.images) == FRAMES - 1

@@ -17,7 +17,7 @@ from __future__ import annotations
 
 import logging
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import cv2
@@ -54,8 +54,9 @@ class BagFrames:
         images: N (H, W, 3) float32 sRGB images in [0, 1].
         intrinsics: from the CameraInfo topic, or None.
         c2w: (N, 4, 4) camera-to-world (OpenCV axes) at the frames' stamps from the pose topic, or None.
-        skipped: frames read but not kept (subsampling), and frames outside the pose topic's time span.
+        skipped: frames read but not kept (the sum of ``skipped_by``).
         depths: N (H, W) float64 depth images in metres (NaN: no measurement) from the depth topic, or None.
+        skipped_by: how many frames each reason left out (:data:`SKIP_REASONS`; reasons that left none out absent).
     """
 
     stamps_ns: np.ndarray
@@ -64,6 +65,20 @@ class BagFrames:
     c2w: np.ndarray | None
     skipped: int
     depths: list[np.ndarray] | None = None
+    skipped_by: dict[str, int] = field(default_factory=dict)
+
+
+#: Why a frame of the image topic is left out: keys of BagFrames.skipped_by, with what the warning says of them.
+SKIP_REASONS = {
+    "subsampled": "closer in time than --every to the last kept frame",
+    "stamp_not_increasing": "a header stamp not after the last kept frame's (the topic out of order)",
+    "outside_poses": "outside the pose topic's time span",
+    "pose_gap": "in a gap of the pose topic (its poses there lie further apart than MAX_POSE_GAP_NS)",
+    "not_moved": "moved less than --min-motion since the last kept frame",
+}
+#: A frame whose two bracketing poses lie further apart in time than this (ns) gets no interpolated pose (a dropout or
+#: a reset of the odometry: a pose made up across it would be wrong) and is left out.
+MAX_POSE_GAP_NS = 500_000_000
 
 
 def decode_image(msg, msgtype: str, where: str) -> np.ndarray:
@@ -158,8 +173,11 @@ def _deserialize(reader, raw: bytes, conn, t: int, where: str):
 
 
 def _stamp_ns(msg, fallback: int) -> int:
+    """The message's header stamp (ns), or ``fallback`` (the bag's receive time) where it has none or a zero one
+    (drivers that leave the header unfilled)."""
     stamp = getattr(getattr(msg, "header", None), "stamp", None)
-    return fallback if stamp is None else int(stamp.sec) * 1_000_000_000 + int(stamp.nanosec)
+    value = None if stamp is None else int(stamp.sec) * 1_000_000_000 + int(stamp.nanosec)
+    return fallback if not value else value
 
 
 def read_bag(bag: str | Path, image_topic: str, camera_info_topic: str | None = None, pose_topic: str | None = None,
@@ -212,29 +230,41 @@ def read_bag(bag: str | Path, image_topic: str, camera_info_topic: str | None = 
                 raise InputError(f"{bag}: topic {pose_topic!r} has {len(records)} usable pose(s); at least 2 are "
                                  "needed")
             poses = records
-        stamps, images, c2w, skipped = [], [], [], 0
+        stamps, images, c2w = [], [], []
+        skipped: dict[str, int] = {}
         last_stamp, last_centre = None, None
         for conn, t, raw in reader.messages(connections=image_conns):
             msg = _deserialize(reader, raw, conn, t, f"{bag}: {image_topic}")
             stamp = _stamp_ns(msg, t)
-            if last_stamp is not None and (stamp - last_stamp) < min_interval_s * 1e9:
-                skipped += 1
-                continue
+            reason = None
+            if last_stamp is not None and stamp <= last_stamp:
+                reason = "stamp_not_increasing"
+            elif last_stamp is not None and (stamp - last_stamp) < min_interval_s * 1e9:
+                reason = "subsampled"
             pose = None
-            if poses is not None:
-                pose = _interpolate(poses, stamp)
-                if pose is None or (last_centre is not None
-                                    and np.linalg.norm(pose[:3, 3] - last_centre) < min_motion_m):
-                    skipped += 1
-                    continue
+            if reason is None and poses is not None:
+                pose, reason = _interpolate(poses, stamp)
+                if pose is not None and last_centre is not None and \
+                        np.linalg.norm(pose[:3, 3] - last_centre) < min_motion_m:
+                    reason = "not_moved"
+            if reason is not None:
+                skipped[reason] = skipped.get(reason, 0) + 1
+                continue
             images.append(decode_image(msg, conn.msgtype, f"{bag}: {image_topic} at {stamp} ns"))
             stamps.append(stamp)
             last_stamp = stamp
             if pose is not None:
                 c2w.append(pose)
                 last_centre = pose[:3, 3]
+        why = "; ".join(f"{n} {SKIP_REASONS[r]}" for r, n in skipped.items())
         if not images:
-            raise InputError(f"{bag}: no frame of {image_topic!r} was kept ({skipped} skipped)")
+            span = "" if poses is None else f"; the poses span {poses[0][0]} to {poses[-1][0]} ns"
+            raise InputError(f"{bag}: no frame of {image_topic!r} was kept ({why}{span})")
+        unexpected = {r: n for r, n in skipped.items() if r not in ("subsampled", "not_moved")}
+        if unexpected:  # not what the user asked for: said, with the reason
+            log.warning("%s: %s: %d of %d frames left out: %s", bag, image_topic, sum(unexpected.values()),
+                        len(images) + sum(skipped.values()),
+                        "; ".join(f"{n} {SKIP_REASONS[r]}" for r, n in unexpected.items()))
         _check_frame_sizes(images, stamps, intrinsics, f"{bag}: {image_topic}", camera_info_topic)
         depths = None
         if depth_topic is not None:
@@ -247,8 +277,8 @@ def read_bag(bag: str | Path, image_topic: str, camera_info_topic: str | None = 
                                      "(the depth must be registered to the colour camera: aligned_depth_to_color)")
     finally:
         reader.close()
-    return BagFrames(np.array(stamps, dtype=np.int64), images, intrinsics, np.stack(c2w) if poses else None, skipped,
-                     depths)
+    return BagFrames(np.array(stamps, dtype=np.int64), images, intrinsics, np.stack(c2w) if poses else None,
+                     sum(skipped.values()), depths, skipped)
 
 
 def _matched_depths(reader, conns, stamps: list[int], where: str) -> list[np.ndarray]:
@@ -305,13 +335,16 @@ def _valid_pose(position: np.ndarray, quaternion: np.ndarray) -> bool:
     return bool(np.isfinite(position).all()) and math.isfinite(norm) and norm > 1e-6
 
 
-def _interpolate(records, stamp: int) -> np.ndarray | None:
-    """Camera-to-world at ``stamp`` from time-sorted (stamp, position, quaternion xyzw) records; None outside."""
+def _interpolate(records, stamp: int) -> tuple[np.ndarray | None, str | None]:
+    """(camera-to-world at ``stamp`` from time-sorted (stamp, position, quaternion xyzw) records, None) or (None, why
+    there is none: ``outside_poses``, ``pose_gap`` (bracketing poses more than MAX_POSE_GAP_NS apart))."""
     times = np.array([r[0] for r in records], dtype=np.int64)
     if stamp < times[0] or stamp > times[-1]:
-        return None
+        return None, "outside_poses"
     i = int(np.clip(np.searchsorted(times, stamp, side="right") - 1, 0, len(times) - 2))
     span = times[i + 1] - times[i]
+    if span > MAX_POSE_GAP_NS and stamp not in (times[i], times[i + 1]):
+        return None, "pose_gap"
     w = 0.0 if span == 0 else (stamp - times[i]) / span
     ends = []
     for _stamp, position, quaternion in (records[i], records[i + 1]):
@@ -321,5 +354,5 @@ def _interpolate(records, stamp: int) -> np.ndarray | None:
         ends.append(end)
     c2w = interpolate_pose(ends[0], ends[1], w)
     if not math.isfinite(float(c2w.sum())):
-        return None
-    return c2w
+        return None, "outside_poses"
+    return c2w, None

@@ -75,7 +75,7 @@ def _write_bag_dataset(frames, bag: Path, out: Path, image_topic: str, camera_in
     (:func:`~spotlessgs.prepare.images.prepared_folder`)."""
     source = {"bag": str(bag.resolve()), "image_topic": image_topic, "camera_info_topic": camera_info_topic,
               "pose_topic": pose_topic, "depth_topic": depth_topic, "frames_kept": len(frames.images),
-              "frames_skipped": frames.skipped}
+              "frames_skipped": frames.skipped, "frames_skipped_by": frames.skipped_by}
     if frames.c2w is None:
         with tempfile.TemporaryDirectory(prefix="spotless-bag-") as tmp:
             for k, image in enumerate(frames.images):
