@@ -217,6 +217,17 @@ def test_image_encodings_and_camera_models():
     info.distortion_model = "fov"
     with pytest.raises(InputError, match="distortion model 'fov' is not supported"):
         camera_info_intrinsics(info, "x")
+    # K describes the full sensor; binned 2 x 2, the images are 320 x 240 with every pixel figure halved (was
+    # refused: "the frames are 320x240 but the CameraInfo says 640x480"); a region of interest moves the centre
+    def pixels(c):
+        return (c.fx, c.fy, c.cx, c.cy, c.width, c.height)
+
+    info.distortion_model, info.binning_x, info.binning_y = "plumb_bob", 2, 2
+    assert pixels(camera_info_intrinsics(info, "x")) == (250, 255, 160, 120, 320, 240)
+    info.roi = SimpleNamespace(x_offset=100, y_offset=40, width=400, height=300)
+    assert pixels(camera_info_intrinsics(info, "x")) == (250, 255, 110, 100, 200, 150)
+    info.binning_x = info.binning_y = 0  # 0: no binning, as 1
+    assert pixels(camera_info_intrinsics(info, "x")) == (500, 510, 220, 200, 400, 300)
 
 
 def test_a_bag_without_odometry_goes_through_structure_from_motion(tmp_path):

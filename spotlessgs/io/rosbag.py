@@ -136,7 +136,10 @@ def _rows(raw: np.ndarray, msg, channels: int, dtype, where: str) -> np.ndarray:
 
 def camera_info_intrinsics(msg, where: str) -> Intrinsics:
     """Our Intrinsics of a CameraInfo message (pixel centres move from integers to +0.5; ROS 1 names the fields K and
-    D, ROS 2 k and d)."""
+    D, ROS 2 k and d). K, width and height describe the full-resolution calibration; the images are that camera's
+    region of interest (``roi``, when set), binned by ``binning_x`` x ``binning_y`` (0 or 1: none), as the ROS
+    ``image_geometry`` package reads them: the principal point moves by the region's offset, then every pixel
+    figure is divided by the binning (distortion acts on normalised coordinates and is unchanged)."""
     k = np.asarray(msg.k if hasattr(msg, "k") else msg.K, dtype=np.float64)
     model = (msg.distortion_model or "").lower()
     d = tuple(float(v) for v in (msg.d if hasattr(msg, "d") else msg.D))
@@ -151,8 +154,14 @@ def camera_info_intrinsics(msg, where: str) -> Intrinsics:
     else:
         raise InputError(f"{where}: distortion model {msg.distortion_model!r} is not supported (plumb_bob, "
                          "rational_polynomial, equidistant)")
+    width, height, cx, cy = int(msg.width), int(msg.height), k[2] + 0.5, k[5] + 0.5
+    roi = getattr(msg, "roi", None)
+    if roi is not None and int(roi.width) > 0 and int(roi.height) > 0:
+        width, height = int(roi.width), int(roi.height)
+        cx, cy = cx - int(roi.x_offset), cy - int(roi.y_offset)
+    bin_x, bin_y = (max(1, int(getattr(msg, name, 0) or 0)) for name in ("binning_x", "binning_y"))
     try:
-        return Intrinsics(k[0], k[4], k[2] + 0.5, k[5] + 0.5, int(msg.width), int(msg.height), lens, d)
+        return Intrinsics(k[0] / bin_x, k[4] / bin_y, cx / bin_x, cy / bin_y, width // bin_x, height // bin_y, lens, d)
     except ValueError as exc:  # an uncalibrated camera publishes zeros
         raise InputError(f"{where}: the CameraInfo cannot be used ({exc}); is the camera calibrated?") from None
 
