@@ -43,3 +43,25 @@ def test_provenance_records_seed_and_versions():
     assert rec["seed"] == 7 and rec["note"] == "x"
     assert "numpy" in rec["packages"] and "click" in rec["packages"]
     json.dumps(rec)
+
+
+def test_png_keeps_the_levels_of_a_deep_camera_and_8_bits_of_an_8_bit_one(tmp_path):
+    """A 12-bit camera's frame (a bag's mono16, a 16-bit TIFF) was cut to 8 bits in the prepared dataset: 4096
+    levels became 17 in its dark frames. bits=None writes 16 bits where the image needs them."""
+    import numpy as np
+
+    from spotlessgs.io.images import read_image, write_png
+
+    deep = (np.arange(4096, dtype=np.float32).reshape(64, 64)[..., None].repeat(3, -1)) / 65535.0  # 12-bit levels
+    write_png(tmp_path / "deep.png", deep, bits=None)
+    np.testing.assert_array_equal(read_image(tmp_path / "deep.png"), deep)
+    write_png(tmp_path / "cut.png", deep)  # 8 bits as asked
+    assert len(np.unique(read_image(tmp_path / "cut.png"))) == 17
+    shallow = np.arange(256, dtype=np.float32).reshape(16, 16)[..., None].repeat(3, -1) / 255.0
+    write_png(tmp_path / "shallow.png", shallow, bits=None)
+    assert (tmp_path / "shallow.png").read_bytes()[24] == 8  # an 8-bit source stays an 8-bit PNG (IHDR bit depth)
+    np.testing.assert_array_equal(read_image(tmp_path / "shallow.png"), shallow)
+    assert (tmp_path / "deep.png").read_bytes()[24] == 16
+    colour = np.stack([deep[..., 0], 0.5 * deep[..., 0], np.full_like(deep[..., 0], 7 / 65535)], -1)
+    write_png(tmp_path / "colour.png", colour, bits=None)  # red, green and blue stay in their channels
+    np.testing.assert_array_equal(read_image(tmp_path / "colour.png"), np.round(colour * 65535) / 65535)

@@ -227,23 +227,42 @@ def _decode_png16(path: Path) -> np.ndarray:
     return data.astype(np.float32) / 65535.0
 
 
-def write_png(path: str | os.PathLike, img: np.ndarray) -> None:
-    """Write an 8-bit RGB PNG atomically.
+def write_png(path: str | os.PathLike, img: np.ndarray, bits: int | None = 8) -> None:
+    """Write an RGB PNG atomically.
 
     Args:
         path: output file (parent folders are created).
-        img: (H, W, 3) uint8, or float in [0, 1] (clipped, rounded to 8 bits without dithering; already sRGB-encoded).
+        img: (H, W, 3) uint8, or float in [0, 1] (clipped, rounded without dithering; already sRGB-encoded).
+        bits: 8, 16, or None: 16 where a float image holds finer levels than 8 bits do (a 12- or 16-bit camera's
+            frame, whose shadow detail 8 bits would cut), else 8.
     """
     from PIL import Image
 
     arr = np.asarray(img)
     if arr.ndim != 3 or arr.shape[2] != 3 or arr.shape[0] == 0 or arr.shape[1] == 0:
         raise ValueError(f"{path}: write_png expects an (H, W, 3) image, got shape {arr.shape}")
+    if bits not in (8, 16, None):
+        raise ValueError(f"{path}: write_png writes 8 or 16 bits, got {bits}")
     if arr.dtype != np.uint8:
         if not np.issubdtype(arr.dtype, np.floating):
             raise ValueError(f"{path}: write_png expects uint8 or float data, got {arr.dtype}")
         if not np.isfinite(arr).all():
             raise ValueError(f"{path}: write_png image contains NaN or inf")
+        if bits == 16 or (bits is None and not _on_8_bit_levels(arr)):
+            import cv2
+
+            deep = np.round(np.clip(arr, 0.0, 1.0) * 65535.0).astype(np.uint16)
+            with atomic_path(path, suffix=".png") as tmp:
+                if not cv2.imwrite(str(tmp), cv2.cvtColor(np.ascontiguousarray(deep), cv2.COLOR_RGB2BGR)):
+                    raise OSError(f"{path}: cannot write the 16-bit PNG")
+            return
         arr = to_uint8(arr)
     with atomic_path(path, suffix=".png") as tmp:
         Image.fromarray(np.ascontiguousarray(arr), mode="RGB").save(tmp, format="PNG")
+
+
+def _on_8_bit_levels(img: np.ndarray) -> bool:
+    """Whether every value of a float image in [0, 1] is one of the 256 levels of 8 bits (k / 255, to float32's
+    precision): an 8-bit source, which 8 bits store exactly."""
+    scaled = np.clip(img, 0.0, 1.0).astype(np.float64) * 255.0
+    return bool(np.abs(scaled - np.round(scaled)).max() < 1e-3)

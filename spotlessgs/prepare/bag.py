@@ -79,7 +79,7 @@ def _write_bag_dataset(frames, bag: Path, out: Path, image_topic: str, camera_in
     if frames.c2w is None:
         with tempfile.TemporaryDirectory(prefix="spotless-bag-") as tmp:
             for k, image in enumerate(frames.images):
-                write_png(Path(tmp) / f"frame_{k:05d}.png", image)
+                write_png(Path(tmp) / f"frame_{k:05d}.png", image, bits=None)  # a 16-bit camera's levels kept
             summary = write_image_dataset(Path(tmp), checked_frames(Path(tmp)), out, camera_model, matcher,
                                           frames.intrinsics, truth, threads, seed, progress,
                                           source_name=f"{bag}: {image_topic}")
@@ -89,7 +89,7 @@ def _write_bag_dataset(frames, bag: Path, out: Path, image_topic: str, camera_in
     records = []
     for k, (image, c2w) in enumerate(zip(frames.images, frames.c2w)):
         name, depth_name = f"images/frame_{k:05d}.png", None
-        write_png(out / name, image)
+        write_png(out / name, image, bits=None)  # a 12- or 16-bit camera's levels kept
         if frames.depths is not None:
             depth_name = f"depth/frame_{k:05d}.png"
             write_depth_image(out / depth_name, frames.depths[k], DEFAULT_DEPTH_SCALE)

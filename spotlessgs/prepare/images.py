@@ -284,8 +284,8 @@ def _write_dataset(frames: list[Path], sfm_names: list[str], model_dir: Path, ou
         if path.suffix.lower() == ".png":
             with atomic_path(target) as tmp:
                 shutil.copy2(path, tmp)
-        else:  # the model names the frames by their PNG copies: store the original pixels as PNG too
-            write_png(target, read_image(path))
+        else:  # the model names the frames by their PNG copies: store the original pixels as PNG too, a 16-bit
+            write_png(target, read_image(path), bits=None)  # frame's in 16 bits
     sparse = out / "sparse" / "0"  # the new model replaces an earlier run's in one step
     sparse.parent.mkdir(parents=True, exist_ok=True)
     tmp = partial_sibling(sparse)
