@@ -32,7 +32,8 @@ def sequence():
 def _write_bag(path, sequence, ros: int, compressed: bool = False, encoding: str = "rgb8", depth: str | None = None,
                depth_offset_ns: int = 5_000_000, info_size: tuple[int, int] | None = None, zero_k: bool = False,
                zero_first_orientation: bool = False, damaged_frame: int | None = None,
-               cropped_frame: int | None = None, skip_odometry: tuple[int, ...] = (), frame_stamps=None):
+               cropped_frame: int | None = None, skip_odometry: tuple[int, ...] = (), frame_stamps=None,
+               odometry_child: str = "cam_optical"):
     """A bag with the sequence's frames (raw or JPEG), its CameraInfo and the camera's odometry; with ``depth``
     (``16UC1`` or ``32FC1``) also its registered depth images on ``/cam/depth``, ``depth_offset_ns`` after each
     frame. Damage for the error tests: ``info_size`` (width, height) in the CameraInfo instead of the frames',
@@ -88,7 +89,7 @@ def _write_bag(path, sequence, ros: int, compressed: bool = False, encoding: str
             cov = np.zeros(36)
             twist = t["geometry_msgs/msg/Twist"](linear=t["geometry_msgs/msg/Vector3"](x=0, y=0, z=0),
                                                  angular=t["geometry_msgs/msg/Vector3"](x=0, y=0, z=0))
-            msg = t["nav_msgs/msg/Odometry"](header=header(ns), child_frame_id="cam_optical",
+            msg = t["nav_msgs/msg/Odometry"](header=header(ns), child_frame_id=odometry_child,
                                              pose=t["geometry_msgs/msg/PoseWithCovariance"](pose=pose, covariance=cov),
                                              twist=t["geometry_msgs/msg/TwistWithCovariance"](twist=twist,
                                                                                               covariance=cov))
@@ -305,3 +306,20 @@ def test_frames_left_out_are_counted_by_reason_and_said(sequence, tmp_path, capl
     _write_bag(bag, sequence, 2, frame_stamps=stamps)
     frames = read_bag(bag, "/cam/image", "/cam/info", "/cam/odom")
     assert frames.skipped_by == {"stamp_not_increasing": 1} and len(frames.images) == FRAMES - 1
+
+
+def test_odometry_of_another_frame_than_the_images_is_warned_about(sequence, tmp_path, caplog):
+    """Most robots' /odom places base_link, whose axes are not the optical frame's: it was taken as the camera's
+    pose without a word (the camera looked straight up)."""
+    import logging
+
+    said = {}
+    for child in ("base_link", "/cam_optical"):  # a leading slash (ROS 1 style) names the same frame
+        bag = tmp_path / child.strip("/")
+        _write_bag(bag, sequence, 2, odometry_child=child)
+        caplog.clear()
+        with caplog.at_level(logging.WARNING, logger="spotlessgs.io.rosbag"):
+            read_bag(bag, "/cam/image", "/cam/info", "/cam/odom")
+        said[child] = [r.getMessage() for r in caplog.records if "places the frame" in r.getMessage()]
+    assert said["/cam_optical"] == [] and len(said["base_link"]) == 1
+    assert "/cam/odom places the frame 'base_link', the images are in 'cam_optical'" in said["base_link"][0]

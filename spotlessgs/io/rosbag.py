@@ -224,11 +224,15 @@ def read_bag(bag: str | Path, image_topic: str, camera_info_topic: str | None = 
                 where = f"{bag}: {camera_info_topic}"
                 intrinsics = camera_info_intrinsics(_deserialize(reader, raw, conn, t, where), where)
                 break
-        poses = None
+        poses, posed_frame = None, None
         if pose_topic is not None:
             conns = connections(pose_topic, POSE_TYPES)
-            records = [(_stamp_ns(m, t), *_pose(m, c.msgtype)) for c, t, raw in reader.messages(connections=conns)
-                       for m in [_deserialize(reader, raw, c, t, f"{bag}: {pose_topic}")]]
+            messages = [(_deserialize(reader, raw, c, t, f"{bag}: {pose_topic}"), c, t)
+                        for c, t, raw in reader.messages(connections=conns)]
+            records = [(_stamp_ns(m, t), *_pose(m, c.msgtype)) for m, c, t in messages]
+            # the frame an odometry message places (PoseStamped does not say)
+            posed_frame = next((str(m.child_frame_id) for m, c, _t in messages
+                                if c.msgtype.endswith("Odometry") and getattr(m, "child_frame_id", "")), None)
             records.sort(key=lambda r: r[0])
             valid = [r for r in records if _valid_pose(r[1], r[2])]
             if len(valid) < len(records):  # odometry that is not yet initialised often publishes a zero quaternion
@@ -240,11 +244,13 @@ def read_bag(bag: str | Path, image_topic: str, camera_info_topic: str | None = 
                                  "needed")
             poses = records
         stamps, images, c2w = [], [], []
+        image_frame = None  # the frame the images' headers name
         skipped: dict[str, int] = {}
         last_stamp, last_centre = None, None
         for conn, t, raw in reader.messages(connections=image_conns):
             msg = _deserialize(reader, raw, conn, t, f"{bag}: {image_topic}")
             stamp = _stamp_ns(msg, t)
+            image_frame = image_frame or str(getattr(getattr(msg, "header", None), "frame_id", "") or "") or None
             reason = None
             if last_stamp is not None and stamp <= last_stamp:
                 reason = "stamp_not_increasing"
@@ -265,6 +271,11 @@ def read_bag(bag: str | Path, image_topic: str, camera_info_topic: str | None = 
             if pose is not None:
                 c2w.append(pose)
                 last_centre = pose[:3, 3]
+        if poses is not None and posed_frame and image_frame and posed_frame.lstrip("/") != image_frame.lstrip("/"):
+            # most robots' /odom places base_link: its axes are not the optical frame's (z forward, y down)
+            log.warning("%s: %s places the frame %r, the images are in %r: the poses are used as the camera's "
+                        "(OpenCV axes) as they are, with no transform between the two; give the odometry of the "
+                        "camera's optical frame", bag, pose_topic, posed_frame, image_frame)
         why = "; ".join(f"{n} {SKIP_REASONS[r]}" for r, n in skipped.items())
         if not images:
             span = "" if poses is None else f"; the poses span {poses[0][0]} to {poses[-1][0]} ns"
