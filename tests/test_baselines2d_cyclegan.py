@@ -122,23 +122,27 @@ class _Interrupt(Exception):
     pass
 
 
-def test_resume_gives_bitwise_the_uninterrupted_weights(unpaired, tmp_path, monkeypatch):
-    root, _ = unpaired
-    config = short_config()
-    whole = train_cyclegan(root / "uneven", root / "even", tmp_path / "whole", config, seed=5, progress=False)
-
+def _train_interrupted(root, out, config, monkeypatch, at_step: int) -> None:
+    """Train into ``out`` with a kill simulated when step ``at_step`` begins (its checkpoint: the last before it)."""
     original_step = CycleGANTrainer.train_step
 
     def interrupted(self, *args, **kwargs):
-        if self.step == 4:
+        if self.step == at_step:
             raise _Interrupt("simulated kill")
         return original_step(self, *args, **kwargs)
 
     monkeypatch.setattr(CycleGANTrainer, "train_step", interrupted)
     with pytest.raises(_Interrupt):
-        train_cyclegan(root / "uneven", root / "even", tmp_path / "resumed", config, seed=5, progress=False)
-    assert load_checkpoint(tmp_path / "resumed" / "checkpoint.safetensors")["step"] == 3
+        train_cyclegan(root / "uneven", root / "even", out, config, seed=5, progress=False)
     monkeypatch.setattr(CycleGANTrainer, "train_step", original_step)
+
+
+def test_resume_gives_bitwise_the_uninterrupted_weights(unpaired, tmp_path, monkeypatch):
+    root, _ = unpaired
+    config = short_config()
+    whole = train_cyclegan(root / "uneven", root / "even", tmp_path / "whole", config, seed=5, progress=False)
+    _train_interrupted(root, tmp_path / "resumed", config, monkeypatch, at_step=4)
+    assert load_checkpoint(tmp_path / "resumed" / "checkpoint.safetensors")["step"] == 3
     resumed = train_cyclegan(root / "uneven", root / "even", tmp_path / "resumed", config, seed=5, progress=False)
 
     a, b = load_checkpoint(whole), load_checkpoint(resumed)
@@ -267,17 +271,7 @@ def test_an_older_versions_torch_checkpoint_is_translated_with_and_resumed_into_
     root, _ = unpaired
     config = short_config()
     whole = train_cyclegan(root / "uneven", root / "even", tmp_path / "whole", config, seed=5, progress=False)
-    original_step = CycleGANTrainer.train_step
-
-    def interrupted(self, *args, **kwargs):
-        if self.step == 3:
-            raise _Interrupt("simulated kill")
-        return original_step(self, *args, **kwargs)
-
-    monkeypatch.setattr(CycleGANTrainer, "train_step", interrupted)
-    with pytest.raises(_Interrupt):
-        train_cyclegan(root / "uneven", root / "even", tmp_path / "old", config, seed=5, progress=False)
-    monkeypatch.setattr(CycleGANTrainer, "train_step", original_step)
+    _train_interrupted(root, tmp_path / "old", config, monkeypatch, at_step=3)
     current = tmp_path / "old" / "checkpoint.safetensors"
     torch.save(load_tree(current, CHECKPOINT_FORMAT), tmp_path / "old" / "checkpoint.pt")  # as older versions wrote
     current.unlink()
