@@ -32,6 +32,10 @@ from .projection import project_gaussians
 from .projection_cpp import project_gaussians_cpp
 
 BACKENDS = ("auto", "cpp", "torch", "gsplat")
+#: The smallest 2D covariance dilation (px²) accepted: below it a needle Gaussian's 2D covariance (condition number
+#: past ~1e7) becomes indefinite in float32, giving NaN gradients (torch) and a wrong image (both backends); at 1e-4
+#: both backends render such a needle as float64 does. Training uses 0.3 (3DGS's).
+MIN_EPS2D = 1e-4
 BACKEND_ENV = "SPOTLESSGS_RASTER_BACKEND"  # forces the CPU backend chosen by "auto": "cpp" or "torch"
 THREADS_ENV = "SPOTLESSGS_NUM_THREADS"  # default thread count of the CPU backends
 _DEPTH_EPS = 1e-10  # alpha below which the expected depth is reported as 0
@@ -246,8 +250,10 @@ def _check_inputs(means, quats, scales, opacities, features, viewmat, K, width, 
         raise ValueError(f"tile_size must be an integer in [1, 64], got {tile_size!r}")
     if not (near > 0 and far > near):
         raise ValueError(f"need 0 < near < far, got near={near!r}, far={far!r}")
-    if not eps2d >= 0:
-        raise ValueError(f"eps2d must be >= 0, got {eps2d!r}")
+    if not MIN_EPS2D <= eps2d < float("inf"):
+        raise ValueError(f"eps2d must be at least {MIN_EPS2D:g} px² and finite, got {eps2d!r} (without the dilation a "
+                         "needle or flat Gaussian's 2D covariance is singular to float32: NaN gradients, and the "
+                         "backends disagree)")
 
 
 __all__ = ["BACKENDS", "BACKEND_ENV", "THREADS_ENV", "RasterOutput", "rasterize", "resolve_backend"]
