@@ -38,6 +38,7 @@ from spotlessgs.io.atomic import atomic_path, remove_partial_files, write_json
 from spotlessgs.io.cameras import Intrinsics
 from spotlessgs.io.colorspace import linear_to_srgb
 from spotlessgs.io.dataset import UNIFORM_GT_DIR
+from spotlessgs.io.dataset_fingerprint import dataset_fingerprint
 from spotlessgs.io.depth_images import DEFAULT_DEPTH_SCALE, MAX_DEPTH_UNITS, write_depth_image
 from spotlessgs.io.exr import FrameEXR, read_frame_exr, write_frame_exr
 from spotlessgs.io.folder_lock import folder_lock
@@ -259,12 +260,18 @@ def add_sensor_noise_to_dataset(data: str | Path, out: str | Path, noise: Sensor
         record["point_cloud"] = False
     if depth_camera is not None:
         record["depth_camera"] = asdict(depth_camera)
+    # which dataset, by its content: `source` (the path) may change with a moved folder and is not compared
+    record["source_fingerprint"] = dataset_fingerprint(meta)
     record = json.loads(json.dumps(record))  # as the file holds it (a lens's distortion tuple reads back as a list)
     record_path = out / NOISE_RECORD
     if record_path.is_file():
         old = read_json(record_path, "a noisy copy's record")
-        if old != record:
-            raise ValueError(f"{out}: holds a noisy copy made with other settings ({old}); use a new folder")
+        compared = (set(old) | set(record)) - {"source"} - ({"source_fingerprint"} - set(old))  # older records
+        differ = sorted(k for k in compared if old.get(k) != record.get(k))
+        if differ:
+            shown = "; ".join(f"{k}: {old.get(k)!r} then, {record.get(k)!r} now" for k in differ)
+            raise ValueError(f"{out}: holds a noisy copy made with other settings or of another dataset ({shown}); "
+                             "use a new folder, or delete this one to make it again")
     refuse_foreign_folder(out, [NOISE_RECORD], "--out", "a noisy copy this command began")
     frames = []
     for index, frame in enumerate(meta.frames()):

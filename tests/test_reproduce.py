@@ -323,8 +323,15 @@ def test_rerun_skips_everything_and_redoes_an_interrupted_stage(tiny_run):
     assert redo.retried == [stage] and redo.ran == [stage, "report"]
     assert json.loads((out / "results.json").read_text())["datasets"]["bedroom-saturated"]["input"] == before
 
+    # A deleted report is written again (it was reported as written, and stayed missing)
+    report = (out / "REPORT.md").read_text()
+    (out / "REPORT.md").unlink()
+    redo = reproduce(config, out, jobs=2)
+    assert redo.ran == ["report"] and (out / "REPORT.md").read_text().split("## Stage times")[0] == \
+        report.split("## Stage times")[0]
+
 
 def test_other_settings_are_refused(tiny_run):
     out, _, _ = tiny_run
-    with pytest.raises(ValueError, match=r"made with other settings \(differing: \['seed'\]\)"):
+    with pytest.raises(ValueError, match=r"made with other settings \(seed: 0 then, 1 now\)"):
         reproduce(preset("tiny", seed=1), out)

@@ -71,9 +71,9 @@ def test_folder_from_before_the_new_fields_resumes(tmp_path):
                 if k not in NEUTRAL_NEW_FIELDS}
     write_json(tmp_path / "reproduce.json", recorded)
     check_or_record_config(preset("tiny"), tmp_path)
-    with pytest.raises(ValueError, match=r"differing: \['extra_seeds'\]"):
+    with pytest.raises(ValueError, match=r"\(extra_seeds: not recorded then, \[1\] now\)"):
         check_or_record_config(preset("tiny", extra_seeds=(1,)), tmp_path)
-    with pytest.raises(ValueError, match=r"differing: \['seed'\]"):
+    with pytest.raises(ValueError, match=r"\(seed: 0 then, 2 now\)"):
         check_or_record_config(preset("tiny", seed=2), tmp_path)
 
 

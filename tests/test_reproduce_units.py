@@ -182,7 +182,7 @@ def test_cli_reports_refused_folder_and_bad_options(tmp_path):
 
     check_or_record_config(preset("tiny", seed=5), tmp_path)
     result = CliRunner().invoke(main, ["reproduce", "--preset", "tiny", "--out", str(tmp_path)])
-    assert result.exit_code == 2 and "made with other settings (differing: ['seed'])" in result.output
+    assert result.exit_code == 2 and "made with other settings (seed: 5 then, 0 now)" in result.output
     result = CliRunner().invoke(main, ["reproduce", "--preset", "tiny", "--out", str(tmp_path), "--scenes", "bedroom",
                                        "--scenes", "office", "--scenes", "living_room", "--scenes", "storage_room",
                                        "--scenes", "corridor"])
@@ -200,13 +200,13 @@ def test_curve_milestones():
 def test_config_fingerprint_refuses_other_settings(tmp_path):
     check_or_record_config(preset("tiny"), tmp_path)
     check_or_record_config(preset("tiny"), tmp_path)  # same settings: fine
-    with pytest.raises(ValueError, match=r"made with other settings \(differing: \['seed'\]\)"):
+    with pytest.raises(ValueError, match=r"made with other settings \(seed: 0 then, 3 now\)"):
         check_or_record_config(preset("tiny", seed=3), tmp_path)
     # the rooms read from another checkout: a location, not a setting (render stages check the rooms' content)
     moved = preset("tiny", scenes_dir=tmp_path / "elsewhere" / "scenes")
     check_or_record_config(moved, tmp_path)
     assert json.loads((tmp_path / "reproduce.json").read_text())["scenes_dir"] == str(moved.scenes_dir)
-    with pytest.raises(ValueError, match=r"differing: \['seed'\]"):  # still refused together with another setting
+    with pytest.raises(ValueError, match=r"settings \(seed: 0 then, 3 now\)"):  # still refused beside another change
         check_or_record_config(preset("tiny", scenes_dir=moved.scenes_dir, seed=3), tmp_path)
 
 
@@ -944,3 +944,20 @@ def test_a_stopped_pipeline_stops_its_workers_without_a_traceback(tmp_path, sign
         os.kill(worker, signal.SIGKILL)
         pytest.fail("the worker outlived the stopped pipeline")
     assert not is_done(tmp_path / "root", "s")
+
+
+def test_the_relight_process_measures_its_own_peak_memory_not_its_parents():
+    """ru_maxrss is carried over from the parent across fork and exec: the relit peak memory column repeated the
+    training process's peak in every row. VmHWM starts afresh with the process."""
+    import resource
+    import subprocess
+    import sys
+
+    import numpy as np
+
+    ballast = np.ones(300 * 2**20 // 8)  # 300 MiB touched in this (the parent) process
+    parent_peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
+    code = "from spotlessgs.experiments.reproduce.relight_process import _peak_rss_mb; print(_peak_rss_mb())"
+    child_peak = float(subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                                      check=True).stdout)
+    assert ballast.sum() > 0 and parent_peak > 300 and child_peak < parent_peak - 200, (parent_peak, child_peak)

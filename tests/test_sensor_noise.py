@@ -116,8 +116,20 @@ def test_noisy_copy_refuses_bad_folders(tmp_path):
     with pytest.raises(ValueError, match=r"not a finished dataset \(no transforms.json\)"):
         add_sensor_noise_to_dataset(tmp_path / "missing", tmp_path / "o", SensorNoise())
     add_sensor_noise_to_dataset(src, tmp_path / "o2", SensorNoise(0.01, 0.01))
-    with pytest.raises(ValueError, match="made with other settings"):
+    with pytest.raises(ValueError, match=r"made with other settings or of another dataset \(shot: 0\.01 then, 0\.02 "
+                                         r"now\)"):
         add_sensor_noise_to_dataset(src, tmp_path / "o2", SensorNoise(0.02, 0.01))
+    # the source and its copy moved together (a reproduction folder moved to another disk): the same settings
+    import shutil
+
+    shutil.copytree(src, tmp_path / "moved" / "clean")
+    shutil.copytree(tmp_path / "o2", tmp_path / "moved" / "o2")
+    assert add_sensor_noise_to_dataset(tmp_path / "moved" / "clean", tmp_path / "moved" / "o2",
+                                       SensorNoise(0.01, 0.01)) == 0
+    other = tmp_path / "other"  # another dataset into the same copy: refused by its content
+    _dataset(other, frames=3)
+    with pytest.raises(ValueError, match=r"source_fingerprint"):
+        add_sensor_noise_to_dataset(other, tmp_path / "o2", SensorNoise(0.01, 0.01))
     meta = json.loads((src / "transforms.json").read_text())
     meta["frames"][1].pop("exr_file_path", None)
     (src / "transforms.json").write_text(json.dumps(meta))

@@ -37,6 +37,7 @@ from spotlessgs.experiments.reproduce.config import (
 )
 from simulator.render_many import RENDER_MEMORY_MB
 from spotlessgs.jobs import ExecutorSpec, RunReport, Stage, StageGraph, StageResources, execute
+from spotlessgs.jobs.graph import marker_path
 from spotlessgs.training.config import PRESETS as TRAIN_PRESETS
 from spotlessgs.run import AUTO
 
@@ -164,6 +165,10 @@ def build_graph(config: ReproduceConfig, out: Path) -> StageGraph:
     return StageGraph(stages)
 
 
+#: What the report stage writes into OUT besides figures/: a rerun writes the report again when one is missing.
+REPORT_FILES = ("REPORT.md", "results.json")
+
+
 def check_or_record_config(config: ReproduceConfig, out: Path) -> None:
     """Write ``OUT/reproduce.json``, or refuse (ValueError naming the differing fields) a folder made with another
     config, and (InputError) a folder with files but no ``reproduce.json``: another tool's, or a reproduction whose
@@ -178,7 +183,11 @@ def check_or_record_config(config: ReproduceConfig, out: Path) -> None:
         old.update({k: wanted[k] for k in NEUTRAL_NEW_FIELDS if k not in old and wanted[k] == defaults[k]})
         fields = sorted(k for k in set(old) | set(wanted) if k != "scenes_dir" and old.get(k) != wanted.get(k))
         if fields:
-            raise ValueError(f"{path}: this folder was made with other settings (differing: {fields}); "
+            fields.sort(key=lambda k: k != "preset")  # a preset changes many fields: named first
+            shown = "; ".join(f"{k}: {repr(old[k]) if k in old else 'not recorded'} then, {wanted.get(k)!r} now"
+                              for k in fields[:4])
+            more = f"; and {len(fields) - 4} more: {fields[4:]}" if len(fields) > 4 else ""
+            raise ValueError(f"{path}: this folder was made with other settings ({shown}{more}); "
                              "use a new --out or the same settings")
         if old.get("scenes_dir") != wanted["scenes_dir"]:
             write_json(path, wanted)
@@ -208,4 +217,6 @@ def reproduce(config: ReproduceConfig, out: str | Path, jobs: int = 1,
     graph = build_graph(config, out)  # checks the rooms exist before anything is written
     with folder_lock(out, "spotless reproduce"):  # a second reproduce into OUT would delete the stages this one runs
         check_or_record_config(config, out)
+        if not all((out / name).is_file() for name in REPORT_FILES):  # deleted or never written: written again
+            marker_path(out, "report").unlink(missing_ok=True)
         return execute(graph, out, executor)

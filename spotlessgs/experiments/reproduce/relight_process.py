@@ -1,8 +1,8 @@
 """Relight a run in a fresh process and record that process's peak memory (run by the train stage as a subprocess).
 
 Usage: ``python -m spotlessgs.experiments.reproduce.relight_process RUN_DIR WHICH OUT_DIR SUMMARY_JSON``. The summary is
-render_run's (views, fps, ...) plus ``peak_rss_mb`` (ru_maxrss of this process: imports, loading the run and
-rendering every view) and ``baseline_rss_mb`` (resident memory right after importing torch and the renderer, before
+render_run's (views, fps, ...) plus ``peak_rss_mb`` (VmHWM of this process: imports, loading the run and
+rendering every view; not ru_maxrss, which Linux carries over from the training process that started this one) and ``baseline_rss_mb`` (resident memory right after importing torch and the renderer, before
 loading the run). Importing torch has a transient peak of its own, so for small models the peak can be the import's.
 """
 
@@ -15,20 +15,29 @@ from pathlib import Path
 from spotlessgs.io.atomic import write_json
 
 
+def _status_mb(field: str) -> float | None:
+    """A memory field of /proc/self/status (``VmRSS``, ``VmHWM``), MiB; None where /proc is unavailable."""
+    try:
+        for line in Path("/proc/self/status").read_text(encoding="ascii").splitlines():
+            if line.startswith(f"{field}:"):
+                return int(line.split()[1]) / 1024.0
+    except (OSError, ValueError, IndexError):
+        pass
+    return None
+
+
 def _peak_rss_mb() -> float:
-    """Peak resident set size of this process so far (ru_maxrss), MiB."""
-    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
+    """Peak resident set size of this process so far, MiB: Linux's VmHWM, which starts afresh with the process
+    (ru_maxrss is carried over from the parent across fork and exec: the training process's peak); ru_maxrss
+    elsewhere."""
+    peak = _status_mb("VmHWM")
+    return peak if peak is not None else resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
 
 
 def _current_rss_mb() -> float:
     """Current resident set size (Linux VmRSS), MiB; the peak so far where /proc is unavailable."""
-    try:
-        for line in Path("/proc/self/status").read_text(encoding="ascii").splitlines():
-            if line.startswith("VmRSS:"):
-                return int(line.split()[1]) / 1024.0
-    except (OSError, ValueError, IndexError):
-        pass
-    return _peak_rss_mb()
+    current = _status_mb("VmRSS")
+    return current if current is not None else _peak_rss_mb()
 
 
 def main(argv: list[str] | None = None) -> int:
