@@ -961,3 +961,18 @@ def test_the_relight_process_measures_its_own_peak_memory_not_its_parents():
     child_peak = float(subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
                                       check=True).stdout)
     assert ballast.sum() > 0 and parent_peak > 300 and child_peak < parent_peak - 200, (parent_peak, child_peak)
+
+
+def test_the_report_says_where_and_with_how_many_threads_the_stages_ran(tmp_path):
+    """A folder resumed with another --jobs mixed thread counts, and the report never said so (its numbers depend on
+    the thread count, its times on the machine)."""
+    from spotlessgs.experiments.reproduce.report import _machine_lines
+
+    write_marker(tmp_path, "a", {"result": {}, "seconds": 1.0, "threads": 1, "host": "node1", "deps": []})
+    write_marker(tmp_path, "report", {"result": {}, "seconds": 1.0, "threads": 4, "host": "other", "deps": []})
+    lines = _machine_lines(tmp_path)
+    assert lines[0].startswith("Threads per stage: 1; host(s): node1; this report written on ")
+    assert not any("Mixed" in line for line in lines)  # the report's own marker does not count
+    write_marker(tmp_path, "b", {"result": {}, "seconds": 1.0, "threads": 2, "host": "node1", "deps": []})
+    lines = _machine_lines(tmp_path)
+    assert lines[0].startswith("Threads per stage: 1, 2; host(s): node1") and lines[1].startswith("**Mixed**")

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import os
+import platform
 from pathlib import Path
 from typing import Any
 
@@ -78,19 +80,40 @@ def _seed_result(out: Path, ds: str, method: str, seed: int, config: ReproduceCo
     return {"seed": seed, "metrics": result["metrics"], "train": result["train"]}
 
 
-def _stage_times(out: Path) -> dict[str, float]:
-    """Wall time of every finished stage (from the markers)."""
-    times = {}
+def _stage_markers(out: Path) -> dict[str, dict[str, Any]]:
+    """The marker of every finished stage but the report's, by stage name."""
+    markers = {}
     for path in sorted((Path(out) / MARKER_DIR).rglob("*.json")):
         name = str(path.relative_to(Path(out) / MARKER_DIR))[: -len(".json")]
         if name != "report" and PARTIAL_MARK not in path.name:
-            times[name] = float(read_marker(out, name).get("seconds", 0.0))
-    return times
+            markers[name] = read_marker(out, name)
+    return markers
+
+
+def _stage_times(out: Path) -> dict[str, float]:
+    """Wall time of every finished stage (from the markers)."""
+    return {name: float(marker.get("seconds", 0.0)) for name, marker in _stage_markers(out).items()}
+
+
+def _machine_lines(out: Path) -> list[str]:
+    """Where and with how many threads the stages ran (from the markers), with a warning when a resumed folder mixes
+    thread counts or hosts: a run's numbers depend on its thread count, its times on its machine."""
+    markers = _stage_markers(out).values()
+    threads = sorted({m["threads"] for m in markers if isinstance(m.get("threads"), int)})
+    hosts = sorted({str(m["host"]) for m in markers if m.get("host")})
+    lines = [f"Threads per stage: {', '.join(map(str, threads)) or 'not recorded'}; host(s): "
+             f"{', '.join(hosts) or 'not recorded'}; this report written on {platform.node()} "
+             f"({os.cpu_count()} cores, {platform.machine()})."]
+    if len(threads) > 1 or len(hosts) > 1:
+        lines.append("**Mixed**: the stages ran with different thread counts or on different hosts (a resumed folder): "
+                     "the numbers of runs made with different thread counts differ in their last digits, and their "
+                     "times are not comparable.")
+    return lines + [""]
 
 
 def render_markdown(config: ReproduceConfig, tables: list[Table], notes: list[Agreement], figures: dict[str, str],
-                    stage_times: dict[str, float]) -> str:
-    """The text of REPORT.md."""
+                    stage_times: dict[str, float], machine_lines: list[str] | None = None) -> str:
+    """The text of REPORT.md (``machine_lines``: :func:`_machine_lines`, under the stage times)."""
     lines = [
         "# SpotlessGS reproduction report", "",
         f"Preset `{config.preset}`: rooms {', '.join(config.scenes)}; variants {', '.join(config.variants)}"
@@ -130,7 +153,8 @@ def render_markdown(config: ReproduceConfig, tables: list[Table], notes: list[Ag
     for title, rel in figures.items():
         lines += [f"**{title}**", "", f"![{title}]({rel})", ""]
     total = sum(stage_times.values())
-    lines += ["## Stage times", "", f"Sum of stage wall times: {total:.1f} s (stages run in parallel overlap).", "",
+    lines += ["## Stage times", "", *(machine_lines or []),
+              f"Sum of stage wall times: {total:.1f} s (stages run in parallel overlap).", "",
               "| Stage | Seconds |", "|---|---|"]
     lines += [f"| {name} | {sec:.1f} |" for name, sec in stage_times.items()]
     return "\n".join(lines) + "\n"
@@ -174,7 +198,7 @@ def write_report(out: Path) -> dict[str, Any]:
         "provenance": provenance(seed=config.seed),
     }
     write_json(out / RESULTS_FILE, results)
-    write_text(out / REPORT_FILE, render_markdown(config, tables, notes, figures, stage_times))
+    write_text(out / REPORT_FILE, render_markdown(config, tables, notes, figures, stage_times, _machine_lines(out)))
     return {"report": str(out / REPORT_FILE), "results": str(out / RESULTS_FILE),
             "figures": [str(out / f) for f in sorted(figures.values())]}
 
