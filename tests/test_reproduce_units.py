@@ -566,6 +566,8 @@ def test_runtime_table_has_model_chosen_gaussians_and_selection_time():
     assert rows["SpotlessGS auto (selection + budget)"][2:7] == ["auto-sh1-lambert", 60, 14.0, 4.0, 5.0]
     assert rows["SpotlessGS (ours)"][2:7] == ["spotless (sh3+mlp)", 100, 10.0, None, 5.0]  # no selection: n/a
     assert rows["DarkGS + SH light"][2:4] == ["darkgs+sh (sh3+lambert)", 140]
+    # each row its own run's model and Gaussians: the plain DarkGS row showed the calibrated (better) run's
+    assert rows["DarkGS"][2:4] == ["darkgs (const+lambert)", 120] and rows["DarkGS"][7] == 300.0
     assert rows["CLAHE"][2:5] == [None, None, None] and rows["Cycle-GAN"][4] == 30.0
     assert all(len(r) == len(t.columns) for r in t.rows)
     md = t.markdown()
