@@ -274,10 +274,21 @@ def _read_plan(plan_path: Path) -> tuple[dict[str, Any], dict[str, Any]]:
     return plan, plan["fingerprint"] if isinstance(plan.get("fingerprint"), dict) else {}
 
 
+def rendered_scene_sha256(out_dir: Path) -> str | None:
+    """The sha256 of the house file the dataset in ``out_dir`` was rendered from (its plan.json), or None where it
+    has no plan or its plan does not record one."""
+    plan_path = Path(out_dir) / PLAN_FILE
+    if not plan_path.is_file():
+        return None
+    found = _read_plan(plan_path)[1].get("scene_sha256")
+    return found if isinstance(found, str) else None
+
+
 def check_plan_settings(out_dir: Path, scene_path: Path, config: RenderConfig) -> None:
     """DatasetFolderError when ``out_dir`` holds a plan.json made from another scene file or with other settings,
-    InputError when it holds files but no plan.json (another tool's folder) (nothing when it is absent or empty; the room as loaded is compared when the dataset renders): for a job that checks its
-    datasets before it runs any task (``spotless-sim render-many``, whose finished tasks a rerun skips)."""
+    InputError when it holds files but no plan.json (another tool's folder); nothing when it is absent or empty (the
+    room as loaded is compared when the dataset renders): for a job that checks its datasets before it runs any task
+    (``spotless-sim render-many``, whose finished tasks a rerun skips)."""
     refuse_foreign_folder(out_dir, [PLAN_FILE], "--out", "a dataset this renderer began")
     plan_path = Path(out_dir) / PLAN_FILE
     if plan_path.is_file():

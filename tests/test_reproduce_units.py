@@ -210,6 +210,35 @@ def test_config_fingerprint_refuses_other_settings(tmp_path):
         check_or_record_config(preset("tiny", scenes_dir=moved.scenes_dir, seed=3), tmp_path)
 
 
+def test_other_scenes_are_taken_only_when_their_rooms_are_the_rendered_ones(tmp_path):
+    """A --scenes-dir whose bedroom differs from the one the folder's datasets were rendered from was recorded, and
+    the finished renders skipped: results credited to rooms never rendered."""
+    import shutil
+
+    from spotlessgs.io.provenance import sha256_file
+
+    config = preset("tiny")
+    out = tmp_path / "out"
+    check_or_record_config(config, out)
+    room = config.scenes[0]
+    dataset = out / "datasets" / f"{room}-uneven"
+    dataset.mkdir(parents=True)
+    (dataset / "plan.json").write_text(json.dumps({"fingerprint": {
+        "scene_sha256": sha256_file(config.scene_file(room))}, "poses": []}))
+    same = tmp_path / "same"
+    shutil.copytree(config.scenes_dir, same)
+    check_or_record_config(preset("tiny", scenes_dir=same), out)  # a copy of the same rooms: taken
+    assert json.loads((out / "reproduce.json").read_text())["scenes_dir"] == str(same)
+    changed = tmp_path / "changed"
+    shutil.copytree(config.scenes_dir, changed)
+    house = changed / room / "house.json"
+    house.write_text(house.read_text() + "\n")  # another file: one more byte
+    with pytest.raises(ValueError, match=rf"{room}/house\.json: differs from the room .*{room}-uneven was rendered "
+                                         r"from"):
+        check_or_record_config(preset("tiny", scenes_dir=changed), out)
+    assert json.loads((out / "reproduce.json").read_text())["scenes_dir"] == str(same)
+
+
 def test_a_reproduction_folder_without_its_settings_or_with_damaged_state_is_refused_in_one_line(tmp_path):
     """An --out of another tool's files, or a reproduction whose reproduce.json is gone (its finished stages were
     made under unknown settings), is refused with nothing written; a damaged reproduce.json names itself; a damaged

@@ -36,6 +36,8 @@ from spotlessgs.experiments.reproduce.config import (
     ReproduceConfig, dataset_id, train_stage,
 )
 from simulator.render_many import RENDER_MEMORY_MB
+from simulator.render_pipeline import rendered_scene_sha256
+from spotlessgs.io.provenance import sha256_file
 from spotlessgs.jobs import ExecutorSpec, RunReport, Stage, StageGraph, StageResources, execute
 from spotlessgs.jobs.graph import marker_path
 from spotlessgs.training.config import PRESETS as TRAIN_PRESETS
@@ -173,7 +175,8 @@ def check_or_record_config(config: ReproduceConfig, out: Path) -> None:
     """Write ``OUT/reproduce.json``, or refuse (ValueError naming the differing fields) a folder made with another
     config, and (InputError) a folder with files but no ``reproduce.json``: another tool's, or a reproduction whose
     finished stages were made under unknown settings. ``scenes_dir`` is where the rooms are read from, not a setting:
-    another path (a moved or second checkout) is recorded, and each render stage checks that its room's content is the one it rendered (simulator render plans
+    another path (a moved or second checkout) is recorded once its rooms are checked to be the ones the folder's
+    datasets were rendered from (their plan.json's sha256 of each house file), and each render stage checks that its room's content is the one it rendered (simulator render plans
     identify the scene by its sha256)."""
     path = Path(out) / CONFIG_FILE
     wanted = json.loads(json.dumps(config.to_dict()))
@@ -190,11 +193,26 @@ def check_or_record_config(config: ReproduceConfig, out: Path) -> None:
             raise ValueError(f"{path}: this folder was made with other settings ({shown}{more}); "
                              "use a new --out or the same settings")
         if old.get("scenes_dir") != wanted["scenes_dir"]:
+            _check_same_rooms(config, Path(out))  # finished renders are skipped: their rooms must be these
             write_json(path, wanted)
         return
     # another tool's folder, or a reproduction whose settings file is gone: its stages' settings are unknown
     refuse_foreign_folder(out, [CONFIG_FILE], "--out", "a reproduction of known settings", count_hidden=[".stages"])
     write_json(path, wanted)
+
+
+def _check_same_rooms(config: ReproduceConfig, out: Path) -> None:
+    """ValueError naming the room and the dataset when a house file under the (new) ``config.scenes_dir`` differs
+    from the one a dataset of ``out`` was rendered from (its plan.json's sha256): the finished render stages would be
+    skipped and the folder's results credited to rooms that were never rendered."""
+    rooms = [(room, dataset_id(room, variant)) for room, variant in config.datasets()]
+    rooms += [(room, f"gan-{room}") for room in config.gan_rooms if "cyclegan" in config.baselines]
+    for room, ds in rooms:
+        recorded = rendered_scene_sha256(out / "datasets" / ds)
+        scene = Path(config.scenes_dir) / room / "house.json"
+        if recorded is not None and scene.is_file() and sha256_file(scene) != recorded:
+            raise ValueError(f"{scene}: differs from the room {out / 'datasets' / ds} was rendered from; use the "
+                             "scenes this folder was made with (--scenes-dir) or a new --out")
 
 
 def reproduce(config: ReproduceConfig, out: str | Path, jobs: int = 1,
