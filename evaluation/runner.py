@@ -38,7 +38,8 @@ from evaluation.plots import save_image_grid, save_trajectory_plot
 from evaluation.report import write_markdown, write_results_json
 from evaluation.sfm import SfmConfig, SfmResult, run_sfm
 from evaluation.temporal import (
-    PosedFrame, excess_flicker, exposure_leak, sequence_flicker, temporal_scores, warped_temporal_scores,
+    PAIR_PSNR_CAP_DB, PosedFrame, excess_flicker, exposure_leak, sequence_flicker, temporal_scores,
+    warped_temporal_scores,
 )
 from spotlessgs.io.cameras import Intrinsics, opengl_to_opencv_c2w
 from spotlessgs.io.dataset import GROUND_TRUTHS
@@ -262,6 +263,9 @@ def temporal_block(
             where = f"{paths[int(pair[1])]} and {paths[int(pair[2])].name}" if pair else str(Path(paths[0]).parent)
             raise InputError(f"{where}: temporal {label}: {exc}") from None
         out = {"tmp_psnr": plain.mean_psnr, "tmp_ssim": plain.mean_ssim, "tmp_flicker": plain.flicker}
+        if plain.identical_pairs:
+            log.info("temporal %s: %d of %d consecutive pairs are identical, each counted as %g dB", label,
+                     plain.identical_pairs, len(plain.psnr), PAIR_PSNR_CAP_DB)
         # one camera (the frames of several cameras are not warped); a lens warps through OpenCV's camera model
         if (posed is not None and posed.intrinsics is not None
                 and all(f.depth_path is not None for f in posed.frames)):

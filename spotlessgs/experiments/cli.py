@@ -51,14 +51,20 @@ def refuse_dedicated_settings(settings: tuple[tuple[str, Any], ...], **options: 
         raise click.UsageError(f"{', '.join(clash)}: this setting has its own option, which the report prints")
 
 
+def _name_list(value: str, allowed: tuple[str, ...]) -> tuple[tuple[str, ...], list[str], list[str]]:
+    """A comma-separated option value: (its names, those not in ``allowed``, those given more than once)."""
+    names = tuple(v.strip() for v in value.split(",") if v.strip())
+    return names, [n for n in names if n not in allowed], sorted({n for n in names if names.count(n) > 1})
+
+
 def row_names(rows: str | None, allowed: tuple[str, ...]) -> tuple[str, ...]:
     """The rows a ``--rows`` value names (comma-separated; None: every row of ``allowed``, in order);
     click.BadParameter naming the unknown ones."""
-    names = allowed if rows is None else tuple(r.strip() for r in rows.split(",") if r.strip())
-    unknown = [r for r in names if r not in allowed]
+    if rows is None:
+        return allowed
+    names, unknown, repeated = _name_list(rows, allowed)
     if unknown:
         raise click.BadParameter(f"unknown rows {unknown}; choose from {list(allowed)}", param_hint="--rows")
-    repeated = sorted({r for r in names if names.count(r) > 1})
     if repeated or not names:  # a row twice printed it twice; no row replaced a finished table with an empty one
         problem = f"rows {repeated} given twice" if repeated else "no row named"
         raise click.BadParameter(f"{problem}; choose from {list(allowed)}", param_hint="--rows")
@@ -74,9 +80,7 @@ def benchmark() -> None:
 def _variant_names(_ctx, _param, value: str) -> tuple[str, ...]:
     """``--variants`` as a tuple of model names (BadParameter naming unknown, repeated or no names, before anything
     trains: an unknown name used to fail only when its turn came, after the others had trained)."""
-    names = tuple(v.strip() for v in value.split(",") if v.strip())
-    unknown = [n for n in names if n not in VARIANTS]
-    repeated = sorted({n for n in names if names.count(n) > 1})
+    names, unknown, repeated = _name_list(value, VARIANTS)
     if not names or unknown or repeated:
         problem = (f"unknown {unknown}" if unknown else f"repeated {repeated}" if repeated else "no names")
         raise click.BadParameter(f"{value!r}: {problem}; choose from {', '.join(VARIANTS)}")

@@ -276,15 +276,13 @@ def read_bag(bag: str | Path, image_topic: str, camera_info_topic: str | None = 
             log.warning("%s: %s places the frame %r, the images are in %r: the poses are used as the camera's "
                         "(OpenCV axes) as they are, with no transform between the two; give the odometry of the "
                         "camera's optical frame", bag, pose_topic, posed_frame, image_frame)
-        why = "; ".join(f"{n} {SKIP_REASONS[r]}" for r, n in skipped.items())
         if not images:
             span = "" if poses is None else f"; the poses span {poses[0][0]} to {poses[-1][0]} ns"
-            raise InputError(f"{bag}: no frame of {image_topic!r} was kept ({why}{span})")
+            raise InputError(f"{bag}: no frame of {image_topic!r} was kept ({_skip_text(skipped)}{span})")
         unexpected = {r: n for r, n in skipped.items() if r not in ("subsampled", "not_moved")}
         if unexpected:  # not what the user asked for: said, with the reason
             log.warning("%s: %s: %d of %d frames left out: %s", bag, image_topic, sum(unexpected.values()),
-                        len(images) + sum(skipped.values()),
-                        "; ".join(f"{n} {SKIP_REASONS[r]}" for r, n in unexpected.items()))
+                        len(images) + sum(skipped.values()), _skip_text(unexpected))
         _check_frame_sizes(images, stamps, intrinsics, f"{bag}: {image_topic}", camera_info_topic)
         depths = None
         if depth_topic is not None:
@@ -299,6 +297,11 @@ def read_bag(bag: str | Path, image_topic: str, camera_info_topic: str | None = 
         reader.close()
     return BagFrames(np.array(stamps, dtype=np.int64), images, intrinsics, np.stack(c2w) if poses else None,
                      sum(skipped.values()), depths, skipped)
+
+
+def _skip_text(counts: dict[str, int]) -> str:
+    """How many frames each reason left out, in words (:data:`SKIP_REASONS`)."""
+    return "; ".join(f"{n} {SKIP_REASONS[r]}" for r, n in counts.items())
 
 
 def _matched_depths(reader, conns, stamps: list[int], where: str) -> list[np.ndarray]:

@@ -4,9 +4,9 @@ Domain a = uneven, domain b = even. Per step (Zhu et al. 2017): generators first
 lambda * lambda_identity * identity L1, discriminators frozen), then discriminators (0.5 * LSGAN on real and pooled
 fake images). Adam for each pair; constant learning rate, then a linear decay to zero.
 
-Output folder: ``checkpoint.safetensors`` (latest good state, rewritten atomically every ``checkpoint_every`` steps and at
-the end), ``metrics.jsonl`` (one JSON record per ``log_every`` steps, rewritten with each checkpoint so it never runs
-ahead of it) and ``provenance.json``. Calling ``train_cyclegan`` again on the same folder continues from the
+Output folder: ``checkpoint.safetensors`` (latest good state, rewritten atomically every ``checkpoint_every`` steps
+and at the end), ``metrics.jsonl`` (one JSON record per ``log_every`` steps, rewritten with each checkpoint so it
+never runs ahead of it) and ``provenance.json``. Calling ``train_cyclegan`` again on the same folder continues from the
 checkpoint and gives bitwise the weights of an uninterrupted run (same thread count).
 """
 

@@ -176,8 +176,8 @@ def check_or_record_config(config: ReproduceConfig, out: Path) -> None:
     config, and (InputError) a folder with files but no ``reproduce.json``: another tool's, or a reproduction whose
     finished stages were made under unknown settings. ``scenes_dir`` is where the rooms are read from, not a setting:
     another path (a moved or second checkout) is recorded once its rooms are checked to be the ones the folder's
-    datasets were rendered from (their plan.json's sha256 of each house file), and each render stage checks that its room's content is the one it rendered (simulator render plans
-    identify the scene by its sha256)."""
+    datasets were rendered from (their plan.json's sha256 of each house file), and each render stage checks that its
+    room's content is the one it rendered (simulator render plans identify the scene by its sha256)."""
     path = Path(out) / CONFIG_FILE
     wanted = json.loads(json.dumps(config.to_dict()))
     if path.is_file():
@@ -209,7 +209,7 @@ def _check_same_rooms(config: ReproduceConfig, out: Path) -> None:
     rooms += [(room, f"gan-{room}") for room in config.gan_rooms if "cyclegan" in config.baselines]
     for room, ds in rooms:
         recorded = rendered_scene_sha256(out / "datasets" / ds)
-        scene = Path(config.scenes_dir) / room / "house.json"
+        scene = Path(config.scenes_dir) / room / "house.json"  # not scene_file: a missing room is build_graph's to name
         if recorded is not None and scene.is_file() and sha256_file(scene) != recorded:
             raise ValueError(f"{scene}: differs from the room {out / 'datasets' / ds} was rendered from; use the "
                              "scenes this folder was made with (--scenes-dir) or a new --out")

@@ -1,9 +1,10 @@
 """Relight a run in a fresh process and record that process's peak memory (run by the train stage as a subprocess).
 
 Usage: ``python -m spotlessgs.experiments.reproduce.relight_process RUN_DIR WHICH OUT_DIR SUMMARY_JSON``. The summary is
-render_run's (views, fps, ...) plus ``peak_rss_mb`` (VmHWM of this process: imports, loading the run and
-rendering every view; not ru_maxrss, which Linux carries over from the training process that started this one) and ``baseline_rss_mb`` (resident memory right after importing torch and the renderer, before
-loading the run). Importing torch has a transient peak of its own, so for small models the peak can be the import's.
+render_run's (views, fps, ...) plus ``peak_rss_mb`` (VmHWM of this process: imports, loading the run and rendering
+every view; not ru_maxrss, which Linux carries over from the training process that started this one) and
+``baseline_rss_mb`` (resident memory right after importing torch and the renderer, before loading the run).
+Importing torch has a transient peak of its own, so for small models the peak can be the import's.
 """
 
 from __future__ import annotations
